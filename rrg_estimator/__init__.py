@@ -1,0 +1,1 @@
+"""rrg_estimator."""
