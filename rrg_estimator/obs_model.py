@@ -1,0 +1,181 @@
+"""The observation model P(o | w, τ(e)) (DESIGN §5) on top of the offline observation tables.
+
+An observation made by τ(e) with the object at w depends only on the relative offset
+Δ = e⁻¹ ⊕ w (paper, Fig. 3), so the likelihood of every belief state is read from the
+WRT's table at the entry nearest to its offset (``table_indices``).
+
+The likelihood of one table entry is the product of
+  * contact agreement: 1 - p_contact_mismatch, or p_contact_mismatch;
+  * where the hand stopped: exp(-½((p_o - p_t)/σ_progress)²) when both report an early
+    contact (when neither does, both stopped at the path's end and the term is 1);
+  * each of the 10 sensors: p_detect / 1 - p_detect when contact on it was predicted,
+    p_false_alarm / 1 - p_false_alarm when it was not (fired / silent);
+  * exp(-½((c_o - c_t)/σ_closure)²) per finger closure angle;
+  * exp(-½(|x_o - x_t|/σ_tip)²) per fingertip contact point present on both sides
+    (a point present on one side only is already judged by that tip's sensor term);
+and is then floored: L' = (1 - ε)·L + ε with ε = LIKELIHOOD.floor, so no single
+observation can rule out a state (the true state survives a surprising reading, e.g.
+from unmodelled dynamics, and later observations can bring it back).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from rrg_sim.config import LIKELIHOOD, N_SENSORS, LikelihoodParams
+from rrg_sim.grid import Grid
+from rrg_sim.observation import Observation
+from rrg_sim.poses import wrap_angle
+
+
+class TableLike(Protocol):
+    """The fields of rrg_estimator.obs_tables.ObservationTable the estimator reads."""
+
+    grid: Grid
+    path_length: float
+    contact: np.ndarray  # (N,) bool
+    progress: np.ndarray  # (N,) m
+    sensors: np.ndarray  # (N,10) bool
+    closure: np.ndarray  # (N,3) rad
+    tip_points: np.ndarray  # (N,3,3) m, hand frame, NaN = no contact
+    motion_dir: np.ndarray  # (N,3) in the estimate's frame
+
+
+@dataclass(frozen=True, eq=False)
+class ObsFeatures:
+    """M observations in table-comparable form.
+
+    contact (M,) bool; progress (M,) float32 m; sensors (M,10) bool; closure (M,3) float32
+    rad; tip_points (M,3,3) float32 m in the hand frame (NaN rows = no contact);
+    motion_dir (M,3) float32: the hand's motion at the stop in the frame of the estimate e
+    the WRT ran relative to (as the tables store it; NaN when unknown).
+    """
+
+    contact: np.ndarray
+    progress: np.ndarray
+    sensors: np.ndarray
+    closure: np.ndarray
+    tip_points: np.ndarray
+    motion_dir: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.contact)
+
+    def take(self, rows) -> "ObsFeatures":
+        """The features of the given rows."""
+        rows = np.atleast_1d(np.asarray(rows, dtype=np.int64))
+        return ObsFeatures(*(getattr(self, f)[rows] for f in
+                             ("contact", "progress", "sensors", "closure", "tip_points", "motion_dir")))
+
+
+def _features(contact, progress, sensors, closure, tip_points, motion_dir) -> ObsFeatures:
+    return ObsFeatures(
+        contact=np.asarray(contact, dtype=bool).reshape(-1),
+        progress=np.asarray(progress, dtype=np.float32).reshape(-1),
+        sensors=np.asarray(sensors, dtype=bool).reshape(-1, N_SENSORS),
+        closure=np.asarray(closure, dtype=np.float32).reshape(-1, 3),
+        tip_points=np.asarray(tip_points, dtype=np.float32).reshape(-1, 3, 3),
+        motion_dir=np.asarray(motion_dir, dtype=np.float32).reshape(-1, 3),
+    )
+
+
+def features_from_observation(obs: Observation, e=None) -> ObsFeatures:
+    """One observation as features (M = 1).
+
+    obs.motion_dir is in ``world``; it is rotated into the frame of the estimate e when e is
+    given (needed by the bump transition), and NaN otherwise (the likelihood does not use it).
+    """
+    if e is None:
+        motion = np.full(3, np.nan)
+    else:
+        c, s = np.cos(e[2]), np.sin(e[2])
+        m = obs.motion_dir
+        motion = np.array([c * m[0] + s * m[1], -s * m[0] + c * m[1], m[2]])
+    return _features(obs.contact, obs.progress, obs.sensors, obs.closure, obs.tip_points, motion)
+
+
+def features_from_table_rows(table: TableLike, rows) -> ObsFeatures:
+    """The predicted observations Ω_τ(Δ_j) of the given table rows, as features."""
+    rows = np.atleast_1d(np.asarray(rows, dtype=np.int64))
+    return _features(table.contact[rows], table.progress[rows], table.sensors[rows],
+                     table.closure[rows], table.tip_points[rows], table.motion_dir[rows])
+
+
+def _sensor_log_tables(params: LikelihoodParams) -> tuple[np.ndarray, np.ndarray]:
+    """log P(reading | predicted): (silent, fired) rows for predicted = False / True."""
+    pd, pfa = params.p_detect, params.p_false_alarm
+    not_predicted = np.log([1.0 - pfa, pfa])  # [silent, fired]
+    predicted = np.log([1.0 - pd, pd])
+    return not_predicted, predicted
+
+
+def log_likelihood_over_table(table: TableLike, feats: ObsFeatures,
+                              params: LikelihoodParams = LIKELIHOOD) -> np.ndarray:
+    """(M, N_table) float32 log L (before the floor) of each observation at each table entry."""
+    f32 = np.float32
+    n = len(table.contact)
+    t_contact = np.asarray(table.contact, dtype=bool)
+    # contact agreement
+    agree = feats.contact[:, None] == t_contact[None, :]
+    logl = np.where(agree, f32(np.log1p(-params.p_contact_mismatch)), f32(np.log(params.p_contact_mismatch)))
+    # progress, where both stopped early
+    if feats.contact.any():
+        zp = (feats.progress[:, None] - np.asarray(table.progress, dtype=f32)[None, :]) / f32(params.sigma_progress)
+        logl -= np.where(feats.contact[:, None] & t_contact[None, :], f32(0.5) * zp * zp, f32(0.0))
+    # sensors: Σ_s log P(o_s | t_s) = Σ_s log P(o_s | 0) + Σ_s t_s (log P(o_s | 1) - log P(o_s | 0))
+    not_pred, pred = _sensor_log_tables(params)
+    o = feats.sensors.astype(np.int64)
+    logl += not_pred[o].sum(axis=1).astype(f32)[:, None]
+    logl += (pred[o] - not_pred[o]).astype(f32) @ np.asarray(table.sensors, dtype=f32).T
+    # closure angles (component rows made contiguous once)
+    closure = np.ascontiguousarray(np.asarray(table.closure, dtype=f32).T)  # (3, N)
+    for k in range(3):
+        z = (feats.closure[:, k, None] - closure[k][None, :]) / f32(params.sigma_closure)
+        logl -= f32(0.5) * z * z
+    # fingertip contact points present on both sides
+    tips = np.ascontiguousarray(np.asarray(table.tip_points, dtype=f32).reshape(n, 9).T)  # (9, N)
+    for f in range(3):
+        seen = ~np.isnan(feats.tip_points[:, f, 0])
+        if not seen.any():
+            continue
+        d2 = sum((feats.tip_points[:, f, k, None] - tips[3 * f + k][None, :]) ** 2 for k in range(3))
+        logl -= np.where(np.isnan(d2), f32(0.0), d2 * f32(0.5 / params.sigma_tip ** 2))
+    return logl
+
+
+def likelihood_over_table(table: TableLike, feats: ObsFeatures,
+                          params: LikelihoodParams = LIKELIHOOD) -> np.ndarray:
+    """(M, N_table) float32: the floored likelihood (1-ε)·L + ε of each observation at each entry.
+
+    Raises ValueError when an observation's progress or closure is NaN.
+    """
+    if np.isnan(feats.progress).any() or np.isnan(feats.closure).any():
+        raise ValueError("observation features hold NaN progress or closure")
+    eps = np.float32(params.floor)
+    return np.exp(log_likelihood_over_table(table, feats, params)) * (np.float32(1.0) - eps) + eps
+
+
+def table_indices(belief_grid: Grid, e, table_grid: Grid) -> np.ndarray:
+    """(N,) int64: for each belief grid point w, the flat index of the table entry nearest to
+    Δ = relative_planar(e, w), clamped to the table border.
+
+    Same arithmetic as ``table_grid.nearest_index(relative_planar(e, belief_grid.points()))``,
+    but exploiting the product structure of the belief grid (x, y separate from θ).
+    """
+    ex, ey, et = (float(v) for v in e)
+    ax, ay, at = belief_grid.axes()
+    c, s = np.cos(np.array([et])), np.sin(np.array([et]))
+    dx, dy = (ax - ex)[:, None], (ay - ey)[None, :]
+    rel = (c * dx + s * dy, -s * dx + c * dy, wrap_angle(at - et))
+    n = np.asarray(table_grid.shape)
+    idx = []
+    for k, (r, c0, sp) in enumerate(zip(rel, table_grid.center, table_grid.spacing)):
+        d = r - c0
+        if k == 2:
+            d = wrap_angle(d)
+        idx.append(np.clip(np.rint(d / sp + (n[k] - 1) / 2).astype(np.int64), 0, n[k] - 1))
+    ix, iy, it = idx
+    flat = (ix * n[1] + iy)[:, :, None] * n[2] + it[None, None, :]
+    return flat.ravel()

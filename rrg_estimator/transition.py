@@ -1,0 +1,110 @@
+"""Transition models (paper, "Computing the transition model"; DESIGN §3).
+
+* No contact: the object does not move (identity; the caller skips the transition).
+* Contact (``bump``): a mixture of two outcomes: the object stays (p_stay), or it is
+  bumped along the hand's horizontal motion by a Gaussian displacement of mean bump_mean
+  with σ = bump_sigma_xy in x, y and bump_sigma_theta in θ.
+* Reorientation grasp (``reorient``): the object turns by the commanded angle
+  (p_reorient_success), half of it (p_reorient_partial), or not at all.
+
+Both work on the (nx, ny, nθ) weight array. Mass moved off the grid is dropped and the
+rest renormalized.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import map_coordinates
+from scipy.special import ndtr
+
+from rrg_sim.config import TRANSITION, TransitionParams
+from rrg_sim.grid import Grid
+from rrg_sim.poses import wrap_angle
+
+from .belief import Belief
+
+#: Smallest kernel σ in grid cells (a zero σ would divide by zero; this one is a pure shift).
+_MIN_SIGMA_CELLS = 1e-6
+
+
+def displacement_kernel(n: int, shift_cells: float, sigma_cells: float) -> np.ndarray:
+    """(n, n) K[dst, src]: the mass moving from cell src to cell dst under a Gaussian
+    displacement N(shift, σ²) (in cells), integrated over each destination cell.
+
+    Columns sum to less than 1 where mass leaves the grid.
+    """
+    sigma = max(float(sigma_cells), _MIN_SIGMA_CELLS)
+    off = np.arange(n)[:, None] - np.arange(n)[None, :] - float(shift_cells)
+    return ndtr((off + 0.5) / sigma) - ndtr((off - 0.5) / sigma)
+
+
+def bump(belief: Belief, direction_xy_world, params: TransitionParams = TRANSITION) -> Belief:
+    """Contact transition: p_stay·b + (1 - p_stay)·(b shifted by bump_mean·direction and blurred).
+
+    direction_xy_world: (2,) horizontal part of the unit hand-motion direction in ``world``;
+    its length (≤ 1) scales the push, so a vertical approach blurs without shifting.
+    """
+    d = np.asarray(direction_xy_world, dtype=float).reshape(2)
+    norm = np.linalg.norm(d)
+    if not np.isfinite(norm):
+        raise ValueError(f"bump direction must be finite, got {d}")
+    if norm > 1.0:
+        d = d / norm
+    sx, sy, st = belief.grid.spacing
+    nx, ny, nt = belief.grid.shape
+    kx = displacement_kernel(nx, params.bump_mean * d[0] / sx, params.bump_sigma_xy / sx)
+    ky = displacement_kernel(ny, params.bump_mean * d[1] / sy, params.bump_sigma_xy / sy)
+    kt = displacement_kernel(nt, 0.0, params.bump_sigma_theta / st)
+    a = belief.as_grid_array()
+    moved = (kx @ a.reshape(nx, ny * nt)).reshape(nx, ny, nt)
+    moved = np.matmul(ky, moved) @ kt.T
+    return belief.with_weights(params.p_stay * a + (1.0 - params.p_stay) * moved)
+
+
+def rotated_density(belief: Belief, grid: Grid, angle: float, center_xy=None) -> np.ndarray:
+    """(N,) the belief's density after turning the object by ``angle`` [rad], sampled at the
+    points of ``grid`` (trilinear interpolation; zero off the belief's grid).
+
+    center_xy None: each state turns about its own centre (x, y unchanged). Otherwise the
+    object turns about the vertical axis through center_xy, so x, y rotate about it too.
+    """
+    q = grid.points()
+    src = q.copy()
+    src[:, 2] = q[:, 2] - angle
+    if center_xy is not None:
+        c = np.asarray(center_xy, dtype=float)
+        ca, sa = np.cos(angle), np.sin(angle)
+        d = q[:, :2] - c
+        src[:, 0] = c[0] + ca * d[:, 0] + sa * d[:, 1]
+        src[:, 1] = c[1] - sa * d[:, 0] + ca * d[:, 1]
+    return sample_density(belief, src)
+
+
+def sample_density(belief: Belief, poses: np.ndarray) -> np.ndarray:
+    """Trilinear interpolation of the belief's weights at poses (K,3); 0 beyond the grid."""
+    src = poses - np.asarray(belief.grid.center)
+    src[:, 2] = wrap_angle(src[:, 2])
+    coords = src / np.asarray(belief.grid.spacing) + (np.asarray(belief.grid.shape) - 1) / 2
+    return map_coordinates(belief.as_grid_array(), coords.T, order=1, mode="grid-constant", cval=0.0)
+
+
+def reorient(belief: Belief, angle: float, params: TransitionParams = TRANSITION,
+             center_xy=None) -> Belief:
+    """Reorientation transition: turned by ``angle`` [rad] with p_reorient_success, by angle/2
+    with p_reorient_partial, not at all otherwise.
+
+    The result lives on the belief's grid turned with the object (θ centre + angle, and the
+    x, y centre rotated about center_xy if given), so the likely full turn stays on the grid;
+    the parts of the partial and failed turns that fall off it are dropped (on a narrow grid,
+    e.g. the low-uncertainty one, the failed turn is lost for angles beyond its θ range).
+    """
+    g = belief.grid
+    cx, cy, ct = g.center
+    if center_xy is not None:
+        c = np.asarray(center_xy, dtype=float)
+        ca, sa = np.cos(angle), np.sin(angle)
+        cx, cy = c[0] + ca * (cx - c[0]) - sa * (cy - c[1]), c[1] + sa * (cx - c[0]) + ca * (cy - c[1])
+    grid = Grid((float(cx), float(cy), float(wrap_angle(ct + angle))), g.spacing, g.shape)
+    p_full, p_half = params.p_reorient_success, params.p_reorient_partial
+    mix = [(p_full, angle), (p_half, angle / 2.0), (1.0 - p_full - p_half, 0.0)]
+    w = sum(p * rotated_density(belief, grid, a, center_xy) for p, a in mix if p > 0.0)
+    return Belief(grid, w)

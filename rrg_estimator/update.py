@@ -1,0 +1,75 @@
+"""The belief update SE(b, τ(e), o) (DESIGN §3): transition, then likelihood, then normalization."""
+from __future__ import annotations
+
+import numpy as np
+
+from rrg_sim.grid import Grid
+from rrg_sim.observation import Observation
+
+from .belief import Belief
+from .obs_model import (ObsFeatures, TableLike, features_from_observation, likelihood_over_table,
+                        table_indices)
+from .transition import bump
+
+
+def _single_features(obs_or_features: Observation | ObsFeatures, e) -> ObsFeatures:
+    feats = (obs_or_features if isinstance(obs_or_features, ObsFeatures)
+             else features_from_observation(obs_or_features, e))
+    if len(feats) != 1:
+        raise ValueError(f"update takes one observation, got {len(feats)} feature rows")
+    return feats
+
+
+def predict(belief: Belief, e, feats: ObsFeatures) -> Belief:
+    """The transition for one observation made by τ(e): a bump along the hand's motion if the
+    guarded move stopped on a contact, no motion otherwise."""
+    if not feats.contact[0]:
+        return belief
+    m = feats.motion_dir[0].astype(float)
+    if np.isnan(m[:2]).any():
+        raise ValueError("contact observation without a motion direction: build its features "
+                         "with features_from_observation(obs, e) or from table rows")
+    c, s = np.cos(e[2]), np.sin(e[2])
+    return bump(belief, (c * m[0] - s * m[1], s * m[0] + c * m[1]))
+
+
+def apply_likelihood(prior: Belief, table_likelihood: np.ndarray, idx: np.ndarray) -> tuple[Belief, float]:
+    """b'(w) ∝ b(w)·L[idx(w)] for a likelihood row over table entries (N_table,) and the table
+    index of every belief state (N,); returns the posterior and P(o | b) = Σ_w b(w)·L[idx(w)]."""
+    post = prior.weights * table_likelihood[idx]
+    z = float(post.sum())
+    if not np.isfinite(z):
+        raise ValueError("likelihood holds NaN or inf (check the table and the observation)")
+    if z <= 0.0:
+        raise ValueError("the observation has zero probability under the belief (likelihood without floor?)")
+    return prior.with_weights(post / z), z
+
+
+def update(belief: Belief, table: TableLike, e, obs_or_features: Observation | ObsFeatures,
+           transition: bool = True) -> Belief:
+    """SE(b, τ(e), o): the belief after τ(e) (the table's WRT run relative to estimate e)
+    produced observation o (an Observation, or one row of ObsFeatures)."""
+    e = np.asarray(e, dtype=float).reshape(3)
+    if not np.all(np.isfinite(e)):
+        raise ValueError(f"estimate e must be finite, got {e}")
+    feats = _single_features(obs_or_features, e)
+    prior = predict(belief, e, feats) if transition else belief
+    lik = likelihood_over_table(table, feats)[0]
+    posterior, _ = apply_likelihood(prior, lik, table_indices(belief.grid, e, table.grid))
+    return posterior
+
+
+def goal_probability(belief: Belief, goal_indicator: np.ndarray, e, table_grid: Grid | None = None) -> float:
+    """P_b(G) of a goal WRT executed relative to e: Σ_w b(w)·G[idx(e, w)].
+
+    goal_indicator: (N_table,) bool over the goal WRT's table offsets; table_grid defaults
+    to the level grid of the belief's spacing and shape, centred at (0, 0, 0), as the
+    tables are built.
+    """
+    if table_grid is None:
+        table_grid = Grid((0.0, 0.0, 0.0), belief.grid.spacing, belief.grid.shape)
+    g = np.asarray(goal_indicator, dtype=bool).ravel()
+    if g.size != table_grid.size:
+        raise ValueError(f"goal indicator has {g.size} entries, table grid has {table_grid.size}")
+    idx = table_indices(belief.grid, np.asarray(e, dtype=float).reshape(3), table_grid)
+    return float(belief.weights @ g[idx])
