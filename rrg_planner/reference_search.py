@@ -1,0 +1,173 @@
+"""Naive reference forward search: per-state Python loops, as the paper's "non-optimized
+Python" would be written. Same semantics as search.ForwardSearch; tests compare the two on
+small grids, and ``rrg-bench plan`` uses this as the speed baseline.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from rrg_estimator.belief import Belief
+from rrg_sim.config import SEARCH, TRANSITION, SearchParams
+
+from .model import PlanningModel
+from .search import SearchResult, merge_branches
+
+Points = list[tuple[float, float, float]]
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+class ReferenceSearch:
+    """Forward search with explicit loops over states (slow; for checking and baselines)."""
+
+    def __init__(self, model: PlanningModel, params: SearchParams = SEARCH):
+        self.model = model
+        self.params = params
+
+    def _table_index(self, level: str, e, p) -> int:
+        grid = self.model.actions[0].tables[level].grid
+        dx, dy = p[0] - e[0], p[1] - e[1]
+        c, s = math.cos(e[2]), math.sin(e[2])
+        rel = (c * dx + s * dy, -s * dx + c * dy, _wrap(p[2] - e[2]))
+        flat = 0
+        for k in range(3):
+            n = grid.shape[k]
+            i = round(_wrap(rel[k] - grid.center[k]) / grid.spacing[k] + (n - 1) / 2) if k == 2 else \
+                round((rel[k] - grid.center[k]) / grid.spacing[k] + (n - 1) / 2)
+            i = min(max(int(i), 0), n - 1)
+            flat = flat * n + i
+        return flat
+
+    @staticmethod
+    def _argmax(points: Points, weights: list[float]):
+        best = 0
+        for j in range(len(weights)):
+            if weights[j] > weights[best]:
+                best = j
+        return points[best]
+
+    def static_value(self, points: Points, weights: list[float], level: str) -> float:
+        e = self._argmax(points, weights)
+        best = 0.0
+        for g in self.model.goal_actions:
+            if not self.model.feasible(g, np.asarray(e)):
+                continue
+            table_g = self.model.actions[g].goal[level]
+            total = 0.0
+            for p, w in zip(points, weights):
+                if table_g[self._table_index(level, e, p)]:
+                    total += w
+            best = max(best, total)
+        return best
+
+    def _stats(self, points: Points, post: list[float], e, sigma) -> tuple[float, np.ndarray]:
+        ent = 0.0
+        mean = [0.0, 0.0, 0.0]
+        second = [[0.0] * 3 for _ in range(3)]
+        for p, w in zip(points, post):
+            if w > 0:
+                ent -= w * math.log(w)
+            d = [(p[0] - e[0]) / sigma[0], (p[1] - e[1]) / sigma[1], _wrap(p[2] - e[2]) / sigma[2]]
+            for i in range(3):
+                mean[i] += w * d[i]
+                for k in range(3):
+                    second[i][k] += w * d[i] * d[k]
+        cov = np.array([[second[i][k] - mean[i] * mean[k] for k in range(3)] for i in range(3)])
+        return ent, cov
+
+    def expand(self, points: Points, weights: list[float], level: str, a: int):
+        act = self.model.actions[a]
+        clusters = act.clusters[level]
+        e = self._argmax(points, weights)
+        index = [self._table_index(level, e, p) for p in points]
+        pc = [0.0] * clusters.count
+        for t, w in zip(index, weights):
+            c = int(clusters.assign[t])
+            if c >= 0:
+                pc[c] += w
+        total = sum(pc)
+        if total <= 0:
+            return []
+        pc = [p / total for p in pc]
+        order = sorted(range(len(pc)), key=lambda c: -pc[c])
+        cand, acc = [], 0.0
+        for c in order:
+            if pc[c] <= 0:
+                break
+            cand.append(c)
+            acc += pc[c]
+            if acc >= 0.95:
+                break
+        posts, ents, covs = [], [], []
+        sigma = self.model.levels[level].sigma
+        for c in cand:
+            row = clusters.likelihood[c]
+            post = [w * float(row[t]) for t, w in zip(index, weights)]
+            z = sum(post)
+            post = [v / z for v in post]
+            ent, cov = self._stats(points, post, e, sigma)
+            posts.append(post)
+            ents.append(ent)
+            covs.append(cov)
+        branches = []
+        for k, p in merge_branches(np.array([pc[c] for c in cand]), np.array(ents), np.array(covs), self.params):
+            post = posts[k]
+            top = max(post)
+            child_pts = [pt for pt, v in zip(points, post) if v >= self.params.support_rel * top]
+            child_w = [v for v in post if v >= self.params.support_rel * top]
+            if act.kind == "reorient":
+                child_pts, child_w = self._reorient(child_pts, child_w, e, act.wrt.reorient_angle)
+            z = sum(child_w)
+            branches.append((p, child_pts, [v / z for v in child_w]))
+        return branches
+
+    @staticmethod
+    def _reorient(points: Points, weights: list[float], e, angle: float):
+        outs_p, outs_w = [], []
+        for frac, prob in ((1.0, TRANSITION.p_reorient_success), (0.5, TRANSITION.p_reorient_partial),
+                           (0.0, 1.0 - TRANSITION.p_reorient_success - TRANSITION.p_reorient_partial)):
+            c, s = math.cos(angle * frac), math.sin(angle * frac)
+            for p, w in zip(points, weights):
+                dx, dy = p[0] - e[0], p[1] - e[1]
+                outs_p.append((e[0] + c * dx - s * dy, e[1] + s * dx + c * dy, _wrap(p[2] + angle * frac)))
+                outs_w.append(w * prob)
+        return outs_p, outs_w
+
+    def action_values(self, points: Points, weights: list[float], level: str, horizon: int) -> np.ndarray:
+        e = np.asarray(self._argmax(points, weights))
+        q = np.full(len(self.model.actions), -np.inf)
+        for a in range(len(self.model.actions)):
+            if not self.model.feasible(a, e):
+                continue
+            branches = self.expand(points, weights, level, a)
+            if branches:
+                q[a] = sum(p * self.value(pts, w, level, horizon - 1) for p, pts, w in branches) \
+                    - self.params.action_cost
+        return q
+
+    def value(self, points: Points, weights: list[float], level: str, horizon: int) -> float:
+        if horizon == 0:
+            return self.static_value(points, weights, level)
+        q = self.action_values(points, weights, level, horizon)
+        return float(q.max()) if np.isfinite(q).any() else self.static_value(points, weights, level)
+
+    def select(self, belief: Belief, horizon: int = SEARCH.horizon) -> SearchResult:
+        t0 = time.perf_counter()
+        level = self.model.level_of(belief.grid)
+        all_pts = [tuple(p) for p in belief.grid.points().tolist()]
+        all_w = belief.weights.tolist()
+        top = max(all_w)
+        pts = [p for p, w in zip(all_pts, all_w) if w >= self.params.support_rel * top]
+        w = [v for v in all_w if v >= self.params.support_rel * top]
+        z = sum(w)
+        w = [v / z for v in w]
+        q = self.action_values(pts, w, level, horizon)
+        p_goal = self.static_value(pts, w, level)
+        best = int(np.argmax(q)) if np.isfinite(q).any() else -1
+        return SearchResult(action=best, value=float(q[best]) if best >= 0 else float("nan"),
+                            action_values=q, p_goal=p_goal, planning_time=time.perf_counter() - t0)

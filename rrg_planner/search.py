@@ -1,0 +1,222 @@
+"""Receding-horizon POMDP forward search over WRTs (paper: "POMDP forward search"; DESIGN §6).
+
+V_0(b) = v(b), the static evaluation: the best probability, over feasible goal WRTs g,
+that executing g relative to w*(b) achieves the goal.
+V_h(b) = max_a [ Σ_c P(c | b, a) · V_{h-1}(SE(b, a, o_c)) − cost(a) ], infeasible a skipped.
+
+Beliefs inside the search are sparse: the grid points whose weight is above
+``support_rel`` of the maximum, as (points, weights). Observation branches come from the
+offline clusters (clustering.py): P(c | b, a) is a weighted bincount of the cluster id of
+each state's predicted observation, posteriors are b · P(o_c | ·), and branches with
+similar entropy and covariance are merged before keeping the most probable ones that
+cover ``online_keep_mass`` of the mass (paper: 50 %).
+
+The bump transition is left out of the search's posteriors (it blurs each contact branch
+by a few mm and costs a convolution per branch); the estimator applies it to the real
+belief. Reorientation's rotation is kept, because feasibility depends on it.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from rrg_estimator.belief import Belief
+from rrg_sim.config import SEARCH, TRANSITION, SearchParams
+from rrg_sim.poses import relative_planar, wrap_angle
+
+from .model import PlanningModel
+
+
+@dataclass(eq=False)
+class SparseBelief:
+    """A belief restricted to its support: points (S,3) in world (x, y, θ), weights (S,) sum 1.
+
+    table_index caches, per point, the table entry of its offset from w*(b) (set by the search).
+    """
+
+    points: np.ndarray
+    weights: np.ndarray
+    level: str
+    table_index: np.ndarray | None = None
+
+    @classmethod
+    def from_belief(cls, belief: Belief, level: str, support_rel: float = SEARCH.support_rel) -> "SparseBelief":
+        w = belief.weights
+        keep = np.flatnonzero(w >= support_rel * w.max())
+        ww = w[keep]
+        return cls(belief.grid.points()[keep], ww / ww.sum(), level)
+
+    @property
+    def w_star(self) -> np.ndarray:
+        return self.points[int(np.argmax(self.weights))]
+
+
+def branch_statistics(points: np.ndarray, posts: np.ndarray, ref: np.ndarray,
+                      sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Entropy (K,) and covariance (K,3,3) of K posteriors (K,S) over the same points,
+    with deviations from ``ref`` (θ wrapped) scaled by ``sigma`` so the axes compare."""
+    d = points - ref
+    d[:, 2] = wrap_angle(d[:, 2])
+    d = d / sigma
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ent = -np.sum(np.where(posts > 0, posts * np.log(posts), 0.0), axis=1)
+    mean = posts @ d
+    second = np.einsum("ks,si,sj->kij", posts, d, d, optimize=True)
+    cov = second - np.einsum("ki,kj->kij", mean, mean)
+    return ent, cov
+
+
+def merge_branches(probs: np.ndarray, entropies: np.ndarray, covs: np.ndarray,
+                   params: SearchParams = SEARCH) -> list[tuple[int, float]]:
+    """Online merging (paper): branches whose posteriors have similar entropy and covariance
+    are merged into the more probable one; then the most probable merged branches that
+    cover ``online_keep_mass`` of the mass are kept and renormalized.
+
+    Returns [(branch index, probability)], most probable first.
+    """
+    reps: list[int] = []
+    mass: list[float] = []
+    for k in np.argsort(-probs, kind="stable"):
+        for r_i, r in enumerate(reps):
+            scale = max(np.linalg.norm(covs[r]), 1e-12)
+            if (abs(entropies[k] - entropies[r]) < params.merge_entropy_tol
+                    and np.linalg.norm(covs[k] - covs[r]) / scale < params.merge_cov_tol):
+                mass[r_i] += float(probs[k])
+                break
+        else:
+            reps.append(int(k))
+            mass.append(float(probs[k]))
+    order = np.argsort(-np.asarray(mass), kind="stable")
+    total = float(np.sum(mass))
+    kept, acc = [], 0.0
+    for i in order:
+        kept.append((reps[i], mass[i]))
+        acc += mass[i]
+        if acc >= params.online_keep_mass * total:
+            break
+    z = sum(p for _, p in kept)
+    return [(k, p / z) for k, p in kept]
+
+
+def rotate_about(points: np.ndarray, center_xy: np.ndarray, angle: float) -> np.ndarray:
+    """Rotate planar poses about a vertical axis through center_xy by angle [rad]."""
+    c, s = np.cos(angle), np.sin(angle)
+    d = points[:, :2] - center_xy
+    out = points.copy()
+    out[:, 0] = center_xy[0] + c * d[:, 0] - s * d[:, 1]
+    out[:, 1] = center_xy[1] + s * d[:, 0] + c * d[:, 1]
+    out[:, 2] = wrap_angle(points[:, 2] + angle)
+    return out
+
+
+def reorient_mixture(points: np.ndarray, weights: np.ndarray, center_xy: np.ndarray,
+                     angle: float) -> tuple[np.ndarray, np.ndarray]:
+    """Transition of a reorientation grasp: full rotation, half, or none (TRANSITION)."""
+    p_full, p_half = TRANSITION.p_reorient_success, TRANSITION.p_reorient_partial
+    parts = [(rotate_about(points, center_xy, angle), p_full),
+             (rotate_about(points, center_xy, angle / 2), p_half),
+             (points, 1.0 - p_full - p_half)]
+    pts = np.concatenate([p for p, _ in parts])
+    w = np.concatenate([weights * q for _, q in parts])
+    return pts, w / w.sum()
+
+
+@dataclass
+class SearchResult:
+    """The root decision: chosen action, its value, every action's value, v(b) and time."""
+
+    action: int
+    value: float
+    action_values: np.ndarray
+    p_goal: float
+    planning_time: float
+
+
+class ForwardSearch:
+    """Fast forward search over a PlanningModel (vectorized over the belief's support)."""
+
+    def __init__(self, model: PlanningModel, params: SearchParams = SEARCH):
+        self.model = model
+        self.params = params
+
+    # ---------------------------------------------------------------- helpers
+    def _table_index(self, sb: SparseBelief) -> np.ndarray:
+        """Table entry of every support point's offset from w*(b) (all tables of a level share a grid)."""
+        if sb.table_index is None:
+            grid = self.model.actions[0].tables[sb.level].grid
+            sb.table_index = grid.nearest_index(relative_planar(sb.w_star, sb.points), clip=True)
+        return sb.table_index
+
+    def static_value(self, sb: SparseBelief) -> float:
+        """v(b): max over feasible goal WRTs of P_b(goal after executing it relative to w*(b))."""
+        e = sb.w_star
+        best = 0.0
+        for g in self.model.goal_actions:
+            if self.model.feasible(g, e):
+                idx = self._table_index(sb)
+                best = max(best, float(sb.weights @ self.model.actions[g].goal[sb.level][idx]))
+        return best
+
+    def expand(self, sb: SparseBelief, a: int) -> list[tuple[float, SparseBelief]]:
+        """Observation branches of action a at w*(b): [(P(c | b, a), SE(b, a, o_c))]."""
+        act = self.model.actions[a]
+        clusters = act.clusters[sb.level]
+        e = sb.w_star
+        idx = self._table_index(sb)
+        cl = clusters.assign[idx]
+        known = cl >= 0
+        pc = np.bincount(cl[known], weights=sb.weights[known], minlength=clusters.count)
+        total = pc.sum()
+        if total <= 0:
+            return []
+        pc /= total
+        order = np.argsort(-pc, kind="stable")
+        cum = np.cumsum(pc[order])
+        n_cand = int(np.searchsorted(cum, 0.95) + 1)
+        cand = order[:n_cand][pc[order[:n_cand]] > 0]
+        posts = clusters.likelihood[cand][:, idx] * sb.weights
+        posts /= posts.sum(axis=1, keepdims=True)
+        sigma = np.asarray(self.model.levels[sb.level].sigma)
+        ent, cov = branch_statistics(sb.points, posts, e, sigma)
+        branches = []
+        for k, p in merge_branches(pc[cand], ent, cov, self.params):
+            post = posts[k]
+            keep = np.flatnonzero(post >= self.params.support_rel * post.max())
+            pts, w = sb.points[keep], post[keep]
+            if act.kind == "reorient":
+                pts, w = reorient_mixture(pts, w, e[:2], act.wrt.reorient_angle)
+            branches.append((p, SparseBelief(pts, w / w.sum(), sb.level)))
+        return branches
+
+    # ---------------------------------------------------------------- search
+    def action_values(self, sb: SparseBelief, horizon: int) -> np.ndarray:
+        """Q_h(b, a) for every action (−inf where infeasible at w*(b))."""
+        e = sb.w_star
+        q = np.full(len(self.model.actions), -np.inf)
+        for a in range(len(self.model.actions)):
+            if not self.model.feasible(a, e):
+                continue
+            branches = self.expand(sb, a)
+            if branches:
+                q[a] = sum(p * self.value(b, horizon - 1) for p, b in branches) - self.params.action_cost
+        return q
+
+    def value(self, sb: SparseBelief, horizon: int) -> float:
+        if horizon == 0:
+            return self.static_value(sb)
+        q = self.action_values(sb, horizon)
+        return float(q.max()) if np.isfinite(q).any() else self.static_value(sb)
+
+    def select(self, belief: Belief, horizon: int = SEARCH.horizon) -> SearchResult:
+        """Choose the root action for a belief (grid) with a forward search of depth horizon."""
+        if not 1 <= horizon <= 3:
+            raise ValueError(f"horizon must be 1, 2 or 3, got {horizon}")
+        t0 = time.perf_counter()
+        sb = SparseBelief.from_belief(belief, self.model.level_of(belief.grid), self.params.support_rel)
+        q = self.action_values(sb, horizon)
+        p_goal = self.static_value(sb)
+        best = int(np.argmax(q)) if np.isfinite(q).any() else -1
+        return SearchResult(action=best, value=float(q[best]) if best >= 0 else float("nan"),
+                            action_values=q, p_goal=p_goal, planning_time=time.perf_counter() - t0)

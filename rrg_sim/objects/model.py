@@ -1,0 +1,124 @@
+"""An object of the catalogue: collision primitives, physical properties, goal region and WRTs."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+import trimesh
+
+from ..config import SENSOR_NAMES
+from ..poses import wrap_angle
+from ..wrt import WRT
+from .primitives import Primitive, union_bounds
+from . import wrt_generation
+from .composites import turn_about_z
+
+
+@dataclass(frozen=True)
+class GoalRegion:
+    """Where the object must end up relative to the hand for the goal grasp to count.
+
+    tol: (|dx| [m], |dy| [m], |dθ| [rad]) bounds on Δ = relative_planar(e, w), the true pose
+    w in the frame of the estimate e at which the goal WRT ran (θ bound inf: θ ignored).
+    min_fingers: how many of the 3 fingers must end in contact with the object.
+    required_sensors: names from config.SENSOR_NAMES that must fire.
+    """
+
+    tol: tuple[float, float, float]
+    min_fingers: int = 3
+    required_sensors: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        unknown = set(self.required_sensors) - set(SENSOR_NAMES)
+        if unknown:
+            raise ValueError(f"unknown sensors {sorted(unknown)}; valid: {SENSOR_NAMES}")
+        if not 0 <= self.min_fingers <= 3:
+            raise ValueError("min_fingers must be in 0..3")
+
+    @property
+    def ignores_theta(self) -> bool:
+        return bool(np.isinf(self.tol[2]))
+
+    def contains(self, delta) -> np.ndarray:
+        """(…) bool: Δ (…,3) lies in the pose part of the region."""
+        delta = np.asarray(delta, dtype=float)
+        ok = (np.abs(delta[..., 0]) <= self.tol[0]) & (np.abs(delta[..., 1]) <= self.tol[1])
+        if self.ignores_theta:
+            return ok
+        return ok & (np.abs(wrap_angle(delta[..., 2])) <= self.tol[2])
+
+
+@dataclass(frozen=True, eq=False)
+class ObjectModel:
+    """One object of the catalogue (object frame: origin at the centre of the part resting on
+    the table, z up, resting on z = 0).
+
+    parts: collision primitives (shared by the geometric and the MuJoCo simulators).
+    mass [kg]; friction: sliding friction coefficient.
+    dimensions: documented sizes [m]; ``size_x``, ``size_y``, ``size_z`` are the bounding-box
+    extents, other keys name features (e.g. a handle's opening). source: where they come from.
+    goal / goal_wrt: the goal region and the hand-designed goal WRT.
+    reorient_wrts: reorientation WRTs (empty when the goal grasp stays feasible at any θ).
+    symmetric: the goal region ignores θ.
+    placement_yaw: the parts are the object built in its canonical frame (where the
+    documented sizes are the bounding box) turned by this yaw [rad] about z, so that its goal
+    grasp is reachable at the nominal pose.
+    """
+
+    name: str
+    parts: tuple[Primitive, ...]
+    mass: float
+    friction: float
+    dimensions: dict[str, float]
+    source: str
+    goal: GoalRegion
+    goal_wrt: WRT
+    reorient_wrts: tuple[WRT, ...] = ()
+    symmetric: bool = False
+    placement_yaw: float = 0.0
+    description: str = field(default="", repr=False)
+
+    def __post_init__(self) -> None:
+        if self.symmetric != self.goal.ignores_theta:
+            raise ValueError(f"{self.name}: symmetric must match a goal region that ignores θ")
+
+    def bounds(self) -> np.ndarray:
+        """(2,3) axis-aligned bounds [m] of the parts in the object frame."""
+        return union_bounds(self.parts)
+
+    def canonical_bounds(self) -> np.ndarray:
+        """(2,3) axis-aligned bounds [m] of the parts turned back by -placement_yaw."""
+        return union_bounds(turn_about_z(self.parts, -self.placement_yaw))
+
+    @cached_property
+    def _mesh(self) -> trimesh.Trimesh:
+        return trimesh.util.concatenate([part.mesh() for part in self.parts])
+
+    def mesh(self) -> trimesh.Trimesh:
+        """Visualization mesh: the concatenated primitive meshes (cached; do not modify)."""
+        return self._mesh
+
+    @cached_property
+    def info_wrts(self) -> tuple[WRT, ...]:
+        """Information-gathering WRTs generated from the primitives (pinches, then the sweep)."""
+        return wrt_generation.info_wrts(self.parts) + (wrt_generation.sweep_wrt(self.parts),)
+
+    @cached_property
+    def _wrts(self) -> tuple[WRT, ...]:
+        wrts = (self.goal_wrt,) + self.info_wrts + self.reorient_wrts
+        names = [w.name for w in wrts]
+        if len(set(names)) != len(names):
+            raise ValueError(f"{self.name}: WRT names are not unique: {names}")
+        return wrts
+
+    def wrts(self) -> tuple[WRT, ...]:
+        """The goal WRT, the generated info WRTs, the sweep and the reorientation WRTs (cached)."""
+        return self._wrts
+
+    def wrt(self, name: str) -> WRT:
+        """The WRT called ``name``."""
+        for w in self._wrts:
+            if w.name == name:
+                return w
+        raise KeyError(f"{self.name} has no WRT {name!r}; valid: {[w.name for w in self._wrts]}")

@@ -1,0 +1,246 @@
+"""The paper's 10 objects, one builder each: primitives, mass, friction, goal region and goal WRT.
+
+Sizes: the YCB stand-ins of shared/notes/mujoco-world.md where they exist (drill, pitcher,
+mug, bowl, soup can); chosen, realistic sizes for the cooler, tape roll, tea box, box and
+giant teacup. Objects grasped from above sit with their long axis across the robot's line of sight.
+Side grasps (drill, pitcher, teacup handles; the can) approach at ``SIDE_APPROACH_YAW``
+from the robot's right: the WAM cannot point the hand radially away from its base low over
+the table (rrg_sim.wam: a horizontal approach is reachable only for approach yaws of about
+0.35-1.5 rad at the nominal position), so handle objects are built in a canonical frame and
+placed turned by that yaw. Masses and frictions are chosen per material (YCB masses where given).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..config import HAND
+from ..wrt import WRT
+from .composites import box, cylinder, cylinder_between, loop_handle, ring_wall, turn_about_z
+from .model import GoalRegion, ObjectModel
+from .primitives import Primitive
+from .wrt_generation import line_grasp_wrt, reorient_wrts, side_rotation, top_down_rotation
+
+YCB = "YCB object set (shared/notes/mujoco-world.md)"
+DEG = np.pi / 180.0
+#: Distance [m] of the fingers from the hand's axis along hand y at spread 0 (config.HAND).
+FINGER_OFFSET = HAND.knuckle_radius
+#: Yaw [rad] of every side approach in the object frame: the middle of the WAM's reachable
+#: band of horizontal approaches at the nominal pose (about 0.35-1.5 rad, see module doc),
+#: which centres the goal WRTs' feasible θ range on the nominal θ = 0.
+SIDE_APPROACH_YAW = 1.0
+
+
+def _placed_side_grasp(canonical: tuple[Primitive, ...], through, pitch: float, roll: float,
+                       standoff: float, description: str) -> tuple[tuple[Primitive, ...], WRT]:
+    """Canonical parts, designed for a side grasp along +x through ``through`` [m], turned by
+    SIDE_APPROACH_YAW, and the goal WRT on the turned parts."""
+    parts = turn_about_z(canonical, SIDE_APPROACH_YAW)
+    through = Rotation.from_euler("z", SIDE_APPROACH_YAW).apply(through)
+    rotation = side_rotation(pitch=pitch, roll=roll, yaw=SIDE_APPROACH_YAW)
+    return parts, line_grasp_wrt(parts, rotation, through, standoff=standoff, description=description)
+
+
+def _dims(x: float, y: float, z: float, **features: float) -> dict[str, float]:
+    return {"size_x": x, "size_y": y, "size_z": z, **features}
+
+
+def powerdrill() -> ObjectModel:
+    """Cordless drill standing on its battery (YCB size).
+
+    Canonical frame: origin at the battery's footprint centre, chuck along +x; the handle's back
+    is flush with the battery and motor backs so the palm can close in on it from behind.
+    """
+    canonical = (
+        box((0.055, 0.0285, 0.0225), (0.0, 0.0, 0.0225)),  # battery
+        box((0.0225, 0.020, 0.046), (-0.0325, 0.0, 0.090)),  # handle, 4.5 deep x 4.0 cm wide
+        cylinder_between((-0.055, 0.0, 0.1595), (0.080, 0.0, 0.1595), 0.0285),  # motor body
+        cylinder_between((0.080, 0.0, 0.1595), (0.129, 0.0, 0.1595), 0.016),  # chuck
+        box((0.005, 0.008, 0.010), (-0.005, 0.0, 0.115)),  # trigger
+    )
+    parts, goal_wrt = _placed_side_grasp(
+        canonical, (-0.0325, 0.0, 0.095), pitch=0.15, roll=0.0, standoff=0.015,
+        description="side grasp of the handle from behind, palm 2 cm off its back, finger 1 (upper) at the trigger")
+    return ObjectModel(
+        "powerdrill", parts, mass=0.895, friction=0.6,
+        dimensions=_dims(0.184, 0.057, 0.188, handle_depth=0.045, handle_width=0.040),
+        source=f"{YCB}: power drill 18.4 x 18.8 x 5.7 cm, 0.895 kg, modelled standing on its battery",
+        goal=GoalRegion((0.01, 0.01, 10 * DEG)), goal_wrt=goal_wrt, reorient_wrts=reorient_wrts(parts),
+        placement_yaw=SIDE_APPROACH_YAW,
+        description="power drill; goal: the handle within 1 cm and 10 deg so finger 1 reaches the trigger")
+
+
+def brita_pitcher() -> ObjectModel:
+    """Open pitcher (YCB pitcher base size) with a rectangular loop handle.
+
+    Canonical frame: body footprint centre at the origin, handle on +y with a 5 cm (y) by
+    9 cm (z) opening; placed so the handle points back toward the robot's left.
+    """
+    wall = 0.004
+    hx, hy, h = 0.0725, 0.0425, 0.242
+    body = (
+        box((wall / 2, hy, h / 2), (hx - wall / 2, 0.0, h / 2)),
+        box((wall / 2, hy, h / 2), (-hx + wall / 2, 0.0, h / 2)),
+        box((hx, wall / 2, h / 2), (0.0, hy - wall / 2, h / 2)),
+        box((hx, wall / 2, h / 2), (0.0, -hy + wall / 2, h / 2)),
+        box((hx, hy, 0.003), (0.0, 0.0, 0.003)),  # bottom
+    )
+    y_root, y_in, y_out = hy - wall, 0.0925, 0.1065  # handle: inside the wall, bar's inner and outer faces
+    handle = (
+        box((0.010, (y_out - y_root) / 2, 0.0075), (0.0, (y_root + y_out) / 2, 0.1975)),  # upper arm
+        box((0.010, (y_out - y_in) / 2, 0.060), (0.0, (y_in + y_out) / 2, 0.145)),  # bar
+        box((0.010, (y_out - y_root) / 2, 0.0075), (0.0, (y_root + y_out) / 2, 0.0925)),  # lower arm
+    )
+    # Finger 3 goes through the handle 3 mm off the opening's middle toward the bar: the body's
+    # wall runs along the whole finger, the bar only across it.
+    finger3_y = (hy + y_in) / 2 + 0.003
+    parts, goal_wrt = _placed_side_grasp(
+        body + handle, (0.0, finger3_y + FINGER_OFFSET, 0.145), pitch=0.0, roll=np.pi, standoff=0.04,
+        description="side grasp of the handle bar: finger 3 through the handle, fingers 1+2 outside it")
+    return ObjectModel(
+        "brita_pitcher", parts, mass=0.5, friction=0.5,
+        dimensions=_dims(0.145, 0.149, 0.242, handle_gap=y_in - hy, handle_opening_height=0.09),
+        source=f"{YCB}: pitcher 14.9 x 14.5 x 24.2 cm (body 14.5 x 8.5 cm, handle 6.4 cm deep)",
+        goal=GoalRegion((0.01, 0.01, 6 * DEG)), goal_wrt=goal_wrt, reorient_wrts=reorient_wrts(parts),
+        placement_yaw=SIDE_APPROACH_YAW,
+        description="Brita-style pitcher; goal: held by the handle, finger 3 through it")
+
+
+def cooler() -> ObjectModel:
+    """Small personal cooler (chosen: 21 x 29 x 28 cm, like a 9-can Igloo) with a bar handle
+    along y on its lid, 3.5 cm above it."""
+    parts = (
+        box((0.100, 0.140, 0.095), (0.0, 0.0, 0.095)),  # body
+        box((0.105, 0.145, 0.015), (0.0, 0.0, 0.205)),  # lid with a 5 mm lip
+        box((0.0125, 0.0125, 0.030), (0.0, 0.090, 0.250)),  # handle posts
+        box((0.0125, 0.0125, 0.030), (0.0, -0.090, 0.250)),
+        box((0.0125, 0.1025, 0.0125), (0.0, 0.0, 0.2675)),  # handle bar
+    )
+    goal_wrt = line_grasp_wrt(
+        parts, top_down_rotation(np.pi / 2), (0.0, 0.0, 0.28),
+        description="from above, fingers either side of the handle bar down to the lid, closing under it")
+    return ObjectModel(
+        "cooler", parts, mass=1.2, friction=0.5,
+        dimensions=_dims(0.21, 0.29, 0.28, handle_clearance=0.035),
+        source="chosen: small personal cooler 21 x 29 x 28 cm incl. its handle, 1.2 kg empty",
+        goal=GoalRegion((0.015, 0.03, 12 * DEG)), goal_wrt=goal_wrt,
+        description="cooler; goal: the handle bar centred between the fingers")
+
+
+def taperoll() -> ObjectModel:
+    """Roll of duct tape lying flat (chosen: 11.4 cm outer, 7.6 cm (3 in) core, 4.8 cm wide)."""
+    parts = ring_wall(16, 0.0475, 0.0475, 0.0, 0.048, 0.019)
+    goal_wrt = line_grasp_wrt(
+        parts, top_down_rotation(-np.pi / 2), (-FINGER_OFFSET, 0.0, 0.048),
+        description="from above, finger 3 through the hole, fingers 1+2 outside the robot-side wall")
+    return ObjectModel(
+        "taperoll", parts, mass=0.25, friction=0.6,
+        dimensions=_dims(0.114, 0.114, 0.048, hole_diameter=0.076),
+        source="chosen: 48 mm duct tape roll, 114 mm outer / 76 mm core diameter, 0.25 kg",
+        goal=GoalRegion((0.018, 0.018, np.inf)), goal_wrt=goal_wrt, symmetric=True,
+        description="tape roll; goal: the robot-side wall pinched, finger 3 in the hole")
+
+
+def can() -> ObjectModel:
+    """Soup can (YCB), enveloped from the side."""
+    parts = (cylinder(0.034, 0.051, (0.0, 0.0, 0.051)),)
+    goal_wrt = line_grasp_wrt(
+        parts, side_rotation(pitch=0.15, roll=np.pi / 2, yaw=SIDE_APPROACH_YAW), (0.0, 0.0, 0.072),
+        spread=np.pi / 2,
+        description="side envelope: fingers 1, 2 wrap the can at spread pi/2, finger 3 over its top")
+    return ObjectModel(
+        "can", parts, mass=0.349, friction=0.4,
+        dimensions=_dims(0.068, 0.068, 0.102),
+        source=f"{YCB}: soup can 6.8 x 6.8 x 10.2 cm, 0.349 kg",
+        goal=GoalRegion((0.025, 0.025, np.inf)), goal_wrt=goal_wrt, symmetric=True,
+        description="can; goal: enveloped (large region)")
+
+
+def wooden_bowl() -> ObjectModel:
+    """Bowl (YCB size): a flared ring of 20 tilted boxes on a 10 cm base."""
+    wall = 0.008
+    parts = ring_wall(20, 0.048, 0.0765, 0.004, 0.053, wall) + (cylinder(0.050, 0.004, (0.0, 0.0, 0.004)),)
+    rim = 0.0765  # mid-surface radius of the wall at the top
+    goal_wrt = line_grasp_wrt(
+        parts, top_down_rotation(-np.pi / 2), (-rim, 0.0, 0.055),
+        description="from above at the robot-side rim: finger 3 inside, fingers 1+2 outside")
+    return ObjectModel(
+        "wooden_bowl", parts, mass=0.25, friction=0.5,
+        dimensions=_dims(0.161, 0.161, 0.055, wall_thickness=wall),
+        source=f"{YCB}: bowl 16.1 x 16.1 x 5.5 cm; 0.25 kg chosen for wood",
+        goal=GoalRegion((0.012, 0.025, np.inf)), goal_wrt=goal_wrt, symmetric=True,
+        description="wooden bowl; goal: rim pinched (orientation ignored)")
+
+
+def cup() -> ObjectModel:
+    """Mug (YCB size 11.7 x 9.3 x 8.1 cm): body 9.3 cm across, handle on +y (robot's left)."""
+    radius, wall, height = 0.0465, 0.005, 0.081
+    parts = (ring_wall(16, radius - wall / 2, radius - wall / 2, 0.0, height, wall)
+             + (cylinder(radius - wall + 0.001, 0.003, (0.0, 0.0, 0.003)),)
+             + loop_handle(radius - wall, 0.066, 0.022, 0.066, 0.0045))
+    goal_wrt = line_grasp_wrt(
+        parts, top_down_rotation(-np.pi / 2), (-radius + wall / 2, 0.0, height),
+        description="from above at the robot-side rim: finger 3 inside, fingers 1+2 outside")
+    return ObjectModel(
+        "cup", parts, mass=0.118, friction=0.5,
+        dimensions=_dims(0.093, 0.117, 0.081, wall_thickness=wall, handle_gap=0.015),
+        source=f"{YCB}: mug 11.7 x 9.3 x 8.1 cm, 0.118 kg",
+        goal=GoalRegion((0.01, 0.01, np.inf)), goal_wrt=goal_wrt, reorient_wrts=reorient_wrts(parts),
+        symmetric=True, description="cup; goal: rim pinched within 1 cm (orientation ignored)")
+
+
+def teabox() -> ObjectModel:
+    """Tea box (chosen: 5.5 x 11.5 x 7 cm, 80 g), long side across the robot's view."""
+    parts = (box((0.0275, 0.0575, 0.035), (0.0, 0.0, 0.035)),)
+    goal_wrt = line_grasp_wrt(
+        parts, top_down_rotation(np.pi / 2), (0.0, 0.0, 0.07),
+        description="from above at its centre, fingers closing across the 5.5 cm width")
+    return ObjectModel(
+        "teabox", parts, mass=0.08, friction=0.5,
+        dimensions=_dims(0.055, 0.115, 0.07),
+        source="chosen: tea box of 20 bags, 5.5 x 11.5 x 7 cm, 80 g",
+        goal=GoalRegion((0.01, 0.01, 8 * DEG)), goal_wrt=goal_wrt,
+        description="tea box; goal: centred within 1 cm both ways")
+
+
+def rect_box() -> ObjectModel:
+    """Rectangular cardboard box (chosen: 5 x 20 x 10 cm, 0.3 kg), long axis along y."""
+    parts = (box((0.025, 0.10, 0.05), (0.0, 0.0, 0.05)),)
+    goal_wrt = line_grasp_wrt(
+        parts, top_down_rotation(np.pi / 2), (0.0, 0.0, 0.10),
+        description="from above, fingers closing across the 5 cm width (paper Fig. 4)")
+    return ObjectModel(
+        "box", parts, mass=0.3, friction=0.5,
+        dimensions=_dims(0.05, 0.20, 0.10),
+        source="chosen: cardboard box 5 x 20 x 10 cm, 0.3 kg",
+        goal=GoalRegion((0.015, 0.05, 10 * DEG)), goal_wrt=goal_wrt,
+        description="box; goal: centred across within 1.5 cm and 10 deg, anywhere along its length")
+
+
+def giant_teacup() -> ObjectModel:
+    """Giant teacup (chosen: 14 cm rim, 11 cm tall) with a thin 1 cm loop handle.
+
+    Canonical frame: handle on +y with a 5 cm (y) by 5.5 cm (z) opening; placed like the pitcher.
+    """
+    wall = 0.006
+    canonical = (ring_wall(20, 0.047, 0.067, 0.001, 0.11, wall)
+                 + (cylinder(0.047, 0.004, (0.0, 0.0, 0.004)),)
+                 + loop_handle(0.058, 0.118, 0.030, 0.095, 0.005))
+    gap_centre = 0.087  # between the body (~6.1 cm at the handle's mid-height) and the bar (11.3 cm)
+    parts, goal_wrt = _placed_side_grasp(
+        canonical, (0.0, gap_centre + FINGER_OFFSET, 0.0625), pitch=0.2, roll=np.pi, standoff=0.04,
+        description="side grasp of the handle: finger 3 through it, fingers 1+2 outside")
+    return ObjectModel(
+        "giant_teacup", parts, mass=0.5, friction=0.5,
+        dimensions=_dims(0.140, 0.193, 0.110, handle_gap=0.05, handle_opening_height=0.055),
+        source="chosen: giant novelty teacup, 14 cm rim, 11 cm tall, 0.5 kg; thin 1 cm handle",
+        goal=GoalRegion((0.01, 0.01, 8 * DEG)), goal_wrt=goal_wrt, reorient_wrts=reorient_wrts(parts),
+        placement_yaw=SIDE_APPROACH_YAW,
+        description="giant teacup; goal: held by the handle")
+
+
+BUILDERS = {
+    "powerdrill": powerdrill, "brita_pitcher": brita_pitcher, "cooler": cooler, "taperoll": taperoll,
+    "can": can, "wooden_bowl": wooden_bowl, "cup": cup, "teabox": teabox, "box": rect_box,
+    "giant_teacup": giant_teacup,
+}

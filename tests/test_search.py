@@ -1,0 +1,100 @@
+"""Forward search: the fast implementation agrees with the naive reference; clustering,
+merging and the static evaluation behave as the paper describes."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from rrg_estimator.update import goal_probability, update
+from rrg_planner.agent import initial_belief
+from rrg_planner.model import PlanningModel
+from rrg_planner.reference_search import ReferenceSearch
+from rrg_planner.search import ForwardSearch, SparseBelief, merge_branches
+from rrg_sim.config import SEARCH, WORLD, UncertaintyLevel
+from rrg_sim.geometric_sim import GeometricSimulator
+from rrg_sim.poses import compose_planar
+
+SMALL = UncertaintyLevel("small", sigma=(0.02, 0.02, 0.2), spacing=(0.01, 0.01, 0.1), shape=(9, 9, 5))
+EXACT = dataclasses.replace(SEARCH, support_rel=0.0)
+
+
+@pytest.fixture(scope="module")
+def model() -> PlanningModel:
+    return PlanningModel("box", levels=(SMALL,), progress=False)
+
+
+@pytest.fixture(scope="module")
+def beliefs(model):
+    """The initial belief and a posterior after one simulated goal grasp (seeded)."""
+    mean = np.asarray(WORLD.nominal_pose)
+    b0 = initial_belief(SMALL, mean)
+    goal = model.actions[model.goal_actions[0]]
+    true = compose_planar(mean, np.array([0.015, -0.01, 0.1]))
+    obs = GeometricSimulator(model.obj, goal.wrt).simulate(true, mean)
+    return [b0, update(b0, goal.tables["small"], mean, obs)]
+
+
+@pytest.mark.parametrize("horizon", [1, 2])
+def test_fast_search_matches_reference(model, beliefs, horizon):
+    fast, ref = ForwardSearch(model, EXACT), ReferenceSearch(model, EXACT)
+    for b in beliefs:
+        f, r = fast.select(b, horizon), ref.select(b, horizon)
+        assert f.action == r.action
+        assert np.array_equal(np.isfinite(f.action_values), np.isfinite(r.action_values))
+        ok = np.isfinite(f.action_values)
+        np.testing.assert_allclose(f.action_values[ok], r.action_values[ok], rtol=1e-6, atol=1e-9)
+        assert f.p_goal == pytest.approx(r.p_goal, abs=1e-9)
+
+
+def test_static_value_is_goal_probability_at_w_star(model, beliefs):
+    g = model.goal_actions[0]
+    for b in beliefs:
+        e = b.w_star()
+        assert model.feasible(g, e)
+        sb = SparseBelief.from_belief(b, "small", support_rel=0.0)
+        v = ForwardSearch(model, EXACT).static_value(sb)
+        assert v == pytest.approx(goal_probability(b, model.actions[g].goal["small"], e), abs=1e-9)
+
+
+def test_clusters_prune_small_groups_and_keep_most_mass(model):
+    for act in model.actions:
+        cl = act.clusters["small"]
+        assert cl.count >= 1
+        assert np.all(cl.prior >= SEARCH.offline_prune)
+        assert np.all(np.diff(cl.prior) <= 0)  # sorted by prior
+        assert cl.prior.sum() >= 0.8  # pruning drops little mass
+        assert np.all(cl.assign[cl.representatives] == np.arange(cl.count))
+        # Each canonical observation is most likely at its own table entry.
+        rows = cl.likelihood[np.arange(cl.count), cl.representatives]
+        assert np.allclose(rows, cl.likelihood.max(axis=1))
+
+
+def test_branches_are_normalized_and_informative(model, beliefs):
+    search = ForwardSearch(model)
+    sb = SparseBelief.from_belief(beliefs[0], "small")
+    for a in range(len(model.actions)):
+        branches = search.expand(sb, a)
+        assert branches, model.names[a]
+        assert sum(p for p, _ in branches) == pytest.approx(1.0)
+        for _, child in branches:
+            assert child.weights.sum() == pytest.approx(1.0)
+            assert np.all(child.weights >= 0)
+
+
+def test_merge_combines_similar_posteriors_and_keeps_half_the_mass():
+    probs = np.array([0.4, 0.3, 0.2, 0.1])
+    ent = np.array([2.0, 2.01, 3.0, 1.0])
+    cov = np.stack([np.eye(3), np.eye(3) * 1.01, np.eye(3) * 3.0, np.eye(3) * 0.3])
+    kept = merge_branches(probs, ent, cov)
+    # Branches 0 and 1 merge (0.7 ≥ 50 %): one branch survives, renormalized.
+    assert kept == [(0, 1.0)]
+    kept = merge_branches(probs, np.array([1.0, 2.0, 3.0, 4.0]), cov)
+    assert [k for k, _ in kept] == [0, 1]
+    assert sum(p for _, p in kept) == pytest.approx(1.0)
+
+
+def test_select_rejects_bad_horizon(model, beliefs):
+    with pytest.raises(ValueError, match="horizon"):
+        ForwardSearch(model).select(beliefs[0], 4)
