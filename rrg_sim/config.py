@@ -286,12 +286,22 @@ class PhysicsParams:
 
     #: Integration step = the WAM's 500 Hz control period [s] (notes: 2 ms steps).
     timestep: float = 0.002
-    #: WAM joint PD gains [N m/rad], [N m s/rad]: libbarrett's default joint-position gains.
+    #: WAM joint PD gains [N m/rad], [N m s/rad]: libbarrett's default stiffness; its default
+    #: damping (10, 20, 5, 2, 0.5, 0.5, 0.05) relies on the real arm's cable-drive friction,
+    #: which the model lacks (damping ratio 0.07-0.28), so kv is raised to critical damping
+    #: at the home posture (2 √(kp I), I from the model's joint-space inertia with the hand).
     arm_kp: tuple[float, ...] = (900.0, 2500.0, 600.0, 500.0, 50.0, 50.0, 8.0)
-    arm_kv: tuple[float, ...] = (10.0, 20.0, 5.0, 2.0, 0.5, 0.5, 0.05)
-    #: Guarded-move speeds (chosen: a careful approach, ~ 1/10 of the WAM's top speed).
-    move_speed: float = 0.25  # m/s, palm
+    arm_kv: tuple[float, ...] = (63.0, 124.0, 35.0, 29.0, 1.8, 3.3, 0.29)
+    #: Guarded-move speeds near the object, between a WRT's poses (chosen: a careful
+    #: approach, ~ 1/10 of the WAM's top speed) ...
+    move_speed: float = 0.2  # m/s, palm
     turn_speed: float = 1.5  # rad/s, hand orientation
+    #: ... and through free space: home to a WRT's first pose (still guarded) and back.
+    free_speed: float = 0.5  # m/s
+    free_turn_speed: float = 3.0  # rad/s
+    #: Joint speed limits of every move [rad/s] (chosen: about half the WAM's top speeds; its
+    #: wrist joints, with lower transmission ratios, run about twice as fast as J1-J4).
+    joint_speed: tuple[float, ...] = (1.5, 1.5, 1.5, 1.5, 3.0, 3.0, 3.0)
     #: Cartesian densification of a WRT's straight segments before IK [m] (brief: ~ 1 cm).
     path_step: float = 0.01
     #: Spread-joint PD [N m/rad], [N m s/rad] and its speed (BH8-282: 180° in ~ 0.5 s).
@@ -322,7 +332,7 @@ class PhysicsParams:
     hand_friction: float = 0.8
     #: Judging: lift height [m], lift speed [m/s] and hold time [s] (issue: hold 2 s).
     lift_height: float = 0.10
-    lift_speed: float = 0.2
+    lift_speed: float = 0.25
     hold_time: float = 2.0
     #: Reorientation: lift before rotating [m] (chosen: clears the table by ~ 2 cm).
     reorient_lift: float = 0.02

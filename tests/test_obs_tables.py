@@ -1,0 +1,100 @@
+"""Observation tables: the relative-transform invariance, no-contact rows, the disk cache."""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from rrg_estimator.obs_tables import ObservationTable, build_table, load_or_build
+from rrg_sim.config import HIGH
+from rrg_sim.geometric_sim import GeometricSimulator
+from rrg_sim.grid import Grid
+from rrg_sim.objects.primitives import Primitive
+from rrg_sim.poses import compose_planar, make_pose
+from rrg_sim.wrt import WRT
+
+COARSE = Grid((0.0, 0.0, 0.0), (0.03, 0.03, 0.5), (9, 9, 5))  # a sub-lattice of the HIGH grid
+
+
+@dataclass(frozen=True)
+class Obj:
+    name: str
+    parts: tuple[Primitive, ...]
+
+
+BOX = Obj("testbox", (Primitive("box", (0.1, 0.05, 0.075), (0.0, 0.0, 0.075)),))
+TOP_DOWN = WRT("top_down", "goal",
+               make_pose(np.array([[0.0, 0.0, 0.5], [0.0, 0.0, 0.235]]), Rotation.from_rotvec([np.pi, 0, 0])),
+               spread=0.0, preclose=0.2)
+SIDE = WRT("side", "info",
+           make_pose(np.array([[-0.45, 0.0, 0.075], [-0.2, 0.0, 0.075]]), Rotation.from_rotvec([0, np.pi / 2, 0])),
+           spread=0.0, preclose=0.3)
+
+
+@pytest.fixture(scope="module")
+def side_table() -> ObservationTable:
+    return build_table(BOX, SIDE, COARSE, workers=2, progress=False)
+
+
+def test_world_simulation_equals_the_table_row_of_its_relative_offset(side_table):
+    sim = GeometricSimulator(BOX, SIDE)
+    rng = np.random.default_rng(3)
+    rows = rng.choice(len(side_table), 24, replace=False)
+    deltas = COARSE.points()[rows]
+    es = np.column_stack([rng.uniform(0.4, 0.9, 24), rng.uniform(-0.3, 0.3, 24), rng.uniform(-np.pi, np.pi, 24)])
+    assert 0 < side_table.contact[rows].sum() < len(rows)
+    for j, d, e in zip(rows, deltas, es):
+        o = sim.simulate(compose_planar(e, d), e)
+        assert o.contact == side_table.contact[j]
+        np.testing.assert_array_equal(o.sensors, side_table.sensors[j])
+        assert abs(o.progress - side_table.progress[j]) < 1e-3
+        np.testing.assert_allclose(o.closure, side_table.closure[j], atol=0.02)
+        np.testing.assert_allclose(o.tip_points, side_table.tip_points[j], atol=2e-3)
+
+
+def test_far_offsets_give_no_contact_rows():
+    grid = Grid((0.5, 0.0, 0.0), (0.05, 0.05, 0.5), (3, 3, 3))  # object 40-60 cm off the path
+    table = build_table(BOX, TOP_DOWN, grid, workers=1, progress=False)
+    assert not table.contact.any() and not table.sensors.any()
+    np.testing.assert_allclose(table.progress, table.path_length, atol=1e-6)
+    assert table.path_length == pytest.approx(0.5 - 0.235)
+
+
+def test_table_rows_match_single_simulations(side_table):
+    sim = GeometricSimulator(BOX, SIDE)
+    for j in (0, len(side_table) // 2, len(side_table) - 7):
+        o = sim.simulate_relative(COARSE.points()[j])
+        row = side_table.observation(j)
+        assert o.contact == row.contact and (o.sensors == row.sensors).all()
+        np.testing.assert_allclose(row.hand_pose, o.hand_pose, atol=1e-6)
+
+
+def test_cache_round_trip_and_rebuild_when_stale(tmp_path):
+    t0 = time.perf_counter()
+    first = load_or_build(BOX, TOP_DOWN, COARSE, cache_dir=tmp_path, workers=1, progress=False)
+    build_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    second = load_or_build(BOX, TOP_DOWN, COARSE, cache_dir=tmp_path, workers=1, progress=False)
+    load_s = time.perf_counter() - t0
+    assert load_s < build_s / 3
+    assert (second.grid, second.object_name, second.wrt_name) == (COARSE, "testbox", "top_down")
+    for field in ("contact", "progress", "sensors", "closure", "tip_points", "tip_normals", "motion_dir",
+                  "stop_pose"):
+        np.testing.assert_array_equal(getattr(second, field), getattr(first, field))
+    assert len(list(tmp_path.glob("*.npz"))) == 1
+    changed = replace(TOP_DOWN, preclose=0.4)  # same name, different WRT → stale
+    third = load_or_build(BOX, changed, COARSE, cache_dir=tmp_path, workers=1, progress=False)
+    assert not np.array_equal(third.closure, first.closure)
+    assert len(list(tmp_path.glob("*.npz"))) == 1
+
+
+def test_full_high_grid_build_agrees_with_the_coarse_table(side_table):
+    full = build_table(BOX, SIDE, HIGH, workers=2, progress=False)
+    assert len(full) == 31 * 31 * 25
+    idx = Grid.for_level(HIGH).nearest_index(COARSE.points())
+    np.testing.assert_array_equal(full.contact[idx], side_table.contact)
+    np.testing.assert_array_equal(full.sensors[idx], side_table.sensors)
+    np.testing.assert_allclose(full.progress[idx], side_table.progress, atol=1e-6)
