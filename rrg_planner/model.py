@@ -58,6 +58,8 @@ class ActionModel:
     tables: dict[str, ObservationTable] = field(default_factory=dict)
     clusters: dict[str, ObservationClusters] = field(default_factory=dict)
     goal: dict[str, np.ndarray] = field(default_factory=dict)
+    #: the goal indicators as float64, for fast dot products with belief weights
+    goal_weight: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def name(self) -> str:
@@ -88,6 +90,7 @@ class PlanningModel:
                 act.clusters[name] = cluster_table(table, level)
                 if wrt.kind == "goal":
                     act.goal[name] = goal_indicator(self.obj, table)
+                    act.goal_weight[name] = act.goal[name].astype(np.float64)
             self.actions.append(act)
             log.info("%s/%s: %s clusters", object_name, wrt.name,
                      {n: c.count for n, c in act.clusters.items()})

@@ -116,15 +116,32 @@ class ReferenceSearch:
             covs.append(cov)
         branches = []
         for k, p in merge_branches(np.array([pc[c] for c in cand]), np.array(ents), np.array(covs), self.params):
-            post = posts[k]
-            top = max(post)
-            child_pts = [pt for pt, v in zip(points, post) if v >= self.params.support_rel * top]
-            child_w = [v for v in post if v >= self.params.support_rel * top]
+            child_pts, child_w = points, posts[k]
             if act.kind == "reorient":
                 child_pts, child_w = self._reorient(child_pts, child_w, e, act.wrt.reorient_angle)
-            z = sum(child_w)
-            branches.append((p, child_pts, [v / z for v in child_w]))
+            branches.append((p, *self._compact(child_pts, child_w)))
         return branches
+
+    def _compact(self, points: Points, weights: list[float]) -> tuple[Points, list[float]]:
+        """Support pruning, then a systematic resample when too many points remain."""
+        top = max(weights)
+        pts = [p for p, w in zip(points, weights) if w >= self.params.support_rel * top]
+        w = [v for v in weights if v >= self.params.support_rel * top]
+        z = sum(w)
+        w = [v / z for v in w]
+        m = self.params.max_support
+        if not m or len(w) <= m:
+            return pts, w
+        counts: dict[int, int] = {}
+        cum, j = w[0], 0
+        for i in range(m):
+            u = (i + 0.5) / m
+            while cum < u and j < len(w) - 1:
+                j += 1
+                cum += w[j]
+            counts[j] = counts.get(j, 0) + 1
+        order = sorted(counts)
+        return [pts[j] for j in order], [counts[j] / m for j in order]
 
     @staticmethod
     def _reorient(points: Points, weights: list[float], e, angle: float):
@@ -159,13 +176,7 @@ class ReferenceSearch:
     def select(self, belief: Belief, horizon: int = SEARCH.horizon) -> SearchResult:
         t0 = time.perf_counter()
         level = self.model.level_of(belief.grid)
-        all_pts = [tuple(p) for p in belief.grid.points().tolist()]
-        all_w = belief.weights.tolist()
-        top = max(all_w)
-        pts = [p for p, w in zip(all_pts, all_w) if w >= self.params.support_rel * top]
-        w = [v for v in all_w if v >= self.params.support_rel * top]
-        z = sum(w)
-        w = [v / z for v in w]
+        pts, w = self._compact([tuple(p) for p in belief.grid.points().tolist()], belief.weights.tolist())
         q = self.action_values(pts, w, level, horizon)
         p_goal = self.static_value(pts, w, level)
         best = int(np.argmax(q)) if np.isfinite(q).any() else -1

@@ -204,7 +204,12 @@ class SearchParams:
     online_keep_mass: float = 0.5
     merge_entropy_tol: float = 0.15  # nats
     merge_cov_tol: float = 0.25  # relative Frobenius difference
-    support_rel: float = 1e-5  # drop belief points below this fraction of the max in search
+    #: drop belief points below this fraction of the max in search (chosen: the likelihood floor
+    #: ε = 1e-3, so states an observation has ruled out down to the floor leave the search).
+    support_rel: float = 1e-3
+    #: Beliefs inside the search with more support points are replaced by a systematic resample
+    #: of this many (chosen: ~2 % error on expectations; measured to keep the root decisions).
+    max_support: int = 0
 
 
 SEARCH = SearchParams()
@@ -304,13 +309,18 @@ class PhysicsParams:
     joint_speed: tuple[float, ...] = (1.5, 1.5, 1.5, 1.5, 3.0, 3.0, 3.0)
     #: Cartesian densification of a WRT's straight segments before IK [m] (brief: ~ 1 cm).
     path_step: float = 0.01
+    #: Reflected motor inertia of every hand joint [kg m²] (chosen: the BH8's worm-geared
+    #: drives reflect a large rotor inertia; it also keeps MuJoCo's inertia-scaled soft
+    #: equality constraints, the spread and distal couplings, within ~ 1 mrad at the stall torque).
+    hand_armature: float = 0.01
     #: Spread-joint PD [N m/rad], [N m s/rad] and its speed (BH8-282: 180° in ~ 0.5 s).
     spread_kp: float = 5.0
-    spread_kv: float = 0.1
+    spread_kv: float = 0.4
     spread_speed: float = 6.0  # rad/s
-    #: Proximal position-servo gain [N m/rad] (chosen: saturates HAND.close_torque at 0.1 rad error).
+    #: Proximal position-servo gain [N m/rad] (chosen: saturates HAND.close_torque at 0.1 rad
+    #: error) and damping (damping ratio ~ 0.6 with hand_armature).
     finger_kp: float = 10.0
-    finger_kv: float = 0.05
+    finger_kv: float = 0.4
     #: A stopped finger is held by the BarrettHand's non-backdrivable worm drive: modelled as a
     #: stiff servo [N m/rad] preloaded with the stall torque, up to a back-drive torque [N m]
     #: (chosen: 30× the closing stiffness, 5× the stall torque).

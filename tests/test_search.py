@@ -17,7 +17,8 @@ from rrg_sim.geometric_sim import GeometricSimulator
 from rrg_sim.poses import compose_planar
 
 SMALL = UncertaintyLevel("small", sigma=(0.02, 0.02, 0.2), spacing=(0.01, 0.01, 0.1), shape=(9, 9, 5))
-EXACT = dataclasses.replace(SEARCH, support_rel=0.0)
+EXACT = dataclasses.replace(SEARCH, support_rel=0.0, max_support=0)
+RESAMPLED = dataclasses.replace(SEARCH, max_support=150)
 
 
 @pytest.fixture(scope="module")
@@ -37,14 +38,15 @@ def beliefs(model):
 
 
 @pytest.mark.parametrize("horizon", [1, 2])
-def test_fast_search_matches_reference(model, beliefs, horizon):
-    fast, ref = ForwardSearch(model, EXACT), ReferenceSearch(model, EXACT)
+@pytest.mark.parametrize("params", [EXACT, RESAMPLED], ids=["exact", "resampled"])
+def test_fast_search_matches_reference(model, beliefs, horizon, params):
+    fast, ref = ForwardSearch(model, params), ReferenceSearch(model, params)
     for b in beliefs:
         f, r = fast.select(b, horizon), ref.select(b, horizon)
         assert f.action == r.action
         assert np.array_equal(np.isfinite(f.action_values), np.isfinite(r.action_values))
         ok = np.isfinite(f.action_values)
-        np.testing.assert_allclose(f.action_values[ok], r.action_values[ok], rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(f.action_values[ok], r.action_values[ok], rtol=1e-4, atol=1e-6)  # float32 gathers
         assert f.p_goal == pytest.approx(r.p_goal, abs=1e-9)
 
 
@@ -53,7 +55,7 @@ def test_static_value_is_goal_probability_at_w_star(model, beliefs):
     for b in beliefs:
         e = b.w_star()
         assert model.feasible(g, e)
-        sb = SparseBelief.from_belief(b, "small", support_rel=0.0)
+        sb = SparseBelief.from_belief(b, "small", EXACT)
         v = ForwardSearch(model, EXACT).static_value(sb)
         assert v == pytest.approx(goal_probability(b, model.actions[g].goal["small"], e), abs=1e-9)
 
