@@ -123,25 +123,12 @@ class ReferenceSearch:
         return branches
 
     def _compact(self, points: Points, weights: list[float]) -> tuple[Points, list[float]]:
-        """Support pruning, then a systematic resample when too many points remain."""
+        """Support pruning relative to the max weight, then renormalization."""
         top = max(weights)
         pts = [p for p, w in zip(points, weights) if w >= self.params.support_rel * top]
         w = [v for v in weights if v >= self.params.support_rel * top]
         z = sum(w)
-        w = [v / z for v in w]
-        m = self.params.max_support
-        if not m or len(w) <= m:
-            return pts, w
-        counts: dict[int, int] = {}
-        cum, j = w[0], 0
-        for i in range(m):
-            u = (i + 0.5) / m
-            while cum < u and j < len(w) - 1:
-                j += 1
-                cum += w[j]
-            counts[j] = counts.get(j, 0) + 1
-        order = sorted(counts)
-        return [pts[j] for j in order], [counts[j] / m for j in order]
+        return pts, [v / z for v in w]
 
     @staticmethod
     def _reorient(points: Points, weights: list[float], e, angle: float):

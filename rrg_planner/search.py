@@ -52,17 +52,9 @@ class SparseBelief:
     @classmethod
     def compact(cls, points: np.ndarray, weights: np.ndarray, level: str,
                 params: SearchParams = SEARCH) -> "SparseBelief":
-        """Drop points below support_rel of the max; if more than max_support remain, replace
-        them by a deterministic systematic resample (unique points, weights = counts / M)."""
+        """Drop the points below support_rel of the max weight and renormalize."""
         keep = np.flatnonzero(weights >= params.support_rel * weights.max())
-        pts, w = points[keep], weights[keep] / weights[keep].sum()
-        m = params.max_support
-        if m and len(w) > m:
-            cdf = np.cumsum(w)
-            picks = np.minimum(np.searchsorted(cdf, (np.arange(m) + 0.5) / m * cdf[-1]), len(w) - 1)
-            uniq, counts = np.unique(picks, return_counts=True)
-            pts, w = pts[uniq], counts / m
-        return cls(pts, w, level)
+        return cls(points[keep], weights[keep] / weights[keep].sum(), level)
 
     @classmethod
     def from_belief(cls, belief: Belief, level: str, params: SearchParams = SEARCH) -> "SparseBelief":

@@ -207,9 +207,6 @@ class SearchParams:
     #: drop belief points below this fraction of the max in search (chosen: the likelihood floor
     #: ε = 1e-3, so states an observation has ruled out down to the floor leave the search).
     support_rel: float = 1e-3
-    #: Beliefs inside the search with more support points are replaced by a systematic resample
-    #: of this many (chosen: ~2 % error on expectations; measured to keep the root decisions).
-    max_support: int = 0
 
 
 SEARCH = SearchParams()

@@ -17,8 +17,7 @@ from rrg_sim.geometric_sim import GeometricSimulator
 from rrg_sim.poses import compose_planar
 
 SMALL = UncertaintyLevel("small", sigma=(0.02, 0.02, 0.2), spacing=(0.01, 0.01, 0.1), shape=(9, 9, 5))
-EXACT = dataclasses.replace(SEARCH, support_rel=0.0, max_support=0)
-RESAMPLED = dataclasses.replace(SEARCH, max_support=150)
+EXACT = dataclasses.replace(SEARCH, support_rel=0.0)
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +37,7 @@ def beliefs(model):
 
 
 @pytest.mark.parametrize("horizon", [1, 2])
-@pytest.mark.parametrize("params", [EXACT, RESAMPLED], ids=["exact", "resampled"])
+@pytest.mark.parametrize("params", [EXACT, SEARCH], ids=["full-support", "default-support"])
 def test_fast_search_matches_reference(model, beliefs, horizon, params):
     fast, ref = ForwardSearch(model, params), ReferenceSearch(model, params)
     for b in beliefs:
