@@ -260,7 +260,8 @@ class LinkInertia:
 
 
 #: WAM links 1-7 in their DH frames i (7-DOF wrist). Source: Barrett Technology,
-#: "WAM Arm Inertial Specifications" (AC-02) / WAM_MassParams_AA-00; link 7 without a tool.
+#: "WAM Arm Inertial Specifications" (AC-02) / WAM_MassParams_AA-00; link 7 without a tool,
+#: in Barrett's tool-plate frame (α7 = 0: z along the roll axis, at d7).
 WAM_LINKS: tuple[LinkInertia, ...] = (
     LinkInertia(10.76768767, (-0.00443422, 0.12189039, -0.00066489),
                 (0.13488033, 0.11328369, 0.09046330, -0.00213041, -0.00012485, 0.00068555)),
@@ -333,7 +334,7 @@ class PhysicsParams:
     nano17_mass: float = 0.00907
     #: Nano17 torque noise σ [N m] (chosen: ~ 1/64 N mm resolution, ×5 for vibration).
     nano17_torque_noise: float = 1e-4
-    #: Touch-pad force noise σ [N] (chosen: a third of the pad threshold would flip rarely).
+    #: Touch-pad force noise σ [N] (chosen: a tenth of the pad threshold).
     pad_force_noise: float = 0.03
     #: Sliding friction of the hand's rubber-coated links (chosen: rubber on plastic/cardboard).
     hand_friction: float = 0.8

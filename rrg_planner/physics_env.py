@@ -1,0 +1,36 @@
+"""MuJoCo physics as the agent's Environment: the object really moves when bumped, and a
+goal grasp is judged by lifting it (rrg_sim.physics)."""
+from __future__ import annotations
+
+import numpy as np
+
+from rrg_sim.observation import Observation
+from rrg_sim.physics.world import PhysicsWorld
+from rrg_sim.wrt import WRT
+
+
+class PhysicsEnvironment:
+    """Wraps a PhysicsWorld (reused across trials: ``reset`` places the next true pose)."""
+
+    def __init__(self, world: PhysicsWorld):
+        self.world = world
+
+    @classmethod
+    def for_object(cls, object_name: str, seed: int = 0) -> "PhysicsEnvironment":
+        return cls(PhysicsWorld(object_name, seed=seed))
+
+    def reset(self, true_pose, seed: int) -> None:
+        """Start a trial: robot home, object at its true pose, sensor noise reseeded."""
+        self.world.rng = np.random.default_rng(seed)
+        self.world.sensors.rng = self.world.rng
+        self.world.reset(np.asarray(true_pose, dtype=float))
+
+    def execute(self, wrt: WRT, e: np.ndarray) -> Observation:
+        return self.world.execute_wrt(wrt, e)
+
+    def retreat(self) -> None:
+        self.world.retreat()
+
+    def judge(self, wrt: WRT, e: np.ndarray) -> bool:
+        ok, _ = self.world.judge_grasp(self.world.obj, e)
+        return bool(ok)

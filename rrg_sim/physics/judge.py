@@ -1,0 +1,76 @@
+"""Judging a grasp in physics (DESIGN §6 "Success in simulation").
+
+After a goal WRT has closed the hand, the grasp succeeds iff
+
+* the object's true pose relative to the executed goal, Δ = relative_planar(e_used, w_true)
+  taken before lifting, lies inside the object's goal region (its tolerances),
+* the observation shows at least ``goal.min_fingers`` fingers in contact and every sensor in
+  ``goal.required_sensors`` fired, and
+* the object stays in the hand while the arm lifts it PHYSICS.lift_height and holds it
+  PHYSICS.hold_time: still touching the hand and risen by at least HELD_FRACTION of the lift.
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..config import PHYSICS, SENSOR_NAMES
+from ..objects import ObjectModel
+from ..poses import invert, relative_planar
+from .trajectory import InfeasiblePath
+
+if TYPE_CHECKING:
+    from .world import PhysicsWorld
+
+#: The object counts as lifted when it rose at least this fraction of the lift (chosen: a
+#: grasp that lets it slide half-way out has failed).
+HELD_FRACTION = 0.5
+#: Sensor ids of each finger's links (proximal pad, distal pad, Nano17 tip).
+FINGER_SENSORS = tuple(tuple(SENSOR_NAMES.index(f"{link}{i}") for link in ("prox", "dist", "tip"))
+                       for i in (1, 2, 3))
+
+
+def fingers_in_contact(sensors: np.ndarray) -> int:
+    """Number of fingers with any link's sensor fired, from (10,) sensor flags."""
+    return int(sum(np.any(sensors[list(ids)]) for ids in FINGER_SENSORS))
+
+
+def _object_in_hand_frame(world: "PhysicsWorld") -> np.ndarray:
+    return invert(world.hand_pose()) @ world.object_pose()
+
+
+def judge_grasp(world: "PhysicsWorld", obj: ObjectModel, e_used) -> tuple[bool, dict]:
+    """Lift and hold the grasp the last goal WRT left in ``world``; returns (success, info).
+
+    info: delta (Δ), in_region, fingers (in contact), required_ok, held, lift_feasible,
+    lift_dz [m], slip [m] (object displacement in the hand frame during lift and hold),
+    early_contact, w_true (object pose before lifting).
+    """
+    obs = world.last_observation
+    if obs is None:
+        raise RuntimeError("judge_grasp needs a WRT execution first")
+    w_true = world.true_object_pose()
+    delta = relative_planar(np.asarray(e_used, dtype=float), w_true)
+    in_region = bool(obj.goal.contains(delta))
+    fingers = fingers_in_contact(obs.sensors)
+    required_ok = all(obs.sensors[SENSOR_NAMES.index(name)] for name in obj.goal.required_sensors)
+    z0, grip0 = world.object_height(), _object_in_hand_frame(world)
+    up = np.eye(4)
+    up[2, 3] = PHYSICS.lift_height
+    lift = {0: (PHYSICS.lift_speed, PHYSICS.turn_speed)}
+    try:
+        world.move_through((up @ world.hand_pose())[None], speeds=lift, rigid_from=1)
+        lift_feasible = True
+    except InfeasiblePath:  # the arm cannot lift from this grasp: it cannot be held either
+        lift_feasible = False
+    world.hold(PHYSICS.hold_time)
+    lift_dz = world.object_height() - z0
+    held = lift_feasible and world.object_in_hand() and lift_dz >= HELD_FRACTION * PHYSICS.lift_height
+    slip = float(np.linalg.norm(_object_in_hand_frame(world)[:3, 3] - grip0[:3, 3]))
+    success = held and in_region and fingers >= obj.goal.min_fingers and required_ok
+    info = dict(delta=delta.tolist(), in_region=in_region, fingers=fingers, required_ok=required_ok,
+                held=held, lift_feasible=lift_feasible, lift_dz=lift_dz, slip=slip, early_contact=obs.contact,
+                w_true=w_true.tolist())
+    return success, info
+

@@ -1,0 +1,375 @@
+"""PhysicsWorld: the MuJoCo stand-in for the real robot (DESIGN §2, §4).
+
+One scene (WAM + BarrettHand + table + one catalogue object as a free body). The API mirrors
+what the robot offers the executor: place the object (simulation only), run a WRT τ(e) as
+guarded moves through IK via-points, close the fingers until each stops, read an
+``Observation`` (the planning core's type), retreat along the path, and judge a grasp by
+lifting it. The object really moves when it is bumped; ``true_object_pose`` is for
+evaluation only.
+
+Control: the WAM's position servos run every 2 ms control period; a guarded move checks the
+pads and Nano17s after every period and stops (holds the current joint angles) as soon as
+one crosses its threshold.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .. import wam
+from ..config import GEOMSIM, HAND, PHYSICS, WORLD
+from ..objects import ObjectModel, get_object
+from ..observation import Observation
+from ..wrt import WRT
+from .judge import judge_grasp
+from .mjcf_robot import (ARM_ACTUATORS, ARM_JOINTS, FINGER_ACTUATORS, FINGER_JOINTS, PALM_BODY,
+                         ROBOT_CONAFFINITY, ROBOT_CONTYPE, SPREAD_ACTUATOR)
+from .scene import OBJECT_BODY, OBJECT_JOINT, build_model
+from .sensing import HandSensors, Reading
+from .trajectory import DensePath, InfeasiblePath, TimedPath, joint_path, plan_path, solve_path, timed_controls
+
+__all__ = ["PhysicsWorld", "InfeasiblePath"]
+
+#: (m/s, rad/s) through free space: from home to a WRT's first pose, and back.
+FREE_SPEEDS = (PHYSICS.free_speed, PHYSICS.free_turn_speed)
+#: The fingers take this long to get going [s]: no stall is declared earlier, and an opening
+#: hand gets this long to settle (chosen: ~ 2× the time to reach closing speed).
+CLOSE_START_TIME = 0.05
+
+
+@dataclass
+class _Execution:
+    """What the last WRT execution left behind for ``retreat`` and ``judge_grasp``."""
+
+    wrt: WRT
+    e: np.ndarray
+    path: DensePath  # the hand path actually commanded, from its start to the stop
+    observation: Observation
+    #: Rigid motion (4,4) the object was given (a reorientation), applied to the way back.
+    moved: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+
+def rotation_about_z(centre_xy, angle: float) -> np.ndarray:
+    """(4,4) world rotation by ``angle`` about the vertical axis through centre_xy."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec([0.0, 0.0, angle]).as_matrix()
+    c = np.array([centre_xy[0], centre_xy[1], 0.0])
+    T[:3, 3] = c - T[:3, :3] @ c
+    return T
+
+
+class PhysicsWorld:
+    """The simulated robot and one object (see the module doc).
+
+    object_name: a catalogue name (rrg_sim.objects). seed: seeds the sensor noise.
+    sensor_noise: scale of every sensor's noise σ (1 = config values, 0 = noiseless).
+    """
+
+    def __init__(self, object_name: str, seed: int = 0, sensor_noise: float = 1.0):
+        self.obj: ObjectModel = get_object(object_name)
+        self.model = build_model(object_name)
+        self.data = mujoco.MjData(self.model)
+        self.rng = np.random.default_rng(seed)
+        self.sensors = HandSensors(self.model, self.data, self.rng, sensor_noise)
+        m = self.model
+        qadr = lambda j: int(m.jnt_qposadr[m.joint(j).id])  # noqa: E731
+        vadr = lambda j: int(m.jnt_dofadr[m.joint(j).id])  # noqa: E731
+        self._arm_q = np.array([qadr(j) for j in ARM_JOINTS])
+        self._finger_q = np.array([qadr(j) for j in FINGER_JOINTS])
+        self._finger_v = np.array([vadr(j) for j in FINGER_JOINTS])
+        self._obj_q = qadr(OBJECT_JOINT)
+        self._obj_v = vadr(OBJECT_JOINT)
+        act = [m.actuator(a).id for a in ARM_ACTUATORS + (SPREAD_ACTUATOR,) + FINGER_ACTUATORS]
+        if act != list(range(11)):
+            raise RuntimeError("actuator order must be: 7 arm, spread, 3 fingers")
+        self._palm = m.body(PALM_BODY).id
+        self._obj_body = m.body(OBJECT_BODY).id
+        self._robot_geom = (m.geom_contype == ROBOT_CONTYPE) & (m.geom_conaffinity == ROBOT_CONAFFINITY)
+        self._obj_geom = m.geom_bodyid == self._obj_body
+        self._placed = np.asarray(WORLD.nominal_pose, dtype=float)
+        self._last: _Execution | None = None
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+    def reseed(self, seed: int) -> None:
+        """Restart the sensor noise from ``seed`` (e.g. per trial)."""
+        self.rng = self.sensors.rng = np.random.default_rng(seed)
+
+    def reset(self, w=None) -> None:
+        """Arm at home, hand open, object at w (default: where it was last placed), settled."""
+        mujoco.mj_resetData(self.model, self.data)
+        for i in range(3):
+            self._finger_servo(i, PHYSICS.finger_kp, HAND.close_torque)
+        self.data.qpos[self._arm_q] = wam.HOME_Q
+        self.data.ctrl[:] = 0.0
+        self.data.ctrl[:7] = wam.HOME_Q
+        self._last = None
+        self.place_object(self._placed if w is None else w)
+
+    def place_object(self, w) -> None:
+        """Put the object at the true planar pose w = (x [m], y [m], θ [rad]) at rest, and let it settle."""
+        self._placed = np.asarray(w, dtype=float)
+        x, y, th = self._placed
+        d = self.data
+        d.qpos[self._obj_q:self._obj_q + 7] = [x, y, WORLD.table_top_z, np.cos(th / 2), 0.0, 0.0, np.sin(th / 2)]
+        d.qvel[self._obj_v:self._obj_v + 6] = 0.0
+        mujoco.mj_forward(self.model, d)
+        mujoco.mj_step(self.model, d, nstep=int(round(PHYSICS.settle_time / PHYSICS.timestep)))
+
+    def true_object_pose(self) -> np.ndarray:
+        """The object's planar pose (x, y, θ) in world: ground truth, for evaluation only."""
+        R = self.data.xmat[self._obj_body].reshape(3, 3)
+        p = self.data.xpos[self._obj_body]
+        return np.array([p[0], p[1], np.arctan2(R[1, 0], R[0, 0])])
+
+    def object_pose(self) -> np.ndarray:
+        """(4,4) object frame in world (ground truth)."""
+        T = np.eye(4)
+        T[:3, :3] = self.data.xmat[self._obj_body].reshape(3, 3)
+        T[:3, 3] = self.data.xpos[self._obj_body]
+        return T
+
+    def object_height(self) -> float:
+        """z of the object's frame origin [m] (0 when it rests on the table)."""
+        return float(self.data.xpos[self._obj_body][2])
+
+    def arm_q(self) -> np.ndarray:
+        return self.data.qpos[self._arm_q].copy()
+
+    def finger_angles(self) -> np.ndarray:
+        """(3,) proximal joint angles [rad]."""
+        return self.data.qpos[self._finger_q].copy()
+
+    def hand_pose(self) -> np.ndarray:
+        """(4,4) hand-frame pose in world (measured)."""
+        T = np.eye(4)
+        T[:3, :3] = self.data.xmat[self._palm].reshape(3, 3)
+        T[:3, 3] = self.data.xpos[self._palm]
+        return T
+
+    def object_in_hand(self) -> bool:
+        """True while any hand or arm geom touches the object."""
+        n = self.data.ncon
+        g = self.data.contact.geom[:n]
+        return bool(np.any((self._robot_geom[g[:, 0]] & self._obj_geom[g[:, 1]])
+                           | (self._robot_geom[g[:, 1]] & self._obj_geom[g[:, 0]])))
+
+    @property
+    def sim_time(self) -> float:
+        """Simulated time since the last reset [s]."""
+        return float(self.data.time)
+
+    # ------------------------------------------------------------------ motion primitives
+    def _hand_ramp(self, n: int, spread: float, proximal: float) -> np.ndarray:
+        """(n,4) spread + proximal servo targets moving from the current targets to the given
+        ones at the hand's speeds (config), then holding."""
+        dt = PHYSICS.timestep
+        start = self.data.ctrl[7:].copy()
+        goal = np.array([spread, proximal, proximal, proximal])
+        speed = np.array([PHYSICS.spread_speed] + [HAND.close_speed] * 3)
+        t = np.arange(1, n + 1)[:, None] * dt
+        return start + np.clip(goal - start, -speed * t, speed * t)
+
+    def _hand_ramp_steps(self, spread: float, proximal: float) -> int:
+        start = self.data.ctrl[7:]
+        travel = np.abs(np.array([spread, proximal, proximal, proximal]) - start)
+        speed = np.array([PHYSICS.spread_speed] + [HAND.close_speed] * 3)
+        return max(1, int(np.ceil(np.max(travel / speed) / PHYSICS.timestep)))
+
+    def _run(self, arm: np.ndarray, hand: np.ndarray | None = None, guard: bool = False) -> int | None:
+        """Step through arm servo targets (N,7) and hand targets (N',4), each held past its end.
+        With ``guard``, stop at the first period any sensor fires: hold the arm where it is
+        and return that period's index; None when the motion completed."""
+        m, d = self.model, self.data
+        n = len(arm) if hand is None else max(len(arm), len(hand))
+        ctrl = np.repeat(d.ctrl[None], n, axis=0)
+        ctrl[:, :7] = arm[np.minimum(np.arange(n), len(arm) - 1)]
+        if hand is not None:
+            ctrl[:, 7:] = hand[np.minimum(np.arange(n), len(hand) - 1)]
+        fired = self.sensors.any_fired
+        for k in range(n):
+            d.ctrl[:] = ctrl[k]
+            mujoco.mj_step(m, d)
+            if guard and fired():
+                self.hold_arm()
+                return k
+        return None
+
+    def hold(self, seconds: float) -> None:
+        """Keep every servo target for ``seconds`` of simulated time."""
+        mujoco.mj_step(self.model, self.data, nstep=int(round(seconds / PHYSICS.timestep)))
+
+    def hold_arm(self) -> None:
+        """Servo the arm to where it is now (a stop)."""
+        self.data.ctrl[:7] = self.data.qpos[self._arm_q]
+
+    def move_through(self, waypoints: np.ndarray, guard: bool = False, speeds: dict | None = None,
+                     hand: tuple[float, float] | None = None,
+                     rigid_from: int = 0, reconfigure: bool = False) -> tuple[DensePath, TimedPath, int | None]:
+        """Move the hand from where it is along straight lines through hand waypoints (K,4,4)
+        (trajectory.plan_path; segments before ``rigid_from`` may swivel the elbow, and with
+        ``reconfigure`` the arm may first change IK branch by a joint-space move),
+        optionally guarded and preshaping the hand to (spread, proximal) on the way.
+        ``speeds``: (m/s, rad/s) per segment (segment 0 leads to waypoints[0]), see
+        trajectory.timed_controls. Returns the dense path, its timing and the period a guard
+        stopped it (or None)."""
+        path = plan_path(waypoints, self.arm_q(), rigid_from, reconfigure)
+        return (path,) + self._follow(path, guard, speeds, hand)
+
+    def _follow(self, path: DensePath, guard: bool = False, speeds: dict | None = None,
+                hand: tuple[float, float] | None = None) -> tuple[TimedPath, int | None]:
+        timed = timed_controls(path, speeds)
+        ramp = None if hand is None else self._hand_ramp(self._hand_ramp_steps(*hand), *hand)
+        if guard:
+            self.sensors.tare()
+        return timed, self._run(timed.ctrl, ramp, guard)
+
+    def _finger_servo(self, finger: int, kp: float, torque: float) -> None:
+        """Set proximal servo ``finger``'s stiffness [N m/rad] and torque limit [N m]."""
+        a = 8 + finger
+        self.model.actuator_gainprm[a, 0] = kp
+        self.model.actuator_biasprm[a, 1] = -kp
+        self.model.actuator_forcerange[a] = (-torque, torque)
+
+    def close_hand(self) -> None:
+        """Close every finger at the hand's speed until it stops: stalled (closing slower than
+        PHYSICS.stall_speed for PHYSICS.stall_time, e.g. at the torque limit on the object,
+        or pushed back) or at its joint limit. A stopped finger keeps its stall torque and
+        cannot be pushed back (the non-backdrivable worm drive, see config.PHYSICS.brake_kp)."""
+        m, d = self.model, self.data
+        dt = PHYSICS.timestep
+        target = d.ctrl[8:11].copy()
+        stalled = np.zeros(3, bool)
+        still = np.zeros(3)
+        grace = int(round(CLOSE_START_TIME / dt))
+        for k in range(int(round(PHYSICS.close_timeout / dt))):
+            target = np.where(stalled, target, np.minimum(target + HAND.close_speed * dt, HAND.proximal_range[1]))
+            d.ctrl[8:11] = target
+            mujoco.mj_step(m, d)
+            slow = d.qvel[self._finger_v] < PHYSICS.stall_speed  # stopped, or pushed back
+            still = np.where(slow, still + dt, 0.0)
+            if k >= grace:
+                for i in np.nonzero(~stalled & (still >= PHYSICS.stall_time))[0]:
+                    self._brake(i)
+                    stalled[i] = True
+                    target[i] = d.ctrl[8 + i]
+                if stalled.all():
+                    break
+
+    def _brake(self, finger: int) -> None:
+        """Hold finger where it is with the torque it pushes with now (worm-drive brake)."""
+        a, q = 8 + finger, self.data.qpos[self._finger_q[finger]]
+        torque = float(np.clip(PHYSICS.finger_kp * (self.data.ctrl[a] - q), -HAND.close_torque, HAND.close_torque))
+        self._finger_servo(finger, PHYSICS.brake_kp, PHYSICS.brake_torque)
+        self.data.ctrl[a] = q + torque / PHYSICS.brake_kp
+
+    def open_hand(self, proximal: float = 0.0) -> None:
+        """Open the fingers to ``proximal`` [rad] (spread unchanged), holding the arm."""
+        for i in range(3):
+            self._finger_servo(i, PHYSICS.finger_kp, HAND.close_torque)
+        spread = float(self.data.ctrl[7])
+        n = self._hand_ramp_steps(spread, proximal) + int(round(CLOSE_START_TIME / PHYSICS.timestep))
+        ramp = self._hand_ramp(n, spread, proximal)
+        self._run(self.data.ctrl[None, :7].copy(), ramp)
+
+    # ------------------------------------------------------------------ WRTs
+    def execute_wrt(self, wrt: WRT, e) -> Observation:
+        """Run τ(e) as guarded moves from the current (home) pose, close the fingers, and
+        return the observation. The hand is left closed at the stop; call ``retreat`` next
+        (for a goal WRT, ``judge_grasp`` may come first). A "reorient" WRT also lifts the
+        grasped object slightly, turns it by wrt.reorient_angle about the vertical through
+        e, puts it down and opens the hand. Raises InfeasiblePath when IK fails."""
+        e = np.asarray(e, dtype=float)
+        path, timed, stop = self.move_through(wrt.world_poses(e), guard=True,
+                                              speeds={k: FREE_SPEEDS for k in (0, -1, -2)},
+                                              hand=(wrt.spread, wrt.preclose), rigid_from=1,
+                                              reconfigure=True)
+        contact = stop is not None
+        index = float(timed.index[stop]) if contact else float(len(path.poses) - 1)
+        at_stop = self.sensors.reading()
+        motion_dir = self._motion_dir(path, index, at_stop)
+        stop_pose = self.hand_pose()
+        self.close_hand()
+        closed = self.sensors.reading()
+        first = int(np.nonzero(path.segment == 0)[0][-1])  # the WRT's first pose
+        arc = path.arc
+        progress = max(0.0, float(np.interp(index, np.arange(len(arc)), arc)) - arc[first])
+        obs = Observation(contact=contact, progress=progress, hand_pose=stop_pose,
+                          sensors=at_stop.fired | closed.fired, closure=self.finger_angles(),
+                          tip_points=closed.tip_points, tip_normals=closed.tip_normals, motion_dir=motion_dir)
+        self._last = _Execution(wrt, e, path.upto(int(np.floor(index))), obs)
+        if wrt.kind == "reorient":
+            self._reorient(wrt, e)
+        return obs
+
+    def _motion_dir(self, path: DensePath, index: float, reading: Reading) -> np.ndarray:
+        """Unit direction the sensed contact (a fired Nano17's contact point, else a fired pad,
+        else the palm) moved in world over the last dense step before ``index``."""
+        b = max(1, int(np.ceil(index)))
+        T_hand = self.hand_pose()
+        tips = reading.fired[7:]
+        if tips.any():
+            local = reading.tip_points[np.argmax(tips)]
+        elif reading.fired.any():
+            p = self.sensors.sensor_positions()[np.argmax(reading.fired)]
+            local = T_hand[:3, :3].T @ (p - T_hand[:3, 3])
+        else:
+            local = np.zeros(3)
+        a_pose, b_pose = path.poses[b - 1], path.poses[b]
+        v = (b_pose[:3, :3] @ local + b_pose[:3, 3]) - (a_pose[:3, :3] @ local + a_pose[:3, 3])
+        return v / max(np.linalg.norm(v), 1e-12)
+
+    def _reorient(self, wrt: WRT, e: np.ndarray) -> None:
+        """Lift, turn about the vertical through e, put down, open (after closing on the object)."""
+        up = np.eye(4)
+        up[2, 3] = PHYSICS.reorient_lift
+        T = self.hand_pose()
+        self.move_through((up @ T)[None], rigid_from=1)
+        n = max(2, int(np.ceil(abs(wrt.reorient_angle) * GEOMSIM.rotation_sample_radius / PHYSICS.path_step)) + 1)
+        arc = np.stack([rotation_about_z(e[:2], a) @ up @ T for a in np.linspace(0.0, wrt.reorient_angle, n)])
+        self._follow(solve_path(arc, self.arm_q()))
+        G = rotation_about_z(e[:2], wrt.reorient_angle)
+        self.move_through((G @ T)[None], rigid_from=1)
+        self.open_hand(wrt.preclose)
+        self._last.moved = G
+
+    def retreat(self) -> None:
+        """Open the hand and retrace the executed path back to home. After a reorientation the
+        WRT's part of the path is retraced turned with the object, then the arm moves home in
+        joint space."""
+        if self._last is None:
+            return
+        last, self._last = self._last, None
+        self.open_hand(last.wrt.preclose)
+        q0 = self.arm_q()
+        if np.allclose(last.moved, np.eye(4)):
+            back = last.path.reversed()
+            path = DensePath(np.concatenate([wam.fk(q0)[None], back.poses]), np.vstack([q0, back.q]),
+                             np.r_[back.segment[0], back.segment])
+            top = int(last.path.segment.max())  # segments 0 and the lead-ins are free space
+            self._follow(path, speeds={top - k: FREE_SPEEDS for k in (0, -1, -2)})
+        else:
+            passed = max(0, int(last.path.segment[-1]))  # WRT poses 0 … passed-1 were passed
+            back = last.moved @ last.wrt.world_poses(last.e)[:passed][::-1]
+            if len(back):
+                self.move_through(back, rigid_from=len(back))
+            self._follow(joint_path(self.arm_q(), last.path.q[0]), speeds={0: FREE_SPEEDS})
+        self.open_hand(0.0)
+
+    def judge_grasp(self, obj: ObjectModel, e_used) -> tuple[bool, dict]:
+        """Lift and hold the grasp the last goal WRT left and judge it against obj's goal
+        region relative to e_used, the estimate it ran at (rrg_sim.physics.judge)."""
+        return judge_grasp(self, obj, e_used)
+
+    def render_png(self, path, **kwargs):
+        """Write a PNG snapshot of the current state (rrg_sim.physics.render.render_png)."""
+        from .render import render_png  # GL and matplotlib load only when rendering
+
+        return render_png(self, path, **kwargs)
+
+    @property
+    def last_observation(self) -> Observation | None:
+        return None if self._last is None else self._last.observation

@@ -1,0 +1,64 @@
+"""Guarded moves in physics: the hand stops on the first contact, within one control period,
+barely moving the object, and the sensor that stops it sits on the side that was hit."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from rrg_sim.config import SENSOR_NAMES
+from rrg_sim.physics.world import PhysicsWorld
+from rrg_sim.poses import make_pose
+from rrg_sim.wrt import WRT
+
+DOWN = Rotation.from_rotvec([np.pi, 0.0, 0.0])  # hand z = world -z, hand y = world -y
+
+
+def _sweep(start, end, name: str, above: float | None = None) -> WRT:
+    """An info-style WRT: hand pointing down, straight from start to end (object frame) [m],
+    optionally entering from ``above`` start (so the way from home clears the object)."""
+    points = [start, end] if above is None else [(start[0], start[1], above), start, end]
+    return WRT(name, "info", make_pose(np.array(points, dtype=float), DOWN))
+
+
+# (object, WRT, sensors allowed to stop it): coming down on top of the box lands the
+# fingertips; sweeping toward world -y leads with fingers 1 and 2 (hand +y), toward world +y
+# with finger 3.
+TIPS = {"tip1", "tip2", "tip3", "dist1", "dist2", "dist3"}
+FINGERS_1_2 = {"prox1", "prox2", "dist1", "dist2", "tip1", "tip2"}
+FINGER_3 = {"prox3", "dist3", "tip3"}
+CASES = [
+    ("box", _sweep((0.0, 0.0, 0.45), (0.0, 0.0, 0.25), "down_onto_box"), TIPS),
+    ("can", _sweep((0.0, 0.18, 0.25), (0.0, -0.18, 0.25), "can_sweep_minus_y"), FINGERS_1_2),
+    ("can", _sweep((0.0, -0.18, 0.25), (0.0, 0.18, 0.25), "can_sweep_plus_y"), FINGER_3),
+    ("box", _sweep((0.22, 0.0, 0.27), (-0.22, 0.0, 0.27), "box_sweep_minus_x"), FINGERS_1_2 | FINGER_3),
+    ("cooler", _sweep((0.0, 0.30, 0.40), (0.0, -0.30, 0.40), "cooler_sweep_minus_y", above=0.55), FINGERS_1_2),
+    ("cooler", _sweep((0.0, -0.30, 0.40), (0.0, 0.30, 0.40), "cooler_sweep_plus_y", above=0.55), FINGER_3),
+]
+
+
+@pytest.mark.parametrize("name, wrt, side", CASES, ids=[c[1].name for c in CASES])
+def test_guarded_move_stops_on_first_contact(name, wrt, side):
+    world = PhysicsWorld(name, seed=3)
+    w0 = world.true_object_pose()
+    path, timed, stop = world.move_through(wrt.world_poses(w0), guard=True)
+    assert stop is not None, "the move must be stopped by a contact"
+    assert path.segment[int(np.ceil(timed.index[stop]))] == len(wrt.poses) - 1, "stopped on the last segment"
+    fired = world.sensors.fired()
+    assert {SENSOR_NAMES[i] for i in np.nonzero(fired)[0]} <= side and fired.any()
+    world.hold(0.2)  # the arm comes to rest
+    assert np.linalg.norm(world.true_object_pose()[:2] - w0[:2]) < 0.005
+
+
+def test_guard_reacts_in_the_period_the_signal_crosses():
+    """Replaying the stopped move period by period: no sensor fired one period earlier."""
+    world = PhysicsWorld("can", seed=0, sensor_noise=0.0)
+    wrt = CASES[1][1]
+    w0 = world.true_object_pose()
+    path, timed, stop = world.move_through(wrt.world_poses(w0), guard=True)
+    world.reset()
+    world.sensors.tare()
+    world._run(timed.ctrl[:stop])  # one period short of the stop, unguarded
+    assert not world.sensors.fired().any()
+    world._run(timed.ctrl[stop:stop + 1])
+    assert world.sensors.fired().any()
