@@ -6,13 +6,16 @@ WRT's table at the entry nearest to its offset (``table_indices``).
 
 The likelihood of one table entry is the product of
   * contact agreement: 1 - p_contact_mismatch, or p_contact_mismatch;
-  * where the hand stopped: exp(-½((p_o - p_t)/σ_progress)²) when both report an early
-    contact (when neither does, both stopped at the path's end and the term is 1);
+  * where the hand stopped: max(exp(-½((p_o - p_t)/σ_progress)²), κ_progress) when both
+    report an early contact (when neither does, both stopped at the path's end: 1);
   * each of the 10 sensors: p_detect / 1 - p_detect when contact on it was predicted,
     p_false_alarm / 1 - p_false_alarm when it was not (fired / silent);
-  * exp(-½((c_o - c_t)/σ_closure)²) per finger closure angle;
-  * exp(-½(|x_o - x_t|/σ_tip)²) per fingertip contact point present on both sides
-    (a point present on one side only is already judged by that tip's sensor term);
+  * max(exp(-½((c_o - c_t)/σ_closure)²), κ_closure) per finger closure angle;
+  * max(exp(-½(|x_o - x_t|/σ_tip)²), κ_tip) per fingertip contact point present on both
+    sides (a point present on one side only is already judged by that tip's sensor term);
+the κ are per-term outlier floors (LIKELIHOOD.outlier_*): a finger that pushes a light object
+on while closing disagrees with the geometric prediction in one term, which then costs a
+bounded factor instead of flooring every state and erasing what the other terms said;
 and is then floored: L' = (1 - ε)·L + ε with ε = LIKELIHOOD.floor, so no single
 observation can rule out a state (the true state survives a surprising reading, e.g.
 from unmodelled dynamics, and later observations can bring it back).
@@ -123,7 +126,8 @@ def log_likelihood_over_table(table: TableLike, feats: ObsFeatures,
     # progress, where both stopped early
     if feats.contact.any():
         zp = (feats.progress[:, None] - np.asarray(table.progress, dtype=f32)[None, :]) / f32(params.sigma_progress)
-        logl -= np.where(feats.contact[:, None] & t_contact[None, :], f32(0.5) * zp * zp, f32(0.0))
+        cost = np.minimum(f32(0.5) * zp * zp, f32(-np.log(params.outlier_progress)))
+        logl -= np.where(feats.contact[:, None] & t_contact[None, :], cost, f32(0.0))
     # sensors: Σ_s log P(o_s | t_s) = Σ_s log P(o_s | 0) + Σ_s t_s (log P(o_s | 1) - log P(o_s | 0))
     not_pred, pred = _sensor_log_tables(params)
     o = feats.sensors.astype(np.int64)
@@ -133,7 +137,7 @@ def log_likelihood_over_table(table: TableLike, feats: ObsFeatures,
     closure = np.ascontiguousarray(np.asarray(table.closure, dtype=f32).T)  # (3, N)
     for k in range(3):
         z = (feats.closure[:, k, None] - closure[k][None, :]) / f32(params.sigma_closure)
-        logl -= f32(0.5) * z * z
+        logl -= np.minimum(f32(0.5) * z * z, f32(-np.log(params.outlier_closure)))
     # fingertip contact points present on both sides
     tips = np.ascontiguousarray(np.asarray(table.tip_points, dtype=f32).reshape(n, 9).T)  # (9, N)
     for f in range(3):
@@ -141,7 +145,8 @@ def log_likelihood_over_table(table: TableLike, feats: ObsFeatures,
         if not seen.any():
             continue
         d2 = sum((feats.tip_points[:, f, k, None] - tips[3 * f + k][None, :]) ** 2 for k in range(3))
-        logl -= np.where(np.isnan(d2), f32(0.0), d2 * f32(0.5 / params.sigma_tip ** 2))
+        cost = np.minimum(d2 * f32(0.5 / params.sigma_tip ** 2), f32(-np.log(params.outlier_tip)))
+        logl -= np.where(np.isnan(d2), f32(0.0), cost)
     return logl
 
 

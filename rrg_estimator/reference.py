@@ -61,7 +61,7 @@ def likelihood_reference(table: TableLike, j: int, obs: dict, params: Likelihood
     like *= (1.0 - params.p_contact_mismatch) if obs["contact"] == predicted_contact else params.p_contact_mismatch
     if obs["contact"] and predicted_contact:
         z = (obs["progress"] - float(table.progress[j])) / params.sigma_progress
-        like *= math.exp(-0.5 * z * z)
+        like *= max(math.exp(-0.5 * z * z), params.outlier_progress)
     for s in range(len(obs["sensors"])):
         fired, predicted = obs["sensors"][s], bool(table.sensors[j][s])
         if predicted:
@@ -70,13 +70,13 @@ def likelihood_reference(table: TableLike, j: int, obs: dict, params: Likelihood
             like *= params.p_false_alarm if fired else 1.0 - params.p_false_alarm
     for f in range(3):
         z = (obs["closure"][f] - float(table.closure[j][f])) / params.sigma_closure
-        like *= math.exp(-0.5 * z * z)
+        like *= max(math.exp(-0.5 * z * z), params.outlier_closure)
     for f in range(3):
         o, t = obs["tip_points"][f], table.tip_points[j][f]
         if any(math.isnan(v) for v in o) or any(math.isnan(float(v)) for v in t):
             continue
         d2 = sum((o[k] - float(t[k])) ** 2 for k in range(3))
-        like *= math.exp(-0.5 * d2 / params.sigma_tip ** 2)
+        like *= max(math.exp(-0.5 * d2 / params.sigma_tip ** 2), params.outlier_tip)
     return (1.0 - params.floor) * like + params.floor
 
 

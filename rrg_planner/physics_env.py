@@ -21,8 +21,7 @@ class PhysicsEnvironment:
 
     def reset(self, true_pose, seed: int) -> None:
         """Start a trial: robot home, object at its true pose, sensor noise reseeded."""
-        self.world.rng = np.random.default_rng(seed)
-        self.world.sensors.rng = self.world.rng
+        self.world.reseed(seed)
         self.world.reset(np.asarray(true_pose, dtype=float))
 
     def execute(self, wrt: WRT, e: np.ndarray) -> Observation:

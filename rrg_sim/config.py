@@ -170,6 +170,13 @@ class LikelihoodParams:
     p_false_alarm: float = 0.04  # P(sensor fires | no predicted contact on it)
     sigma_closure: float = 0.15  # rad, per-finger proximal closure angle
     sigma_tip: float = 0.012  # m, Nano17 contact point
+    #: Per-term outlier floors on the Gaussian terms (likelihood ratio of an outlier): a finger
+    #: that slides off or pushes a light object on, or a stop point shifted by a bump, costs
+    #: one bounded factor instead of ruling the state out. Chosen from the physics-vs-geometric
+    #: agreement (rrg_sim.physics.agreement): ~10 % of closures/tip points are such outliers.
+    outlier_progress: float = 0.02
+    outlier_closure: float = 0.05
+    outlier_tip: float = 0.05
     floor: float = 1e-3  # ε: no single observation rules a state out
 
 

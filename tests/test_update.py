@@ -152,7 +152,7 @@ def test_update_is_normalized_and_keeps_the_floor(high_table):
     # a state whose prediction contradicts the observation keeps exactly that floor
     raw = np.exp(log_likelihood_over_table(high_table, feats)[0])[table_indices(prior.grid, E, high_table.grid)]
     contradicted = int(np.argmin(raw))
-    assert raw[contradicted] < 1e-12
+    assert raw[contradicted] < 1e-9  # negligible next to ε: the floor decides its weight
     assert post.weights[contradicted] == pytest.approx(LIKELIHOOD.floor * prior.weights[contradicted] / z, rel=1e-4)
 
 
