@@ -140,7 +140,8 @@ def load_or_build(obj: ObjectLike, wrt: WRT, grid: UncertaintyLevel | Grid,
     grid = _as_grid(grid)
     key = table_key(obj, wrt, grid)
     cache_dir = Path(cache_dir)
-    stem = f"{obj.name}__{wrt.name}__"
+    # One file per object, WRT and grid: rebuilding replaces only that grid's stale version.
+    stem = f"{obj.name}__{wrt.name}__{hashlib.sha256(grid.key().encode()).hexdigest()[:8]}__"
     path = cache_dir / f"{stem}{key}.npz"
     if path.exists():
         table, stored = ObservationTable.load(path)

@@ -89,6 +89,14 @@ def test_cache_round_trip_and_rebuild_when_stale(tmp_path):
     third = load_or_build(BOX, changed, COARSE, cache_dir=tmp_path, workers=1, progress=False)
     assert not np.array_equal(third.closure, first.closure)
     assert len(list(tmp_path.glob("*.npz"))) == 1
+    # A table of the same WRT on another grid is kept beside it, not replaced.
+    finer = Grid((0.0, 0.0, 0.0), (0.01, 0.01, 0.2), (5, 5, 3))
+    load_or_build(BOX, changed, finer, cache_dir=tmp_path, workers=1, progress=False)
+    assert len(list(tmp_path.glob("*.npz"))) == 2
+    t0 = time.perf_counter()
+    again = load_or_build(BOX, changed, COARSE, cache_dir=tmp_path, workers=1, progress=False)
+    assert time.perf_counter() - t0 < build_s / 3
+    np.testing.assert_array_equal(again.closure, third.closure)
 
 
 def test_full_high_grid_build_agrees_with_the_coarse_table(side_table):

@@ -1,0 +1,1 @@
+"""The experiment runner (``rrg-experiment``): the paper's simulation results in MuJoCo physics."""

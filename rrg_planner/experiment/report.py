@@ -1,0 +1,138 @@
+"""Campaign outputs: per-cell summary with 95 % intervals, the markdown table, and the
+paper's Fig. 7 (low), Fig. 8 (high) and Fig. 9 (δ sweep on the drill) as PNGs."""
+from __future__ import annotations
+
+import json
+import math
+from collections import defaultdict
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+STRATEGY_LABELS = {"open-loop": "Open-loop", "rrg-goal": "RRG-Goal", "rrg-info": "RRG-Info"}
+
+
+def paper_rrg_info(obj: str, level: str) -> str:
+    """What the paper's text reports for RRG-Info (H = 2), for the side-by-side table."""
+    if level == "low":
+        return "89%" if obj == "teabox" else ">97%"
+    return "<95%" if obj in ("cup", "teabox") else ">95%"
+
+
+def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """Wilson score 95 % interval of a binomial proportion."""
+    if n == 0:
+        return (0.0, 1.0)
+    p = k / n
+    den = 1 + z * z / n
+    mid = (p + z * z / (2 * n)) / den
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return (max(0.0, mid - half), min(1.0, mid + half))
+
+
+def summarize(records: list[dict]) -> dict[str, dict]:
+    """Per cell key: trials, successes, rate, 95 % interval, mean actions, planning time, errors."""
+    by_cell: dict[str, list[dict]] = defaultdict(list)
+    for r in records:
+        by_cell[r["cell"]].append(r)
+    out = {}
+    for key, rs in sorted(by_cell.items()):
+        k = sum(bool(r["success"]) for r in rs)
+        lo, hi = wilson(k, len(rs))
+        out[key] = dict(
+            object=rs[0]["object"], level=rs[0]["level"], strategy=rs[0]["strategy"],
+            horizon=rs[0]["horizon"], delta=rs[0]["delta"], trials=len(rs), successes=k,
+            success_rate=k / len(rs), ci95=[lo, hi],
+            mean_actions=float(np.mean([r["n_actions"] for r in rs])),
+            mean_planning_s=float(np.mean([r["planning_time_s"] for r in rs])),
+            errors=sum(bool(r["error"]) for r in rs),
+        )
+    return out
+
+
+def markdown_table(summary: dict[str, dict], objects: list[str], levels: list[str]) -> str:
+    """Success % per object × strategy × level with n and the 95 % interval, beside the paper."""
+    lines = []
+    for level in levels:
+        lines += [f"**{level} uncertainty**", "",
+                  "| object | open-loop | RRG-Goal | RRG-Info (H=2) | paper RRG-Info | mean actions (Info) |",
+                  "|---|---|---|---|---|---|"]
+        for obj in objects:
+            cells = []
+            for strat in ("open-loop", "rrg-goal", "rrg-info"):
+                s = summary.get(f"{obj}/{level}/{strat}")
+                cells.append("–" if s is None else
+                             f"{100 * s['success_rate']:.0f}% ({s['successes']}/{s['trials']}, "
+                             f"{100 * s['ci95'][0]:.0f}–{100 * s['ci95'][1]:.0f})")
+            info = summary.get(f"{obj}/{level}/rrg-info")
+            acts = f"{info['mean_actions']:.1f}" if info else "–"
+            lines.append(f"| {obj} | " + " | ".join(cells) + f" | {paper_rrg_info(obj, level)} | {acts} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def bar_chart(summary: dict[str, dict], objects: list[str], level: str, path: Path, title: str) -> None:
+    """Fig. 7/8: success % per object for the three strategies, with 95 % intervals."""
+    fig, ax = plt.subplots(figsize=(11, 4))
+    width = 0.27
+    x = np.arange(len(objects))
+    for i, strat in enumerate(("open-loop", "rrg-goal", "rrg-info")):
+        rates, err = [], [[], []]
+        for obj in objects:
+            s = summary.get(f"{obj}/{level}/{strat}")
+            r = 100 * s["success_rate"] if s else 0.0
+            rates.append(r)
+            err[0].append(r - 100 * s["ci95"][0] if s else 0.0)
+            err[1].append(100 * s["ci95"][1] - r if s else 0.0)
+        ax.bar(x + (i - 1) * width, rates, width, yerr=err, capsize=2, label=STRATEGY_LABELS[strat])
+    ax.axhline(95, color="k", lw=0.8, ls="--", label="95 % target")
+    ax.set_xticks(x, objects, rotation=20)
+    ax.set_ylabel("success (%)")
+    ax.set_ylim(0, 105)
+    ax.set_title(title)
+    ax.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def fig9(summary: dict[str, dict], path: Path, obj: str = "powerdrill", level: str = "high") -> None:
+    """Fig. 9: success % against mean actions, δ swept, RRG-Goal and RRG-Info at H = 1, 2, 3."""
+    series: dict[str, list[tuple[float, float, float]]] = defaultdict(list)
+    for s in summary.values():
+        if s["object"] != obj or s["level"] != level or s["strategy"] == "open-loop":
+            continue
+        name = "RRG-Goal" if s["strategy"] == "rrg-goal" else f"RRG-Info H={s['horizon']}"
+        series[name].append((s["mean_actions"], 100 * s["success_rate"], s["delta"]))
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    for name in sorted(series):
+        pts = sorted(series[name])
+        ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=name)
+    ax.axhline(90, color="k", lw=0.8, ls="--")
+    ax.set_xlabel("mean number of actions")
+    ax.set_ylabel("success (%)")
+    ax.set_title(f"{obj}, {level} uncertainty, δ swept")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_outputs(records: list[dict], out_dir: Path, objects: list[str], levels: list[str]) -> dict:
+    """summary.json, table.md and the figures that the records support."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    summary = summarize(records)
+    (out_dir / "summary.json").write_text(json.dumps(summary, indent=1))
+    (out_dir / "table.md").write_text(markdown_table(summary, objects, levels))
+    titles = {"low": "Fig. 7: simulation, low uncertainty (1 cm, 1 cm, 3°)",
+              "high": "Fig. 8: simulation, high uncertainty (5 cm, 5 cm, 30°)"}
+    for level, fig_name in (("low", "fig7_low.png"), ("high", "fig8_high.png")):
+        if level in levels:
+            bar_chart(summary, objects, level, out_dir / fig_name, titles[level])
+    if any(s["delta"] != 0.1 or s["horizon"] != 2 for s in summary.values()):
+        fig9(summary, out_dir / "fig9_powerdrill.png")
+    return summary
