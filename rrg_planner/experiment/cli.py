@@ -22,7 +22,7 @@ from ..agent import STRATEGIES
 from .report import write_outputs
 from .trials import Cell, TrialSpec, load_records, run_campaign, run_trial
 
-QUICK = dict(objects=["box", "can"], levels=["low", "high"], trials=3, fig9_trials=0)
+QUICK = dict(objects=["box"], levels=["low", "high"], trials=2, fig9_trials=0)
 FIG9_DELTAS = (0.3, 0.1, 0.03)
 
 
