@@ -7,6 +7,7 @@ from scipy.spatial.transform import Rotation
 
 from rrg_sim import hand, wam
 from rrg_sim.config import WORLD
+from rrg_sim.geometric_sim import GeometricSimulator
 from rrg_sim.objects import OBJECT_NAMES, GoalRegion, Primitive, get_object, signed_distance
 from rrg_sim.objects.clearance import hand_points, scene, transform_points
 from rrg_sim.objects.composites import box, cylinder, turn_about_z
@@ -18,6 +19,10 @@ from rrg_sim.poses import interpolate_poses, invert, planar_pose, home_pose
 
 HANDLE_OBJECTS = ("powerdrill", "brita_pitcher", "cup", "giant_teacup")
 NOMINAL = np.asarray(WORLD.nominal_pose)
+#: Largest spread [rad] of the three closure angles of a goal grasp at the true pose (chosen:
+#: the pitcher's and teacup's first grasps, 0.41 and 0.38 rad apart, had finger 3 drag the
+#: object round in MuJoCo long before fingers 1+2 arrived; the catalogue now reaches 0.23).
+MAX_GOAL_CLOSURE_SPREAD = 0.25
 
 
 def canonical_point(obj, point) -> np.ndarray:
@@ -149,6 +154,14 @@ def test_goal_palm_does_not_penetrate_and_fingers_close_on_object(obj):
     assert signed_distance(obj.parts, pad).min() >= 0.004
     contacts = finger_closing_contacts(obj, final, w.spread, w.preclose)
     assert contacts.count("object") >= obj.goal.min_fingers, contacts
+
+
+def test_goal_grasp_closes_evenly_at_the_true_pose(obj):
+    obs = GeometricSimulator(obj, obj.goal_wrt).simulate_relative(np.zeros(3))
+    assert not obs.contact
+    assert all(obs.sensors[[hand.sensor_id(f"{link}{i}") for link in ("prox", "dist", "tip")]].any()
+               for i in (1, 2, 3))
+    assert np.ptp(obs.closure) <= MAX_GOAL_CLOSURE_SPREAD, obs.closure
 
 
 def test_wrts_are_feasible_at_the_nominal_pose(obj):

@@ -65,10 +65,12 @@ def ring_wall(n: int, r_bottom: float, r_top: float, z_bottom: float, z_top: flo
 
 
 def loop_handle(y_root: float, y_bar: float, z_low: float, z_high: float, radius: float,
-                x: float = 0.0) -> tuple[Primitive, ...]:
+                x: float = 0.0, y_root_high: float | None = None) -> tuple[Primitive, ...]:
     """A round "C" handle in the plane x = const: two arms from the body at y_root out to a
-    vertical bar at y_bar, at heights z_low and z_high (capsule centre lines) [m]."""
-    top_root, top_out = (x, y_root, z_high), (x, y_bar, z_high)
+    vertical bar at y_bar, at heights z_low and z_high (capsule centre lines) [m].
+    y_root_high: where the upper arm leaves the body, if not at y_root (a flared body)."""
+    top_root = (x, y_root if y_root_high is None else y_root_high, z_high)
+    top_out = (x, y_bar, z_high)
     low_root, low_out = (x, y_root, z_low), (x, y_bar, z_low)
     return (capsule_between(top_root, top_out, radius),
             capsule_between(top_out, low_out, radius),

@@ -73,8 +73,9 @@ def powerdrill() -> ObjectModel:
 def brita_pitcher() -> ObjectModel:
     """Open pitcher (YCB pitcher base size) with a rectangular loop handle.
 
-    Canonical frame: body footprint centre at the origin, handle on +y with a 5 cm (y) by
-    9 cm (z) opening; placed so the handle points back toward the robot's left.
+    Canonical frame: body footprint centre at the origin, handle on +y with a 6.2 cm (y) by
+    10 cm (z) opening, wide enough for two BarrettHand fingers (YCB's handle: ~5 cm); placed
+    so the handle points back toward the robot's left.
     """
     wall = 0.004
     hx, hy, h = 0.0725, 0.0425, 0.242
@@ -85,25 +86,32 @@ def brita_pitcher() -> ObjectModel:
         box((hx, wall / 2, h / 2), (0.0, -hy + wall / 2, h / 2)),
         box((hx, hy, 0.003), (0.0, 0.0, 0.003)),  # bottom
     )
-    y_root, y_in, y_out = hy - wall, 0.0925, 0.1065  # handle: inside the wall, bar's inner and outer faces
+    y_root, y_in, y_out = hy - wall, hy + 0.062, hy + 0.076  # handle: inside the wall, bar's inner and outer faces
+    z_low, z_high, arm = 0.0875, 0.2025, 0.0075  # arm centre heights, arm half thickness
     handle = (
-        box((0.010, (y_out - y_root) / 2, 0.0075), (0.0, (y_root + y_out) / 2, 0.1975)),  # upper arm
-        box((0.010, (y_out - y_in) / 2, 0.060), (0.0, (y_in + y_out) / 2, 0.145)),  # bar
-        box((0.010, (y_out - y_root) / 2, 0.0075), (0.0, (y_root + y_out) / 2, 0.0925)),  # lower arm
+        box((0.010, (y_out - y_root) / 2, arm), (0.0, (y_root + y_out) / 2, z_high)),  # upper arm
+        box((0.010, (y_out - y_in) / 2, (z_high - z_low) / 2 + arm), (0.0, (y_in + y_out) / 2, (z_low + z_high) / 2)),
+        box((0.010, (y_out - y_root) / 2, arm), (0.0, (y_root + y_out) / 2, z_low)),  # lower arm
     )
-    # Finger 3 goes through the handle 3 mm off the opening's middle toward the bar: the body's
-    # wall runs along the whole finger, the bar only across it.
-    finger3_y = (hy + y_in) / 2 + 0.003
+    # Fingers 1+2 through the handle, finger 3 outside: the bar sits between them, so all three
+    # reach it together (a finger arriving first drags the pitcher round). The hand's axis is
+    # 3 mm outside the bar's middle for clearance between fingers 1+2 and the body, and tilts
+    # up 0.05 rad: the wrapping fingers pull the bar into the palm, and pulled slightly down
+    # the pitcher stays put (tilted down, the pull lifts the handle side and turns it: MuJoCo,
+    # 0.003 rad at -0.05, 0.04 rad level, 0.12 rad at +0.1). Roll 0 (not π) keeps J7 off its
+    # limit along the approach.
     parts, goal_wrt = _placed_side_grasp(
-        body + handle, (0.0, finger3_y + FINGER_OFFSET, 0.145), pitch=0.0, roll=np.pi, standoff=0.04,
-        description="side grasp of the handle bar: finger 3 through the handle, fingers 1+2 outside it")
+        body + handle, (0.0, (y_in + y_out) / 2 + 0.003, (z_low + z_high) / 2), pitch=-0.05, roll=0.0,
+        standoff=0.0, description="side grasp of the handle bar: fingers 1+2 through the handle, finger 3 outside")
     return ObjectModel(
         "brita_pitcher", parts, mass=0.5, friction=0.5,
-        dimensions=_dims(0.145, 0.149, 0.242, handle_gap=y_in - hy, handle_opening_height=0.09),
-        source=f"{YCB}: pitcher 14.9 x 14.5 x 24.2 cm (body 14.5 x 8.5 cm, handle 6.4 cm deep)",
+        dimensions=_dims(0.145, y_out + hy, 0.242, handle_gap=y_in - hy,
+                         handle_opening_height=z_high - z_low - 2 * arm),
+        source=f"{YCB}: pitcher 14.9 x 14.5 x 24.2 cm (body 14.5 x 8.5 cm); chosen: a 7.6 cm deep handle "
+               "(YCB: 6.4 cm) so two fingers fit through it",
         goal=GoalRegion((0.01, 0.01, 6 * DEG)), goal_wrt=goal_wrt, reorient_wrts=reorient_wrts(parts),
         placement_yaw=SIDE_APPROACH_YAW,
-        description="Brita-style pitcher; goal: held by the handle, finger 3 through it")
+        description="Brita-style pitcher; goal: held by the handle, fingers 1+2 through it")
 
 
 def cooler() -> ObjectModel:
@@ -220,23 +228,32 @@ def rect_box() -> ObjectModel:
 def giant_teacup() -> ObjectModel:
     """Giant teacup (chosen: 14 cm rim, 11 cm tall) with a thin 1 cm loop handle.
 
-    Canonical frame: handle on +y with a 5 cm (y) by 5.5 cm (z) opening; placed like the pitcher.
+    Canonical frame: handle on +y with a 5 cm (y) by 7 cm (z) opening, its upper arm at
+    rim height; placed like the pitcher.
     """
     wall = 0.006
+    z_low, z_high, radius = 0.030, 0.110, 0.005  # arm centre lines, handle radius
     canonical = (ring_wall(20, 0.047, 0.067, 0.001, 0.11, wall)
                  + (cylinder(0.047, 0.004, (0.0, 0.0, 0.004)),)
-                 + loop_handle(0.058, 0.118, 0.030, 0.095, 0.005))
-    gap_centre = 0.087  # between the body (~6.1 cm at the handle's mid-height) and the bar (11.3 cm)
+                 + loop_handle(0.058, 0.118, z_low, z_high, radius, y_root_high=0.068))
+    # Thumb-and-finger pinch of the upper arm: finger 3 through the opening under it, fingers
+    # 1+2 on top, the arm centred between them so all three reach it together. The cup then
+    # hangs on finger 3 when lifted and the fingers on top stop it swinging down. A wrap of the
+    # round bar from the side instead drags the light cup 1-5 cm toward the palm while closing.
+    # Tilted down 0.2 rad: level, the wrist works near J6's limit and the arm cannot follow
+    # the approach for θ below about -0.1 rad.
+    gap_centre = 0.087  # between the body (~6.1 cm at mid-height) and the bar (11.3 cm)
     parts, goal_wrt = _placed_side_grasp(
-        canonical, (0.0, gap_centre + FINGER_OFFSET, 0.0625), pitch=0.2, roll=np.pi, standoff=0.04,
-        description="side grasp of the handle: finger 3 through it, fingers 1+2 outside")
+        canonical, (0.0, gap_centre, z_high), pitch=0.2, roll=-np.pi / 2, standoff=0.03,
+        description="side pinch of the handle's upper arm: finger 3 through the handle under it, fingers 1+2 on top")
     return ObjectModel(
         "giant_teacup", parts, mass=0.5, friction=0.5,
-        dimensions=_dims(0.140, 0.193, 0.110, handle_gap=0.05, handle_opening_height=0.055),
+        dimensions=_dims(0.140, 0.193, z_high + radius, handle_gap=0.05,
+                         handle_opening_height=z_high - z_low - 2 * radius),
         source="chosen: giant novelty teacup, 14 cm rim, 11 cm tall, 0.5 kg; thin 1 cm handle",
         goal=GoalRegion((0.01, 0.01, 8 * DEG)), goal_wrt=goal_wrt, reorient_wrts=reorient_wrts(parts),
         placement_yaw=SIDE_APPROACH_YAW,
-        description="giant teacup; goal: held by the handle")
+        description="giant teacup; goal: held by the handle's upper arm, finger 3 through the handle")
 
 
 BUILDERS = {
