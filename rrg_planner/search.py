@@ -25,9 +25,14 @@ from threadpoolctl import ThreadpoolController
 
 from rrg_estimator.belief import Belief
 from rrg_sim.config import SEARCH, TRANSITION, SearchParams
-from rrg_sim.poses import relative_planar, wrap_angle
 
 from .model import PlanningModel
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    """Angles to [-π, π] by rounding (3x faster than the modulo in poses.wrap_angle; the two
+    differ only in the sign chosen at exactly ±π, which the search never distinguishes)."""
+    return a - (2 * np.pi) * np.round(a / (2 * np.pi))
 
 
 #: The search's matrices are small (K×S by S×11): multi-threaded BLAS only spins and roughly
@@ -70,7 +75,7 @@ def moment_features(points: np.ndarray, weights: np.ndarray, ref: np.ndarray, si
     moments and Σ p·log w: [1, d (3), d⊗d (6 unique), log w], with deviations d from ``ref``
     (θ wrapped) scaled by ``sigma`` so the axes compare."""
     d = points - ref
-    d[:, 2] = wrap_angle(d[:, 2])
+    d[:, 2] = _wrap(d[:, 2])
     d = d / sigma
     iu = np.triu_indices(3)
     with np.errstate(divide="ignore"):
@@ -134,7 +139,7 @@ def rotate_about(points: np.ndarray, center_xy: np.ndarray, angle: float) -> np.
     out = points.copy()
     out[:, 0] = center_xy[0] + c * d[:, 0] - s * d[:, 1]
     out[:, 1] = center_xy[1] + s * d[:, 0] + c * d[:, 1]
-    out[:, 2] = wrap_angle(points[:, 2] + angle)
+    out[:, 2] = _wrap(points[:, 2] + angle)
     return out
 
 
@@ -148,6 +153,25 @@ def reorient_mixture(points: np.ndarray, weights: np.ndarray, center_xy: np.ndar
     pts = np.concatenate([p for p, _ in parts])
     w = np.concatenate([weights * q for _, q in parts])
     return pts, w / w.sum()
+
+
+def table_index(points: np.ndarray, e: np.ndarray, grid) -> np.ndarray:
+    """Flat table index of each point's offset from e (relative_planar + Grid.nearest_index,
+    clamped), fused in float32: the search's hot path."""
+    n = np.asarray(grid.shape)
+    half = (n - 1) / 2
+    c, s_ = np.cos(e[2]), np.sin(e[2])
+    p = points.astype(np.float32)
+    dx, dy = p[:, 0] - np.float32(e[0]), p[:, 1] - np.float32(e[1])
+    sx, sy, st = (np.float32(v) for v in grid.spacing)
+    ix = np.rint((np.float32(c) * dx + np.float32(s_) * dy) / sx + np.float32(half[0]))
+    iy = np.rint((np.float32(c) * dy - np.float32(s_) * dx) / sy + np.float32(half[1]))
+    dth = (p[:, 2] - np.float32(e[2]) + np.float32(np.pi)) % np.float32(2 * np.pi) - np.float32(np.pi)
+    it = np.rint(dth / st + np.float32(half[2]))
+    np.clip(ix, 0, n[0] - 1, out=ix)
+    np.clip(iy, 0, n[1] - 1, out=iy)
+    np.clip(it, 0, n[2] - 1, out=it)
+    return (ix.astype(np.int64) * n[1] + iy.astype(np.int64)) * n[2] + it.astype(np.int64)
 
 
 @dataclass
@@ -167,39 +191,58 @@ class ForwardSearch:
     def __init__(self, model: PlanningModel, params: SearchParams = SEARCH):
         self.model = model
         self.params = params
+        #: (action, estimate) pairs an executor found infeasible during the current run.
+        self.blocked: set[tuple[int, bytes]] = set()
+
+    @staticmethod
+    def _key(action: int, e) -> tuple[int, bytes]:
+        return action, np.round(np.asarray(e, dtype=float), 6).tobytes()
+
+    def block(self, action: int, e) -> None:
+        """Rule an action out at estimate e (its execution was found infeasible there)."""
+        self.blocked.add(self._key(action, e))
+
+    def feasible(self, action: int, e) -> bool:
+        """F_τ(e) from the model's feasibility map, unless execution found it infeasible at e."""
+        return self.model.feasible(action, e) and self._key(action, e) not in self.blocked
 
     # ---------------------------------------------------------------- helpers
     def _table_index(self, sb: SparseBelief) -> np.ndarray:
-        """Table entry of every support point's offset from w*(b) (all tables of a level share a
-        grid): relative_planar + Grid.nearest_index fused in float32 (the search's hot path)."""
+        """Table entry of every support point's offset from w*(b) (cached on the belief)."""
         if sb.table_index is None:
-            grid = self.model.actions[0].tables[sb.level].grid
-            e = sb.w_star
-            n = np.asarray(grid.shape)
-            half = (n - 1) / 2
-            c, s_ = np.cos(e[2]), np.sin(e[2])
-            p = sb.points.astype(np.float32)
-            dx, dy = p[:, 0] - np.float32(e[0]), p[:, 1] - np.float32(e[1])
-            sx, sy, st = (np.float32(v) for v in grid.spacing)
-            ix = np.rint((np.float32(c) * dx + np.float32(s_) * dy) / sx + np.float32(half[0]))
-            iy = np.rint((np.float32(c) * dy - np.float32(s_) * dx) / sy + np.float32(half[1]))
-            dth = (p[:, 2] - np.float32(e[2]) + np.float32(np.pi)) % np.float32(2 * np.pi) - np.float32(np.pi)
-            it = np.rint(dth / st + np.float32(half[2]))
-            np.clip(ix, 0, n[0] - 1, out=ix)
-            np.clip(iy, 0, n[1] - 1, out=iy)
-            np.clip(it, 0, n[2] - 1, out=it)
-            sb.table_index = ((ix.astype(np.int64) * n[1] + iy.astype(np.int64)) * n[2] + it.astype(np.int64))
+            sb.table_index = table_index(sb.points, sb.w_star, self._grid(sb.level))
         return sb.table_index
 
+    def _grid(self, level: str):
+        return self.model.actions[0].tables[level].grid
+
     def static_value(self, sb: SparseBelief) -> float:
-        """v(b): max over feasible goal WRTs of P_b(goal after executing it relative to w*(b))."""
+        """v(b): max over feasible goal WRTs of P_b(goal after executing it relative to w*(b)).
+
+        Only states whose offset from w*(b) can lie in the goal region contribute, so at the
+        leaves (no cached table index) just those are indexed.
+        """
         e = sb.w_star
-        best = 0.0
-        for g in self.model.goal_actions:
-            if self.model.feasible(g, e):
-                idx = self._table_index(sb)
-                best = max(best, float(sb.weights @ self.model.actions[g].goal_weight[sb.level][idx]))
-        return best
+        goals = [g for g in self.model.goal_actions if self.feasible(g, e)]
+        if not goals:
+            return 0.0
+        if sb.table_index is not None:
+            idx, w = sb.table_index, sb.weights
+        else:
+            near = self._near_goal(sb.points, e, sb.level)
+            idx, w = table_index(sb.points[near], e, self._grid(sb.level)), sb.weights[near]
+        return max(float(w @ self.model.actions[g].goal_weight[sb.level][idx]) for g in goals)
+
+    def _near_goal(self, points: np.ndarray, e: np.ndarray, level: str) -> np.ndarray:
+        """Indices of points whose offset from e may fall in the goal region (one cell of margin)."""
+        grid = self._grid(level)
+        tol = np.asarray(self.model.obj.goal.tol, dtype=float)
+        radius = np.hypot(tol[0], tol[1]) + np.hypot(grid.spacing[0], grid.spacing[1])
+        d = points[:, :2] - e[:2]
+        ok = np.einsum("ij,ij->i", d, d) <= radius * radius
+        if np.isfinite(tol[2]):
+            ok &= np.abs(_wrap(points[:, 2] - e[2])) <= tol[2] + grid.spacing[2]
+        return np.flatnonzero(ok)
 
     def expand(self, sb: SparseBelief, a: int) -> list[tuple[float, SparseBelief]]:
         """Observation branches of action a at w*(b): [(P(c | b, a), SE(b, a, o_c))]."""
@@ -239,7 +282,7 @@ class ForwardSearch:
         e = sb.w_star
         q = np.full(len(self.model.actions), -np.inf)
         for a in range(len(self.model.actions)):
-            if not self.model.feasible(a, e):
+            if not self.feasible(a, e):
                 continue
             branches = self.expand(sb, a)
             if branches:
