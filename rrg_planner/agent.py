@@ -25,7 +25,7 @@ from rrg_estimator.varres import maybe_refine
 from rrg_sim.config import LEVELS, SEARCH, SENSOR_NAMES, UncertaintyLevel
 from rrg_sim.grid import Grid
 from rrg_sim.observation import Observation
-from rrg_sim.wrt import WRT
+from rrg_sim.wrt import WRT, InfeasibleWRT
 
 from .model import PlanningModel
 from .search import ForwardSearch, SearchResult
@@ -33,6 +33,7 @@ from .search import ForwardSearch, SearchResult
 log = logging.getLogger(__name__)
 
 STRATEGIES = ("open-loop", "rrg-goal", "rrg-info")
+MAX_BLOCKED = 20  # infeasible executions tolerated in one run before giving up
 
 
 class Environment(Protocol):
@@ -109,14 +110,14 @@ class RobustGraspAgent:
     # --------------------------------------------------------------- choice
     def _goal_or_reorient(self, e: np.ndarray) -> int:
         """RRG-Goal's choice: the goal WRT, or a reorientation that makes it feasible."""
-        if self.model.feasible(self.goal, e):
+        if self.search.feasible(self.goal, e):
             return self.goal
         best, best_gap = -1, np.inf
         for i, act in enumerate(self.model.actions):
-            if act.kind != "reorient" or not self.model.feasible(i, e):
+            if act.kind != "reorient" or not self.search.feasible(i, e):
                 continue
             turned = e + np.array([0.0, 0.0, act.wrt.reorient_angle])
-            gap = 0.0 if self.model.feasible(self.goal, turned) else abs(act.wrt.reorient_angle)
+            gap = 0.0 if self.search.feasible(self.goal, turned) else abs(act.wrt.reorient_angle)
             if gap < best_gap:
                 best, best_gap = i, gap
         return best
@@ -127,7 +128,7 @@ class RobustGraspAgent:
         if self.strategy != "rrg-info":
             return self._goal_or_reorient(e), None
         res = self.search.select(belief, self.horizon)
-        if res.p_goal >= 1.0 - self.delta and self.model.feasible(self.goal, e):
+        if res.p_goal >= 1.0 - self.delta and self.search.feasible(self.goal, e):
             return self.goal, res
         return res.action, res
 
@@ -162,21 +163,31 @@ class RobustGraspAgent:
         """One robust grasp: act until the goal is believed achieved or actions run out."""
         level = LEVELS[level] if isinstance(level, str) else level
         belief = initial_belief(level, mean)
+        self.search.blocked.clear()
         steps: list[Step] = []
         total_plan = 0.0
         p_goal = float("nan")
-        for n in range(1, self.max_actions + 1):
+        while True:  # ends at the last action, which is always the goal grasp
+            n = len(steps) + 1  # an execution found infeasible (nothing moved) is not an action
             t0 = time.perf_counter()
             action, res, last = self.next_action(belief, n)
             plan_t = time.perf_counter() - t0
             total_plan += plan_t
             e = belief.w_star()
-            if action < 0 or not self.model.feasible(action, e):
+            if action < 0 or not self.search.feasible(action, e):
                 name = self.model.names[action] if action >= 0 else "none"
                 return TrialResult(False, False, steps, p_goal, total_plan, belief,
                                    error=f"no feasible action at w*={np.round(e, 3).tolist()} (chose {name})")
             act = self.model.actions[action]
-            obs = env.execute(act.wrt, e)
+            try:
+                obs = env.execute(act.wrt, e)
+            except InfeasibleWRT as exc:  # nothing moved: rule it out at e and choose again
+                log.warning("%s infeasible at %s (%s): replanning", act.name, np.round(e, 3).tolist(), exc)
+                self.search.block(action, e)
+                if len(self.search.blocked) > MAX_BLOCKED:
+                    return TrialResult(False, False, steps, p_goal, total_plan, belief,
+                                       error=f"{len(self.search.blocked)} infeasible executions")
+                continue
             belief, p_exec = self.observe(belief, action, e, obs)
             p_goal = p_exec if act.kind == "goal" else (res.p_goal if res else float("nan"))
             step = Step(wrt=act.name, kind=act.kind, estimate=e, contact=bool(obs.contact),
@@ -196,4 +207,3 @@ class RobustGraspAgent:
             env.retreat()
             if self.variable_resolution:
                 belief = maybe_refine(belief) or belief
-        raise AssertionError("unreachable: the last action is always the goal grasp")

@@ -11,6 +11,11 @@ from .poses import home_pose, planar_pose
 WrtKind = Literal["goal", "info", "reorient"]
 
 
+class InfeasibleWRT(RuntimeError):
+    """τ(e) cannot be executed (e.g. no continuous IK chain along the path); an executor
+    raises it before the robot moves, so the agent can rule the action out at e and replan."""
+
+
 @dataclass(frozen=True, eq=False)
 class WRT:
     """A world-relative trajectory.

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..config import PHYSICS, SENSOR_NAMES
 from ..objects import ObjectModel
+from ..observation import Observation
 from ..poses import invert, relative_planar
 from .trajectory import InfeasiblePath
 
@@ -40,14 +41,17 @@ def _object_in_hand_frame(world: "PhysicsWorld") -> np.ndarray:
     return invert(world.hand_pose()) @ world.object_pose()
 
 
-def judge_grasp(world: "PhysicsWorld", obj: ObjectModel, e_used) -> tuple[bool, dict]:
+def judge_grasp(world: "PhysicsWorld", obj: ObjectModel, e_used,
+                observation: Observation | None = None) -> tuple[bool, dict]:
     """Lift and hold the grasp the last goal WRT left in ``world``; returns (success, info).
+    ``observation``: that WRT's observation (default: the last one the world's own executor
+    made; the simulator node passes the one the executor node published).
 
     info: delta (Δ), in_region, fingers (in contact), required_ok, held, lift_feasible,
     lift_dz [m], slip [m] (object displacement in the hand frame during lift and hold),
     early_contact, w_true (object pose before lifting).
     """
-    obs = world.last_observation
+    obs = world.last_observation if observation is None else observation
     if obs is None:
         raise RuntimeError("judge_grasp needs a WRT execution first")
     w_true = world.true_object_pose()

@@ -8,12 +8,11 @@ capsule surface at the contact; the normal there points from the object into the
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import mujoco
 import numpy as np
 
 from ..config import PHYSICS, SENSING, SENSOR_NAMES
+from ..execution import Reading
 from ..hand import hand_tree
 from .mjcf_robot import PAD_TOUCH, PALM_BODY, TIP_BODIES, TIP_FORCE, TIP_TORQUE
 
@@ -67,20 +66,6 @@ def contact_from_wrench(force: np.ndarray, torque: np.ndarray) -> tuple[np.ndarr
     f2 = force @ force
     u = force / np.sqrt(f2)
     return capsule_entry(np.cross(force, torque) / f2, u)
-
-
-@dataclass(frozen=True)
-class Reading:
-    """What the hand senses at one instant.
-
-    fired: (10,) bool, config.SENSOR_NAMES order. tip_points / tip_normals: (3,3) Nano17
-    contact points [m] and unit normals (object → tip) in the hand frame, NaN rows for tips
-    below threshold.
-    """
-
-    fired: np.ndarray
-    tip_points: np.ndarray
-    tip_normals: np.ndarray
 
 
 #: A noise-free signal this many σ below its threshold cannot fire (P < 1e-9): skip the noise.

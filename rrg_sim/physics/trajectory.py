@@ -11,8 +11,9 @@ WRT's own segments, whose straightness the geometric simulator relies on, and ma
 between neighbouring samples (an elbow swivel on the way) on free-space moves. When the
 chain starts in another configuration than the arm's, the arm first swivels its elbow in
 place (same hand pose) or, from home, rises and reconfigures in joint space.
-``timed_controls`` turns a dense path into servo targets for every control period with a
-trapezoidal speed profile per segment (rest at every waypoint).
+``sample_times`` times a dense path with a trapezoidal speed profile per segment (rest at
+every waypoint): these are the joint via-points' times of a guarded move. ``servo_targets``
+turns timed via-points into servo targets for every control period.
 """
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ import numpy as np
 from .. import wam
 from ..config import GEOMSIM, PHYSICS
 from ..poses import interpolate_poses
+from ..wrt import InfeasibleWRT
 
 #: Time to reach cruise speed on a segment [s] (chosen: 2 m/s² at 0.2 m/s, a smooth WAM move).
 ACCEL_TIME = 0.1
@@ -49,7 +51,7 @@ SMOOTH_STEPS = 11
 SETTLE_TIME = 0.04
 
 
-class InfeasiblePath(RuntimeError):
+class InfeasiblePath(InfeasibleWRT):
     """No continuous joint path follows the requested hand poses (IK or joint limits)."""
 
 
@@ -221,16 +223,15 @@ def joint_path(q_from: np.ndarray, q_to: np.ndarray) -> DensePath:
     return DensePath(wam.fk(q), q, np.zeros(n + 1, int))
 
 
-def _trapezoid(length: float, t: np.ndarray) -> np.ndarray:
-    """Progress (in cruise-seconds) at times t along a segment of ``length`` cruise-seconds,
-    accelerating over ACCEL_TIME (a triangle when too short to reach cruise speed)."""
-    ta = ACCEL_TIME
-    if length >= ta:
-        total = length + ta
-        return np.where(t < ta, t**2 / (2 * ta),
-                        np.where(t > total - ta, length - (total - t) ** 2 / (2 * ta), t - ta / 2))
-    total = 2 * np.sqrt(length * ta)
-    return np.where(t < total / 2, t**2 / (2 * ta), length - (total - t) ** 2 / (2 * ta))
+def _trapezoid_time(length: float, u: np.ndarray) -> np.ndarray:
+    """Time [s] at which a trapezoidal profile along a segment of ``length`` cruise-seconds,
+    accelerating over ACCEL_TIME (a triangle when too short to reach cruise speed), reaches
+    progress u (in cruise-seconds, 0 ≤ u ≤ length)."""
+    ta, u = ACCEL_TIME, np.clip(u, 0.0, length)
+    total = _duration(length)
+    ramp = min(ta / 2, length / 2)  # progress at the end of the acceleration
+    return np.where(u <= ramp, np.sqrt(2 * ta * u),
+                    np.where(u > length - ramp, total - np.sqrt(2 * ta * (length - u)), u + ta / 2))
 
 
 def _smooth(q: np.ndarray) -> np.ndarray:
@@ -265,30 +266,46 @@ class TimedPath:
         return len(self.ctrl)
 
 
-def timed_controls(path: DensePath, speeds: dict[int, tuple[float, float]] | None = None) -> TimedPath:
-    """Time a dense path: a trapezoidal profile per segment at (palm speed [m/s], turn speed
-    [rad/s]) (``speeds`` by segment index; default PHYSICS.move_speed, PHYSICS.turn_speed),
-    no joint faster than PHYSICS.joint_speed, sampled every control period, then SETTLE_TIME."""
-    dt = PHYSICS.timestep
+def sample_times(path: DensePath, speeds: dict[int, tuple[float, float]] | None = None) -> np.ndarray:
+    """Time [s] from the start at which the arm passes each dense sample (M,): a trapezoidal
+    profile per segment at (palm speed [m/s], turn speed [rad/s]) (``speeds`` by segment
+    index; default PHYSICS.move_speed, PHYSICS.turn_speed), no joint faster than
+    PHYSICS.joint_speed, at rest at every waypoint. These are the via-point times of a
+    guarded move."""
     speeds = speeds or {}
     default = (PHYSICS.move_speed, PHYSICS.turn_speed)
-    v = np.array([speeds.get(int(k), default) for k in path.segment[1:]])  # (M-1, 2) per step
+    v = np.array([speeds.get(int(k), default) for k in path.segment[1:]]).reshape(-1, 2)  # per step
     a, b = path.poses[:-1], path.poses[1:]
     steps = np.stack([np.linalg.norm(b[:, :3, 3] - a[:, :3, 3], axis=1), rotation_angles(a, b)], axis=1)
     joint = (np.abs(np.diff(path.q, axis=0)) / np.asarray(PHYSICS.joint_speed)).max(axis=1, initial=0.0)
-    cost = np.r_[0.0, np.cumsum(np.maximum((steps / v).max(axis=1), joint))]
-    u = [np.zeros(1)]
+    cost = np.r_[0.0, np.cumsum(np.maximum((steps / v).max(axis=1, initial=0.0), joint))]
+    t = np.zeros(len(cost))
+    start = 0.0
     for k in np.unique(path.segment[1:]):
         idx = np.nonzero(path.segment[1:] == k)[0] + 1
         u0, u1 = cost[idx[0] - 1], cost[idx[-1]]
-        t = np.arange(1, int(np.ceil(_duration(u1 - u0) / dt)) + 1) * dt
-        u.append(u0 + np.minimum(_trapezoid(u1 - u0, t), u1 - u0))
-    u.append(np.full(int(round(SETTLE_TIME / dt)), cost[-1]))
-    u = np.concatenate(u)
-    index = np.interp(u, cost, np.arange(len(cost)))
-    lo = np.minimum(np.floor(index).astype(int), max(len(cost) - 2, 0))
-    hi = np.minimum(lo + 1, len(cost) - 1)
-    q = _smooth(path.q[lo] + (index - lo)[:, None] * (path.q[hi] - path.q[lo]))
-    qd = np.gradient(q, dt, axis=0)
-    ctrl = q + qd * (np.asarray(PHYSICS.arm_kv) / np.asarray(PHYSICS.arm_kp))
+        t[idx] = start + _trapezoid_time(u1 - u0, cost[idx] - u0)
+        start += _duration(u1 - u0)
+    return t
+
+
+def servo_targets(q: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Servo targets for every control period of a move through joint via-points q (M,7)
+    reached at times t (M,) [s] (t[0] = 0 at q[0]), then SETTLE_TIME holding the last one:
+    (ctrl (N,7), with velocity feed-forward folded in: q + kv/kp q̇; index (N,), the
+    fractional via-point index commanded at each period)."""
+    dt = PHYSICS.timestep
+    n = int(np.ceil(t[-1] / dt)) if len(t) > 1 else 0
+    periods = np.arange(n + 1) * dt
+    index = np.r_[np.interp(periods, t, np.arange(len(t))), np.full(int(round(SETTLE_TIME / dt)), len(t) - 1.0)]
+    lo = np.minimum(np.floor(index).astype(int), max(len(t) - 2, 0))
+    hi = np.minimum(lo + 1, len(t) - 1)
+    qp = _smooth(q[lo] + (index - lo)[:, None] * (q[hi] - q[lo]))
+    qd = np.gradient(qp, dt, axis=0)
+    return qp + qd * (np.asarray(PHYSICS.arm_kv) / np.asarray(PHYSICS.arm_kp)), index
+
+
+def timed_controls(path: DensePath, speeds: dict[int, tuple[float, float]] | None = None) -> TimedPath:
+    """Servo targets for every control period along a dense path timed by ``sample_times``."""
+    ctrl, index = servo_targets(path.q, sample_times(path, speeds))
     return TimedPath(path, ctrl, index)

@@ -5,7 +5,9 @@ what the robot offers the executor: place the object (simulation only), run a WR
 guarded moves through IK via-points, close the fingers until each stops, read an
 ``Observation`` (the planning core's type), retreat along the path, and judge a grasp by
 lifting it. The object really moves when it is bumped; ``true_object_pose`` is for
-evaluation only.
+evaluation only. The WRT sequence itself is ``rrg_sim.execution.WrtExecutor``, which the
+executor node also runs over ROS: this world is its ``Robot`` (``follow``, ``move_hand``,
+``close_hand``, ``reading``, ``arm_q``, ``hand_angles``, ``hand_pose``).
 
 Control: the WAM's position servos run every 2 ms control period; a guarded move checks the
 pads and Nano17s after every period and stops (holds the current joint angles) as soon as
@@ -13,52 +15,29 @@ one crosses its threshold.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from typing import Callable
 
 import mujoco
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from .. import wam
-from ..config import GEOMSIM, HAND, PHYSICS, WORLD
+from ..config import HAND, PHYSICS, WORLD
+from ..execution import Reading, WrtExecutor
 from ..objects import ObjectModel, get_object
 from ..observation import Observation
 from ..wrt import WRT
 from .judge import judge_grasp
 from .mjcf_robot import (ARM_ACTUATORS, ARM_JOINTS, FINGER_ACTUATORS, FINGER_JOINTS, PALM_BODY,
-                         ROBOT_CONAFFINITY, ROBOT_CONTYPE, SPREAD_ACTUATOR)
+                         ROBOT_CONAFFINITY, ROBOT_CONTYPE, SPREAD_ACTUATOR, SPREAD_JOINT)
 from .scene import OBJECT_BODY, OBJECT_JOINT, build_model
-from .sensing import HandSensors, Reading
-from .trajectory import DensePath, InfeasiblePath, TimedPath, joint_path, plan_path, solve_path, timed_controls
+from .sensing import HandSensors
+from .trajectory import DensePath, InfeasiblePath, TimedPath, plan_path, servo_targets, timed_controls
 
 __all__ = ["PhysicsWorld", "InfeasiblePath"]
 
-#: (m/s, rad/s) through free space: from home to a WRT's first pose, and back.
-FREE_SPEEDS = (PHYSICS.free_speed, PHYSICS.free_turn_speed)
 #: The fingers take this long to get going [s]: no stall is declared earlier, and an opening
 #: hand gets this long to settle (chosen: ~ 2× the time to reach closing speed).
 CLOSE_START_TIME = 0.05
-
-
-@dataclass
-class _Execution:
-    """What the last WRT execution left behind for ``retreat`` and ``judge_grasp``."""
-
-    wrt: WRT
-    e: np.ndarray
-    path: DensePath  # the hand path actually commanded, from its start to the stop
-    observation: Observation
-    #: Rigid motion (4,4) the object was given (a reorientation), applied to the way back.
-    moved: np.ndarray = field(default_factory=lambda: np.eye(4))
-
-
-def rotation_about_z(centre_xy, angle: float) -> np.ndarray:
-    """(4,4) world rotation by ``angle`` about the vertical axis through centre_xy."""
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec([0.0, 0.0, angle]).as_matrix()
-    c = np.array([centre_xy[0], centre_xy[1], 0.0])
-    T[:3, 3] = c - T[:3, :3] @ c
-    return T
 
 
 class PhysicsWorld:
@@ -80,6 +59,7 @@ class PhysicsWorld:
         self._arm_q = np.array([qadr(j) for j in ARM_JOINTS])
         self._finger_q = np.array([qadr(j) for j in FINGER_JOINTS])
         self._finger_v = np.array([vadr(j) for j in FINGER_JOINTS])
+        self._spread_q = qadr(SPREAD_JOINT)
         self._obj_q = qadr(OBJECT_JOINT)
         self._obj_v = vadr(OBJECT_JOINT)
         act = [m.actuator(a).id for a in ARM_ACTUATORS + (SPREAD_ACTUATOR,) + FINGER_ACTUATORS]
@@ -90,7 +70,7 @@ class PhysicsWorld:
         self._robot_geom = (m.geom_contype == ROBOT_CONTYPE) & (m.geom_conaffinity == ROBOT_CONAFFINITY)
         self._obj_geom = m.geom_bodyid == self._obj_body
         self._placed = np.asarray(WORLD.nominal_pose, dtype=float)
-        self._last: _Execution | None = None
+        self.executor = WrtExecutor(self)
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -106,7 +86,7 @@ class PhysicsWorld:
         self.data.qpos[self._arm_q] = wam.HOME_Q
         self.data.ctrl[:] = 0.0
         self.data.ctrl[:7] = wam.HOME_Q
-        self._last = None
+        self.executor.forget()
         self.place_object(self._placed if w is None else w)
 
     def place_object(self, w) -> None:
@@ -143,6 +123,14 @@ class PhysicsWorld:
         """(3,) proximal joint angles [rad]."""
         return self.data.qpos[self._finger_q].copy()
 
+    def hand_angles(self) -> tuple[float, np.ndarray]:
+        """Spread [rad] and (3,) proximal joint angles [rad]."""
+        return float(self.data.qpos[self._spread_q]), self.finger_angles()
+
+    def reading(self) -> Reading:
+        """The hand's sensors now (noisy, see sensing.HandSensors)."""
+        return self.sensors.reading()
+
     def hand_pose(self) -> np.ndarray:
         """(4,4) hand-frame pose in world (measured)."""
         T = np.eye(4)
@@ -163,26 +151,29 @@ class PhysicsWorld:
         return float(self.data.time)
 
     # ------------------------------------------------------------------ motion primitives
-    def _hand_ramp(self, n: int, spread: float, proximal: float) -> np.ndarray:
+    def _hand_ramp(self, n: int, spread: float, proximal) -> np.ndarray:
         """(n,4) spread + proximal servo targets moving from the current targets to the given
-        ones at the hand's speeds (config), then holding."""
+        ones (proximal: one angle for every finger, or (3,)) at the hand's speeds (config),
+        then holding."""
         dt = PHYSICS.timestep
         start = self.data.ctrl[7:].copy()
-        goal = np.array([spread, proximal, proximal, proximal])
+        goal = np.r_[spread, np.broadcast_to(proximal, 3)]
         speed = np.array([PHYSICS.spread_speed] + [HAND.close_speed] * 3)
         t = np.arange(1, n + 1)[:, None] * dt
         return start + np.clip(goal - start, -speed * t, speed * t)
 
-    def _hand_ramp_steps(self, spread: float, proximal: float) -> int:
+    def _hand_ramp_steps(self, spread: float, proximal) -> int:
         start = self.data.ctrl[7:]
-        travel = np.abs(np.array([spread, proximal, proximal, proximal]) - start)
+        travel = np.abs(np.r_[spread, np.broadcast_to(proximal, 3)] - start)
         speed = np.array([PHYSICS.spread_speed] + [HAND.close_speed] * 3)
         return max(1, int(np.ceil(np.max(travel / speed) / PHYSICS.timestep)))
 
-    def _run(self, arm: np.ndarray, hand: np.ndarray | None = None, guard: bool = False) -> int | None:
+    def _run(self, arm: np.ndarray, hand: np.ndarray | None = None, guard: bool = False,
+             monitor: Callable[[], bool] | None = None) -> int | None:
         """Step through arm servo targets (N,7) and hand targets (N',4), each held past its end.
         With ``guard``, stop at the first period any sensor fires: hold the arm where it is
-        and return that period's index; None when the motion completed."""
+        and return that period's index; None when the motion completed. ``monitor`` is called
+        after every period; when it returns True the motion stops the same way (e.g. a cancel)."""
         m, d = self.model, self.data
         n = len(arm) if hand is None else max(len(arm), len(hand))
         ctrl = np.repeat(d.ctrl[None], n, axis=0)
@@ -193,7 +184,7 @@ class PhysicsWorld:
         for k in range(n):
             d.ctrl[:] = ctrl[k]
             mujoco.mj_step(m, d)
-            if guard and fired():
+            if (guard and fired()) or (monitor is not None and monitor()):
                 self.hold_arm()
                 return k
         return None
@@ -207,25 +198,29 @@ class PhysicsWorld:
         self.data.ctrl[:7] = self.data.qpos[self._arm_q]
 
     def move_through(self, waypoints: np.ndarray, guard: bool = False, speeds: dict | None = None,
-                     hand: tuple[float, float] | None = None,
                      rigid_from: int = 0, reconfigure: bool = False) -> tuple[DensePath, TimedPath, int | None]:
         """Move the hand from where it is along straight lines through hand waypoints (K,4,4)
         (trajectory.plan_path; segments before ``rigid_from`` may swivel the elbow, and with
-        ``reconfigure`` the arm may first change IK branch by a joint-space move),
-        optionally guarded and preshaping the hand to (spread, proximal) on the way.
-        ``speeds``: (m/s, rad/s) per segment (segment 0 leads to waypoints[0]), see
-        trajectory.timed_controls. Returns the dense path, its timing and the period a guard
+        ``reconfigure`` the arm may first change IK branch by a joint-space move), optionally
+        guarded. ``speeds``: (m/s, rad/s) per segment (segment 0 leads to waypoints[0]), see
+        trajectory.sample_times. Returns the dense path, its timing and the period a guard
         stopped it (or None)."""
         path = plan_path(waypoints, self.arm_q(), rigid_from, reconfigure)
-        return (path,) + self._follow(path, guard, speeds, hand)
-
-    def _follow(self, path: DensePath, guard: bool = False, speeds: dict | None = None,
-                hand: tuple[float, float] | None = None) -> tuple[TimedPath, int | None]:
         timed = timed_controls(path, speeds)
-        ramp = None if hand is None else self._hand_ramp(self._hand_ramp_steps(*hand), *hand)
         if guard:
             self.sensors.tare()
-        return timed, self._run(timed.ctrl, ramp, guard)
+        return path, timed, self._run(timed.ctrl, guard=guard)
+
+    def follow(self, q: np.ndarray, t: np.ndarray, guard: bool = False,
+               monitor: Callable[[], bool] | None = None) -> float | None:
+        """Track joint via-points q (M,7) (q[0]: the current configuration) reached at times t
+        (M,) [s], optionally guarded (the Nano17s are tared first); ``monitor`` as in ``_run``.
+        Returns the fractional via-point index commanded when the move stopped early, or None."""
+        ctrl, index = servo_targets(np.asarray(q, dtype=float), np.asarray(t, dtype=float))
+        if guard:
+            self.sensors.tare()
+        stop = self._run(ctrl, guard=guard, monitor=monitor)
+        return None if stop is None else float(index[stop])
 
     def _finger_servo(self, finger: int, kp: float, torque: float) -> None:
         """Set proximal servo ``finger``'s stiffness [N m/rad] and torque limit [N m]."""
@@ -234,11 +229,12 @@ class PhysicsWorld:
         self.model.actuator_biasprm[a, 1] = -kp
         self.model.actuator_forcerange[a] = (-torque, torque)
 
-    def close_hand(self) -> None:
+    def close_hand(self, monitor: Callable[[], bool] | None = None) -> None:
         """Close every finger at the hand's speed until it stops: stalled (closing slower than
         PHYSICS.stall_speed for PHYSICS.stall_time, e.g. at the torque limit on the object,
         or pushed back) or at its joint limit. A stopped finger keeps its stall torque and
-        cannot be pushed back (the non-backdrivable worm drive, see config.PHYSICS.brake_kp)."""
+        cannot be pushed back (the non-backdrivable worm drive, see config.PHYSICS.brake_kp).
+        ``monitor`` is called after every period (its answer is ignored: closing completes)."""
         m, d = self.model, self.data
         dt = PHYSICS.timestep
         target = d.ctrl[8:11].copy()
@@ -249,6 +245,8 @@ class PhysicsWorld:
             target = np.where(stalled, target, np.minimum(target + HAND.close_speed * dt, HAND.proximal_range[1]))
             d.ctrl[8:11] = target
             mujoco.mj_step(m, d)
+            if monitor is not None:
+                monitor()
             slow = d.qvel[self._finger_v] < PHYSICS.stall_speed  # stopped, or pushed back
             still = np.where(slow, still + dt, 0.0)
             if k >= grace:
@@ -266,103 +264,38 @@ class PhysicsWorld:
         self._finger_servo(finger, PHYSICS.brake_kp, PHYSICS.brake_torque)
         self.data.ctrl[a] = q + torque / PHYSICS.brake_kp
 
-    def open_hand(self, proximal: float = 0.0) -> None:
-        """Open the fingers to ``proximal`` [rad] (spread unchanged), holding the arm."""
+    def move_hand(self, spread: float, proximal, monitor: Callable[[], bool] | None = None) -> None:
+        """Servo the spread and the proximal joints (one angle for all, or (3,)) to the given
+        angles [rad] at the hand's speeds (releasing the brakes of stopped fingers), holding
+        the arm; ``monitor`` as in ``_run``."""
         for i in range(3):
             self._finger_servo(i, PHYSICS.finger_kp, HAND.close_torque)
-        spread = float(self.data.ctrl[7])
         n = self._hand_ramp_steps(spread, proximal) + int(round(CLOSE_START_TIME / PHYSICS.timestep))
-        ramp = self._hand_ramp(n, spread, proximal)
-        self._run(self.data.ctrl[None, :7].copy(), ramp)
+        self._run(self.data.ctrl[None, :7].copy(), self._hand_ramp(n, spread, proximal), monitor=monitor)
+
+    def open_hand(self, proximal: float = 0.0) -> None:
+        """Open the fingers to ``proximal`` [rad] (spread unchanged), holding the arm."""
+        self.move_hand(float(self.data.ctrl[7]), proximal)
 
     # ------------------------------------------------------------------ WRTs
     def execute_wrt(self, wrt: WRT, e) -> Observation:
         """Run τ(e) as guarded moves from the current (home) pose, close the fingers, and
-        return the observation. The hand is left closed at the stop; call ``retreat`` next
-        (for a goal WRT, ``judge_grasp`` may come first). A "reorient" WRT also lifts the
-        grasped object slightly, turns it by wrt.reorient_angle about the vertical through
-        e, puts it down and opens the hand. Raises InfeasiblePath when IK fails."""
-        e = np.asarray(e, dtype=float)
-        path, timed, stop = self.move_through(wrt.world_poses(e), guard=True,
-                                              speeds={k: FREE_SPEEDS for k in (0, -1, -2)},
-                                              hand=(wrt.spread, wrt.preclose), rigid_from=1,
-                                              reconfigure=True)
-        contact = stop is not None
-        index = float(timed.index[stop]) if contact else float(len(path.poses) - 1)
-        at_stop = self.sensors.reading()
-        motion_dir = self._motion_dir(path, index, at_stop)
-        stop_pose = self.hand_pose()
-        self.close_hand()
-        closed = self.sensors.reading()
-        first = int(np.nonzero(path.segment == 0)[0][-1])  # the WRT's first pose
-        arc = path.arc
-        progress = max(0.0, float(np.interp(index, np.arange(len(arc)), arc)) - arc[first])
-        obs = Observation(contact=contact, progress=progress, hand_pose=stop_pose,
-                          sensors=at_stop.fired | closed.fired, closure=self.finger_angles(),
-                          tip_points=closed.tip_points, tip_normals=closed.tip_normals, motion_dir=motion_dir)
-        self._last = _Execution(wrt, e, path.upto(int(np.floor(index))), obs)
-        if wrt.kind == "reorient":
-            self._reorient(wrt, e)
-        return obs
-
-    def _motion_dir(self, path: DensePath, index: float, reading: Reading) -> np.ndarray:
-        """Unit direction the sensed contact (a fired Nano17's contact point, else a fired pad,
-        else the palm) moved in world over the last dense step before ``index``."""
-        b = max(1, int(np.ceil(index)))
-        T_hand = self.hand_pose()
-        tips = reading.fired[7:]
-        if tips.any():
-            local = reading.tip_points[np.argmax(tips)]
-        elif reading.fired.any():
-            p = self.sensors.sensor_positions()[np.argmax(reading.fired)]
-            local = T_hand[:3, :3].T @ (p - T_hand[:3, 3])
-        else:
-            local = np.zeros(3)
-        a_pose, b_pose = path.poses[b - 1], path.poses[b]
-        v = (b_pose[:3, :3] @ local + b_pose[:3, 3]) - (a_pose[:3, :3] @ local + a_pose[:3, 3])
-        return v / max(np.linalg.norm(v), 1e-12)
-
-    def _reorient(self, wrt: WRT, e: np.ndarray) -> None:
-        """Lift, turn about the vertical through e, put down, open (after closing on the object)."""
-        up = np.eye(4)
-        up[2, 3] = PHYSICS.reorient_lift
-        T = self.hand_pose()
-        self.move_through((up @ T)[None], rigid_from=1)
-        n = max(2, int(np.ceil(abs(wrt.reorient_angle) * GEOMSIM.rotation_sample_radius / PHYSICS.path_step)) + 1)
-        arc = np.stack([rotation_about_z(e[:2], a) @ up @ T for a in np.linspace(0.0, wrt.reorient_angle, n)])
-        self._follow(solve_path(arc, self.arm_q()))
-        G = rotation_about_z(e[:2], wrt.reorient_angle)
-        self.move_through((G @ T)[None], rigid_from=1)
-        self.open_hand(wrt.preclose)
-        self._last.moved = G
+        return the observation (rrg_sim.execution.WrtExecutor.execute). The hand is left
+        closed at the stop; call ``retreat`` next (for a goal WRT, ``judge_grasp`` may come
+        first). A "reorient" WRT also lifts the grasped object slightly, turns it by
+        wrt.reorient_angle about the vertical through e, puts it down and opens the hand.
+        Raises InfeasiblePath when IK fails."""
+        return self.executor.execute(wrt, e)
 
     def retreat(self) -> None:
-        """Open the hand and retrace the executed path back to home. After a reorientation the
-        WRT's part of the path is retraced turned with the object, then the arm moves home in
-        joint space."""
-        if self._last is None:
-            return
-        last, self._last = self._last, None
-        self.open_hand(last.wrt.preclose)
-        q0 = self.arm_q()
-        if np.allclose(last.moved, np.eye(4)):
-            back = last.path.reversed()
-            path = DensePath(np.concatenate([wam.fk(q0)[None], back.poses]), np.vstack([q0, back.q]),
-                             np.r_[back.segment[0], back.segment])
-            top = int(last.path.segment.max())  # segments 0 and the lead-ins are free space
-            self._follow(path, speeds={top - k: FREE_SPEEDS for k in (0, -1, -2)})
-        else:
-            passed = max(0, int(last.path.segment[-1]))  # WRT poses 0 … passed-1 were passed
-            back = last.moved @ last.wrt.world_poses(last.e)[:passed][::-1]
-            if len(back):
-                self.move_through(back, rigid_from=len(back))
-            self._follow(joint_path(self.arm_q(), last.path.q[0]), speeds={0: FREE_SPEEDS})
-        self.open_hand(0.0)
+        """Open the hand and retrace the executed path back to home (WrtExecutor.retreat)."""
+        self.executor.retreat()
 
-    def judge_grasp(self, obj: ObjectModel, e_used) -> tuple[bool, dict]:
+    def judge_grasp(self, obj: ObjectModel, e_used, observation: Observation | None = None) -> tuple[bool, dict]:
         """Lift and hold the grasp the last goal WRT left and judge it against obj's goal
-        region relative to e_used, the estimate it ran at (rrg_sim.physics.judge)."""
-        return judge_grasp(self, obj, e_used)
+        region relative to e_used, the estimate it ran at (rrg_sim.physics.judge); the
+        observation defaults to the last one this world's executor made."""
+        return judge_grasp(self, obj, e_used, observation)
 
     def render_png(self, path, **kwargs):
         """Write a PNG snapshot of the current state (rrg_sim.physics.render.render_png)."""
@@ -372,4 +305,5 @@ class PhysicsWorld:
 
     @property
     def last_observation(self) -> Observation | None:
-        return None if self._last is None else self._last.observation
+        last = self.executor.last
+        return None if last is None else last.observation

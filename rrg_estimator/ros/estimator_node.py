@@ -1,0 +1,148 @@
+"""The estimator node (DESIGN §7): keeps the belief over the object's pose, updates it with every
+observation on ``/rrg/observation``, and publishes it.
+
+    python -m rrg_estimator.ros.estimator_node [--ros-args -p marker_count:=300 ...]
+
+Topics: subscribes ``/rrg/observation`` (rrg_msgs/Observation); publishes ``/rrg/belief``
+(rrg_msgs/BeliefGrid, TRANSIENT_LOCAL depth 1: late joiners get the current belief) and
+``/rrg/belief_markers`` (visualization_msgs/MarkerArray, the heaviest grid points).
+Services: ``/rrg/reset_belief`` (rrg_msgs/ResetBelief), ``/rrg/get_belief`` (rrg_msgs/GetBelief).
+
+A published belief is stamped with the stamp of the observation it incorporates (header and
+metadata.update_time), so a client can wait for the update of the observation it caused. An
+observation that cannot be used (no belief yet, another object, an unknown WRT, a malformed
+or impossible observation) is logged as an error and the belief is kept.
+"""
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from visualization_msgs.msg import MarkerArray
+
+from rrg_msgs.msg import BeliefGrid, Observation as ObservationMsg
+from rrg_msgs.srv import GetBelief, ResetBelief
+from rrg_sim.config import LEVELS
+from rrg_sim.ros.convert import WORLD_FRAME, observation_from_msg, planar_from_msg
+from rrg_sim.ros.node_main import keep_serving, run_node
+
+from ..tracker import BeliefTracker
+from .convert import belief_markers, belief_to_msg
+
+NODE_NAME = "estimator"
+NAMESPACE = "rrg"
+#: The latched belief: a late subscriber (the planner, the bag recorder, RViz) gets the last one.
+LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE)
+
+
+class EstimatorNode(Node):
+    """Belief filter over one object's pose, driven by observation messages."""
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME, namespace=NAMESPACE)
+        self.declare_parameter("frame_id", WORLD_FRAME, ParameterDescriptor(
+            description="Frame of the belief's poses (the WAM base frame)", read_only=True))
+        self.declare_parameter("marker_count", 300, ParameterDescriptor(
+            description="Number of heaviest grid points drawn in /rrg/belief_markers",
+            integer_range=[IntegerRange(from_value=1, to_value=10000, step=1)]))
+        self.declare_parameter("marker_diameter", 0.02, ParameterDescriptor(
+            description="Diameter [m] of the sphere of the heaviest grid point",
+            floating_point_range=[FloatingPointRange(from_value=0.001, to_value=0.2)]))
+        self.declare_parameter("variable_resolution", True, ParameterDescriptor(
+            description="Re-grid the belief at the low level's spacing once it has concentrated"))
+        self.frame_id = self.get_parameter("frame_id").value
+        self.tracker: BeliefTracker | None = None
+        self._map_load_time = Time()
+        self._belief_msg: BeliefGrid | None = None
+        self.belief_pub = self.create_publisher(BeliefGrid, "belief", LATCHED)
+        self.marker_pub = self.create_publisher(MarkerArray, "belief_markers", LATCHED)
+        self.create_subscription(ObservationMsg, "observation", self.on_observation, 10)
+        self.create_service(ResetBelief, "reset_belief", self.on_reset_belief)
+        self.create_service(GetBelief, "get_belief", self.on_get_belief)
+        self.get_logger().info("estimator ready: call reset_belief to start a belief")
+
+    # ------------------------------------------------------------------ publishing
+    def publish_belief(self, stamp: Time, new_grid: bool) -> BeliefGrid:
+        if new_grid:
+            self._map_load_time = stamp
+        belief = self.tracker.belief
+        msg = belief_to_msg(belief, stamp, self._map_load_time, self.frame_id)
+        self._belief_msg = msg
+        self.belief_pub.publish(msg)
+        self.marker_pub.publish(belief_markers(
+            belief, stamp, self.get_parameter("marker_count").value,
+            self.get_parameter("marker_diameter").value, self.frame_id))
+        return msg
+
+    # ------------------------------------------------------------------ callbacks
+    def on_observation(self, msg: ObservationMsg) -> None:
+        log = self.get_logger()
+        if self.tracker is None:
+            log.error(f"observation of {msg.object_name}/{msg.wrt_name} ignored: no belief yet (call reset_belief)")
+            return
+        if msg.object_name != self.tracker.obj.name:
+            log.error(f"observation of object {msg.object_name!r} ignored: the belief is about "
+                      f"{self.tracker.obj.name!r}; belief kept")
+            return
+        old_grid = self.tracker.belief.grid
+        try:
+            belief = self.tracker.observe(msg.wrt_name, planar_from_msg(msg.estimate), observation_from_msg(msg))
+        except KeyError as exc:
+            log.error(f"observation ignored, unknown WRT: {exc.args[0]}; belief kept")
+            return
+        except Exception as exc:  # noqa: BLE001 - e.g. an impossible observation (ValueError): keep serving
+            log.error(f"observation of {msg.wrt_name} ignored: {type(exc).__name__}: {exc}; belief kept")
+            return
+        self.publish_belief(msg.header.stamp, belief.grid != old_grid)
+        log.info(f"updated with {msg.wrt_name} (contact={msg.contact}): w* = "
+                 f"{np.round(belief.w_star(), 3).tolist()}, grid spacing {belief.grid.spacing}")
+
+    @keep_serving
+    def on_reset_belief(self, req: ResetBelief.Request, resp: ResetBelief.Response) -> ResetBelief.Response:
+        sigma = np.array([req.sigma_x, req.sigma_y, req.sigma_theta])
+        mean = planar_from_msg(req.mean)
+        if req.level and req.level not in LEVELS:
+            resp.error_code = ResetBelief.Response.UNKNOWN_LEVEL
+            resp.error_msg = f"unknown level {req.level!r}; valid: {sorted(LEVELS)} or empty"
+        elif not np.all(np.isfinite(mean)):
+            resp.error_code, resp.error_msg = ResetBelief.Response.INVALID_MEAN, f"mean must be finite, got {mean.tolist()}"
+        elif not (np.all(np.isfinite(sigma)) and np.all(sigma > 0.0)):
+            resp.error_code = ResetBelief.Response.INVALID_SIGMA
+            resp.error_msg = f"sigma (x, y, theta) must be finite and > 0, got {sigma.tolist()}"
+        else:
+            try:
+                tracker = BeliefTracker.gaussian(
+                    req.object_name, mean, sigma, LEVELS.get(req.level),
+                    variable_resolution=self.get_parameter("variable_resolution").value,
+                    workers=1)  # no fork from a process running DDS threads (tables are normally cached)
+            except KeyError as exc:
+                resp.error_code, resp.error_msg = ResetBelief.Response.UNKNOWN_OBJECT, str(exc.args[0])
+            else:
+                tracker.preload()
+                self.tracker = tracker
+                resp.belief = self.publish_belief(self.get_clock().now().to_msg(), new_grid=True)
+                self.get_logger().info(f"belief reset: {req.object_name} at {np.round(mean, 3).tolist()}, "
+                                       f"sigma {np.round(sigma, 3).tolist()}, grid {tracker.belief.grid.spacing}")
+                return resp
+        self.get_logger().error(f"reset_belief refused: {resp.error_msg}")
+        return resp
+
+    @keep_serving
+    def on_get_belief(self, req: GetBelief.Request, resp: GetBelief.Response) -> GetBelief.Response:
+        if self._belief_msg is None:
+            resp.error_code, resp.error_msg = GetBelief.Response.NO_BELIEF, "no belief yet: call reset_belief first"
+            return resp
+        resp.object_name, resp.belief = self.tracker.obj.name, self._belief_msg
+        return resp
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_node(EstimatorNode, argv=argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

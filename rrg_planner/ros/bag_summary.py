@@ -1,0 +1,104 @@
+"""``rrg-bag summary``: what happened in a recorded robust grasp, step by step.
+
+From the planner's decisions (``/rrg/grasp_step``), the executor's observations
+(``/rrg/observation``) and the simulator's judgement (``/rrg/eval/grasp_outcome``, when the
+launcher asked for one).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from rrg_sim.config import SENSOR_NAMES
+
+from .bag_read import (BELIEF_TOPIC, GRASP_OUTCOME_TOPIC, GRASP_STEP_TOPIC, OBSERVATION_TOPIC, key_values,
+                       read_messages)
+
+
+@dataclass
+class StepSummary:
+    """One executed (or at least chosen) action."""
+
+    step: int
+    wrt: str
+    kind: str
+    estimate: list[float]  # e = w*(b) the WRT ran relative to (x [m], y [m], θ [rad])
+    p_goal: float  # P_b(goal) of the belief it was chosen on
+    value: float
+    planning_time_s: float
+    contact: bool | None = None  # None: no observation recorded (e.g. interrupted)
+    sensors: list[str] = field(default_factory=list)
+    progress_m: float | None = None
+
+
+@dataclass
+class GraspSummary:
+    object_name: str = ""
+    strategy: str = ""
+    steps: list[StepSummary] = field(default_factory=list)
+    beliefs: int = 0
+    replanned: list[str] = field(default_factory=list)  # WRTs found infeasible before moving
+    planner_outcome: dict[str, str] = field(default_factory=dict)  # the planner's "done" record
+    judged_outcome: dict[str, str] = field(default_factory=dict)  # the simulator's judgement
+
+
+def summarize(bag: str | Path) -> GraspSummary:
+    """The last robust grasp recorded in a bag."""
+    s = GraspSummary()
+    for m in read_messages(bag, {GRASP_STEP_TOPIC, OBSERVATION_TOPIC, GRASP_OUTCOME_TOPIC, BELIEF_TOPIC}):
+        if m.topic == BELIEF_TOPIC:
+            s.beliefs += 1
+        elif m.topic == GRASP_STEP_TOPIC:
+            kv = key_values(m.msg)
+            if "infeasible" in kv:  # the last chosen step did not move: the planner chose again
+                if s.steps and s.steps[-1].wrt == kv["infeasible"] and s.steps[-1].contact is None:
+                    s.steps.pop()
+                s.replanned.append(f"step {kv['step']}: {kv['infeasible']} infeasible at e = {kv['estimate']}")
+            elif "step" in kv:
+                if s.planner_outcome:  # a step after a finished grasp: a new grasp, keep only the last
+                    s.steps, s.replanned, s.planner_outcome, s.judged_outcome = [], [], {}, {}
+                s.object_name, s.strategy = kv["object"], kv["strategy"]
+                s.steps.append(StepSummary(int(kv["step"]), kv["wrt"], kv["kind"],
+                                           [float(v) for v in kv["estimate"].strip("[]").split(",")],
+                                           float(kv["p_goal"]), float(kv["value"]), float(kv["planning_time_s"])))
+            else:
+                s.planner_outcome = kv | {"message": m.msg.message}
+        elif m.topic == OBSERVATION_TOPIC:
+            pending = [st for st in s.steps if st.contact is None and st.wrt == m.msg.wrt_name]
+            if pending:
+                st = pending[0]
+                st.contact, st.progress_m = bool(m.msg.contact), float(m.msg.progress)
+                st.sensors = [n for n, on in zip(SENSOR_NAMES, m.msg.sensors) if on]
+        elif m.topic == GRASP_OUTCOME_TOPIC:
+            s.judged_outcome = key_values(m.msg) | {"message": m.msg.message}
+    return s
+
+
+def format_summary(s: GraspSummary) -> str:
+    if not s.steps:
+        return "no robust grasp recorded in this bag"
+    lines = [f"Object:    {s.object_name}", f"Strategy:  {s.strategy}",
+             f"Actions:   {len(s.steps)} ({', '.join(st.wrt for st in s.steps)})",
+             f"Beliefs:   {s.beliefs} published", ""]
+    for st in s.steps:
+        e = np.round(st.estimate, 3).tolist()
+        lines.append(f"step {st.step}: {st.wrt:<13} ({st.kind}) at e = {e}   P(goal) = {st.p_goal:.3f}   "
+                     f"value = {st.value:.3f}   planned in {st.planning_time_s * 1e3:.0f} ms")
+        if st.contact is None:
+            lines.append("        observation: none recorded")
+        else:
+            lines.append(f"        observation: contact = {'yes' if st.contact else 'no'}, "
+                         f"progress = {st.progress_m:.3f} m, sensors = {st.sensors or 'none'}")
+    lines.append("")
+    lines += [f"Replanned: {r} (nothing moved)" for r in s.replanned]
+    if s.planner_outcome:
+        o = s.planner_outcome
+        lines.append(f"Planner:   success = {o.get('success')}, final P(goal) = {float(o.get('p_goal', 'nan')):.3f}"
+                     + (f", error {o['error_code']}: {o['error_msg']}" if o.get("error_code", "0") != "0" else ""))
+    else:
+        lines.append("Planner:   no outcome recorded (interrupted?)")
+    if s.judged_outcome:
+        lines.append(f"Simulator: {s.judged_outcome['message']}")
+    return "\n".join(lines)

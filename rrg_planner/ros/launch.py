@@ -1,0 +1,430 @@
+"""``rrg-launch``: start RRG's ROS 2 graph as child processes, record every topic, and optionally
+run one robust grasp (DESIGN §8).
+
+    rrg-launch                                      # the simulated graph, until Ctrl-C
+    rrg-launch --grasp powerdrill --level high --strategy rrg-info
+    rrg-launch --mode hw                            # needs rrg_hw_bridge (not written yet): fails clearly
+
+Children: the arm/hand interface (``rrg_sim`` node in sim mode), the executor, the estimator,
+the planner and the bag recorder, each in its own process and session, on loopback
+(ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) in DDS domain ``--domain-id``. Readiness is waited
+for, not slept: every service and action server must answer discovery, and the recorder must
+be subscribed to every topic that has a publisher. With ``--grasp`` the simulator places the
+object at its true pose (``--true-pose``, or drawn from the level's Gaussian with ``--seed``),
+the planner's robust-grasp action runs with feedback per step, and the simulator judges the
+final grasp (ground truth + lift). Ctrl-C (or SIGTERM) cancels a running grasp, sends SIGINT to
+the nodes, escalates to SIGTERM and SIGKILL after a timeout, and stops the recorder last, so
+the bag in ``bags/<name>/`` is always finalized.
+
+Exit status: 0 when the graph ran (and the grasp, if asked for, was executed and judged,
+whatever its outcome), 1 on an error, 2 on a usage error (e.g. ``--mode hw``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from datetime import datetime
+from pathlib import Path
+from typing import Callable, TextIO
+
+import numpy as np
+
+from rrg_sim.config import LEVELS, SEARCH, WORLD
+from rrg_sim.objects import OBJECT_NAMES
+from rrg_sim.poses import compose_planar
+
+from ..agent import STRATEGIES
+
+ROOT = Path(__file__).resolve().parents[2]
+RECORDER = "rrg_bag_recorder"
+#: SIGINT, then SIGTERM after this long [s], then SIGKILL after as long again (notes: a node
+#: sometimes misses the first SIGINT).
+STOP_ESCALATE_S = 3.0
+#: Module of each node process, in start order (the recorder is started first, stopped last).
+NODES = {
+    "sim": "rrg_sim.ros.sim_node",
+    "executor": "rrg_sim.ros.executor_node",
+    "estimator": "rrg_estimator.ros.estimator_node",
+    "planner": "rrg_planner.ros.planner_node",
+}
+#: What must answer before the graph counts as ready.
+SERVICES = ("/rrg/reset_sim", "/rrg/hand_command", "/rrg/eval/judge_grasp", "/rrg/retreat",
+            "/rrg/reset_belief", "/rrg/get_belief", "/rrg/select_action")
+ACTIONS = ("/rrg/guarded_move", "/rrg/execute_wrt", "/rrg/robust_grasp")
+
+
+class LaunchError(RuntimeError):
+    """The graph could not be started or a call into it failed."""
+
+
+@dataclass
+class GraspOutcome:
+    """What ``--grasp`` prints (and, with ``--json``, prints as JSON on the last line)."""
+
+    object_name: str
+    level: str
+    strategy: str
+    true_pose: list[float]
+    actions: list[str] = field(default_factory=list)
+    p_goal: float = float("nan")
+    planner_success: bool = False  # the planner believed P(goal) > 1 - δ
+    success: bool = False  # judged by the simulator: ground truth in the goal region + lift
+    judge: str = ""
+    error: str = ""
+    bag: str = ""
+    launch_to_first_action_s: float = float("nan")
+
+
+@dataclass
+class Child:
+    name: str
+    proc: subprocess.Popen
+    log: TextIO | None
+
+
+def ros_environment(domain_id: int) -> dict[str, str]:
+    """The children's environment: loopback discovery in the given DDS domain."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               PYTHONUNBUFFERED="1")
+    env.pop("ROS_LOCALHOST_ONLY", None)  # deprecated; the discovery range replaces it
+    env.setdefault("AMENT_PREFIX_PATH", sys.prefix)
+    return env
+
+
+def ros_args(params: dict[str, object]) -> list[str]:
+    args = ["--ros-args"]
+    for k, v in params.items():
+        args += ["-p", f"{k}:={v}"]
+    return args
+
+
+class Graph:
+    """The running graph: child processes plus the launcher's own client node."""
+
+    def __init__(self, env: dict[str, str], bag_dir: Path | None, log_dir: Path | None):
+        self.env = env
+        self.bag_dir = bag_dir
+        self.log_dir = log_dir
+        self.children: list[Child] = []
+        self.started = time.monotonic()
+        self.node = None
+        self.executor = None
+        self._context = None
+        self.clients: dict = {}  # service name → client (wait_ready creates them)
+        self.actions: dict = {}  # action name → ActionClient
+        self.goal_handle = None  # the running robust grasp, if any
+
+    # ------------------------------------------------------------------ processes
+    def spawn(self, name: str, args: list[str]) -> None:
+        log = None
+        if self.log_dir is not None:
+            self.log_dir.mkdir(parents=True, exist_ok=True)
+            log = (self.log_dir / f"{name}.log").open("w")
+        # Own session: a terminal's Ctrl-C reaches only the launcher, which stops the children in order.
+        proc = subprocess.Popen([sys.executable, *args], env=self.env, cwd=ROOT, start_new_session=True,
+                                stdout=log or sys.stderr, stderr=subprocess.STDOUT)
+        self.children.append(Child(name, proc, log))
+
+    def start(self, object_name: str, levels: list[str], seed: int, real_time_factor: float,
+              sensor_noise: float = 1.0) -> None:
+        """Start the recorder (if recording) and the four nodes (the launch time counts from here)."""
+        self.started = time.monotonic()
+        if self.bag_dir is not None:
+            self.spawn("recorder", ["-m", "rrg_planner.ros.bag_recorder", "--output", str(self.bag_dir),
+                                    *ros_args({"discovery_period": 0.1})])
+        params = {
+            "sim": {"object_name": object_name, "seed": seed, "real_time_factor": real_time_factor,
+                    "sensor_noise": sensor_noise},
+            "executor": {},
+            "estimator": {},
+            "planner": {"levels": f"[{','.join(repr(lv) for lv in levels)}]", "preload": f"['{object_name}']"},
+        }
+        for name, module in NODES.items():
+            self.spawn(name, ["-m", module, *ros_args(params[name])])
+
+    def check_children(self) -> None:
+        dead = [c for c in self.children if c.proc.poll() is not None]
+        if dead:
+            raise LaunchError("child process exited: " + ", ".join(f"{c.name} (status {c.proc.returncode})"
+                                                                   for c in dead))
+
+    def stop(self) -> None:
+        """Stop the nodes (SIGINT → SIGTERM → SIGKILL), then the recorder the same way."""
+        nodes = [c for c in self.children if c.name != "recorder"]
+        recorder = [c for c in self.children if c.name == "recorder"]
+        for group in (nodes, recorder):
+            for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+                running = [c for c in group if c.proc.poll() is None]
+                if not running:
+                    break
+                for c in running:
+                    c.proc.send_signal(sig)
+                deadline = time.monotonic() + STOP_ESCALATE_S
+                for c in running:
+                    try:
+                        c.proc.wait(max(0.0, deadline - time.monotonic()))
+                    except subprocess.TimeoutExpired:
+                        pass
+        for c in self.children:
+            if c.log is not None:
+                c.log.close()
+
+    # ------------------------------------------------------------------ the launcher's node
+    def connect(self) -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.signals import SignalHandlerOptions
+
+        os.environ.update({k: self.env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
+        self._context = rclpy.Context()
+        # The launcher handles SIGINT itself (it must stop the children in order).
+        rclpy.init(context=self._context, signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node("rrg_launch", context=self._context)
+        self.executor = SingleThreadedExecutor(context=self._context)
+        self.executor.add_node(self.node)
+
+    def disconnect(self) -> None:
+        import rclpy
+
+        if self.node is not None:
+            self.executor.shutdown()
+            self.node.destroy_node()
+            rclpy.try_shutdown(context=self._context)
+            self.node = None
+
+    def spin_until(self, condition: Callable[[], bool], timeout_s: float, what: str) -> None:
+        """Spin the launcher's node until ``condition()``; LaunchError on timeout or a dead child."""
+        deadline = time.monotonic() + timeout_s
+        while not condition():
+            self.check_children()
+            if time.monotonic() > deadline:
+                raise LaunchError(f"timed out after {timeout_s:.0f} s waiting for {what}")
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def result(self, future, timeout_s: float, what: str):
+        self.spin_until(future.done, timeout_s, what)
+        return future.result()
+
+    def wait_ready(self, timeout_s: float) -> float:
+        """Wait for every service and action server and for the recorder's subscriptions;
+        returns the seconds since the launch."""
+        from rclpy.action import ActionClient
+
+        from rrg_msgs.action import ExecuteWrt, GuardedMove, RobustGrasp
+        from rrg_msgs.srv import GetBelief, HandCommand, ResetBelief, ResetSim, SelectAction
+        from std_srvs.srv import Trigger
+
+        types = {"/rrg/reset_sim": ResetSim, "/rrg/hand_command": HandCommand, "/rrg/eval/judge_grasp": Trigger,
+                 "/rrg/retreat": Trigger, "/rrg/reset_belief": ResetBelief, "/rrg/get_belief": GetBelief,
+                 "/rrg/select_action": SelectAction, "/rrg/guarded_move": GuardedMove,
+                 "/rrg/execute_wrt": ExecuteWrt, "/rrg/robust_grasp": RobustGrasp}
+        self.clients = {name: self.node.create_client(types[name], name) for name in SERVICES}
+        self.actions = {name: ActionClient(self.node, types[name], name) for name in ACTIONS}
+        deadline = time.monotonic() + timeout_s
+        for name, client in [*self.clients.items(), *self.actions.items()]:
+            ready = client.service_is_ready if name in self.clients else client.server_is_ready
+            self.spin_until(ready, deadline - time.monotonic(), f"{name} (planning models load first)")
+        if self.bag_dir is not None:
+            self.spin_until(self.recorder_caught_up, deadline - time.monotonic(), "the recorder's subscriptions")
+        return time.monotonic() - self.started
+
+    def recorder_caught_up(self) -> bool:
+        """Whether the recorder subscribes to every visible topic that has a publisher."""
+        from .bag_recorder import is_hidden
+
+        for topic, _ in self.node.get_topic_names_and_types():
+            if is_hidden(topic) or not self.node.get_publishers_info_by_topic(topic):
+                continue
+            if not any(s.node_name == RECORDER for s in self.node.get_subscriptions_info_by_topic(topic)):
+                return False
+        return True
+
+    # ------------------------------------------------------------------ one grasp
+    def grasp(self, outcome: GraspOutcome, horizon: int, delta: float, max_actions: int,
+              on_first_action: Callable[[], None] | None = None) -> GraspOutcome:
+        """Place the object, run the robust grasp, judge it; fills and returns ``outcome``."""
+        from rrg_msgs.action import RobustGrasp
+        from rrg_msgs.srv import ResetSim
+        from rrg_sim.ros.convert import planar_to_msg
+        from std_srvs.srv import Trigger
+
+        reset = self.result(self.clients["/rrg/reset_sim"].call_async(
+            ResetSim.Request(object_name=outcome.object_name, pose=planar_to_msg(outcome.true_pose))), 60.0, "reset_sim")
+        if reset.error_code != ResetSim.Response.NONE:
+            raise LaunchError(f"reset_sim failed: {reset.error_msg}")
+        goal = RobustGrasp.Goal(object_name=outcome.object_name, level=outcome.level, strategy=outcome.strategy,
+                                horizon=horizon, delta=delta, max_actions=max_actions)
+
+        def feedback(msg) -> None:
+            fb = msg.feedback
+            if fb.step == 1 and on_first_action is not None:
+                on_first_action()
+            print(f"[rrg-launch] step {fb.step}: {fb.wrt_name} (P(goal) = {fb.p_goal:.3f}, value = {fb.value:.3f})",
+                  flush=True)
+
+        client = self.actions["/rrg/robust_grasp"]
+        self.goal_handle = self.result(client.send_goal_async(goal, feedback_callback=feedback), 30.0, "robust_grasp")
+        if not self.goal_handle.accepted:
+            raise LaunchError("the planner rejected the robust_grasp goal")
+        answer = self.result(self.goal_handle.get_result_async(), 3600.0, "the robust grasp")
+        self.goal_handle = None
+        res = answer.result
+        outcome.actions, outcome.p_goal, outcome.planner_success = list(res.actions_taken), res.final_p_goal, res.success
+        if res.error_code != RobustGrasp.Result.NONE:
+            outcome.error = f"robust_grasp error {res.error_code}: {res.error_msg}"
+            return outcome
+        judged = self.result(self.clients["/rrg/eval/judge_grasp"].call_async(Trigger.Request()), 120.0, "judge_grasp")
+        outcome.success, outcome.judge = judged.success, judged.message
+        return outcome
+
+    def cancel_grasp(self) -> None:
+        """Cancel a running robust grasp (best effort, before the nodes are stopped)."""
+        handle = self.goal_handle
+        if handle is not None and self.node is not None:
+            try:
+                self.result(handle.cancel_goal_async(), 3.0, "the grasp's cancellation")
+            except LaunchError:
+                pass
+
+
+def warm_tables(object_name: str, levels: list[str]) -> None:
+    """Load, or build in parallel (with progress bars), the object's observation tables at the
+    given levels, before any node starts: the nodes then only read the cache (they must not
+    fork build workers while running DDS threads)."""
+    from rrg_estimator.obs_tables import load_or_build
+    from rrg_sim.objects import get_object
+
+    obj = get_object(object_name)
+    for level in levels:
+        for wrt in obj.wrts():
+            load_or_build(obj, wrt, LEVELS[level], workers=2, progress=True)
+
+
+def true_pose(args: argparse.Namespace) -> np.ndarray:
+    """--true-pose, else a draw from the level's Gaussian around the nominal pose (--seed)."""
+    if args.true_pose is not None:
+        return np.asarray(args.true_pose, dtype=float)
+    rng = np.random.default_rng(args.seed)
+    return compose_planar(np.asarray(WORLD.nominal_pose), rng.normal(0.0, LEVELS[args.level].sigma))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="rrg-launch", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--mode", choices=("sim", "hw"), default="sim", help="arm/hand interface: simulator or hardware")
+    p.add_argument("--domain-id", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "0") or 0),
+                   help="ROS_DOMAIN_ID of the graph (0-101; default: $ROS_DOMAIN_ID or 0)")
+    p.add_argument("--object", default="powerdrill", choices=OBJECT_NAMES,
+                   help="object the simulator starts with (--grasp overrides it)")
+    p.add_argument("--grasp", metavar="OBJECT", choices=OBJECT_NAMES, help="run one robust grasp of OBJECT, then stop")
+    p.add_argument("--level", default="high", choices=sorted(LEVELS), help="initial uncertainty of the grasp")
+    p.add_argument("--strategy", default="rrg-info", choices=STRATEGIES)
+    p.add_argument("--horizon", type=int, default=SEARCH.horizon, choices=(1, 2, 3))
+    p.add_argument("--delta", type=float, default=SEARCH.delta)
+    p.add_argument("--max-actions", type=int, default=SEARCH.max_actions)
+    p.add_argument("--true-pose", type=float, nargs=3, metavar=("X", "Y", "THETA"),
+                   help="the object's true pose [m, m, rad] (default: drawn from the level's Gaussian)")
+    p.add_argument("--seed", type=int, default=0, help="seeds the true-pose draw and the sensor noise")
+    p.add_argument("--levels", default="high,low",
+                   help="uncertainty levels the planner loads (variable resolution needs both)")
+    p.add_argument("--real-time-factor", type=float, default=0.0,
+                   help="simulator pacing: 1 = real time, 0 = as fast as it steps")
+    p.add_argument("--sensor-noise", type=float, default=1.0,
+                   help="scale of the simulated sensors' noise (1 = config values, 0 = noiseless)")
+    p.add_argument("--bags", type=Path, default=ROOT / "bags", help="folder of the bags")
+    p.add_argument("--bag-name", help="bag folder name (default: rrg_<object>_<time>)")
+    p.add_argument("--no-bag", action="store_true", help="do not record")
+    p.add_argument("--log-dir", type=Path, help="write each child's output to LOG_DIR/<node>.log (default: stderr)")
+    p.add_argument("--ready-timeout", type=float, default=600.0,
+                   help="longest wait for the graph [s] (a first table build takes minutes)")
+    p.add_argument("--json", action="store_true", help="print the grasp's outcome as JSON on the last line")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.mode == "hw":
+        print("rrg-launch: --mode hw needs the rrg_hw_bridge node (the arm/hand interface on the real "
+              "WAM, BarrettHand and Nano17 drivers), which does not exist yet; use --mode sim", file=sys.stderr)
+        return 2
+    if not 0 <= args.domain_id <= 101:
+        print(f"rrg-launch: --domain-id must be 0-101, got {args.domain_id}", file=sys.stderr)
+        return 2
+    object_name = args.grasp or args.object
+    levels = [lv.strip() for lv in args.levels.split(",") if lv.strip()]
+    name = args.bag_name or f"rrg_{object_name}_{datetime.now():%Y%m%d_%H%M%S}"
+    bag_dir = None if args.no_bag else args.bags / name
+    if bag_dir is not None and bag_dir.exists():
+        print(f"rrg-launch: bag folder already exists: {bag_dir}", file=sys.stderr)
+        return 2
+
+    def terminate(signum, _frame):  # SIGTERM behaves as Ctrl-C
+        raise KeyboardInterrupt
+
+    graph = Graph(ros_environment(args.domain_id), bag_dir, args.log_dir)
+    status = 0
+    outcome = None
+    try:
+        print(f"[rrg-launch] observation tables of {object_name} at levels {levels} (built once, ~1 min per "
+              "level when missing)", flush=True)
+        warm_tables(object_name, levels)
+        signal.signal(signal.SIGTERM, terminate)  # after the table workers, which must not inherit it
+        graph.start(object_name, levels, args.seed, args.real_time_factor, args.sensor_noise)
+        graph.connect()
+        print(f"[rrg-launch] started {len(graph.children)} processes in domain {args.domain_id}; waiting for "
+              "the graph (the planner loads its models first)", flush=True)
+        ready_s = graph.wait_ready(args.ready_timeout)
+        print(f"[rrg-launch] graph ready after {ready_s:.1f} s" + (f", recording to {bag_dir}" if bag_dir else ""),
+              flush=True)
+        if args.grasp:
+            outcome = GraspOutcome(args.grasp, args.level, args.strategy, np.round(true_pose(args), 5).tolist(),
+                                   bag=str(bag_dir or ""))
+            print(f"[rrg-launch] robust grasp of {args.grasp} ({args.level} uncertainty, {args.strategy}), "
+                  f"true pose {outcome.true_pose}", flush=True)
+
+            def first_action() -> None:
+                outcome.launch_to_first_action_s = time.monotonic() - graph.started
+
+            graph.grasp(outcome, args.horizon, args.delta, args.max_actions, first_action)
+        else:
+            print("[rrg-launch] running; Ctrl-C stops the graph", flush=True)
+            while True:
+                graph.spin_until(lambda: False, float("inf"), "Ctrl-C")
+    except KeyboardInterrupt:
+        print("[rrg-launch] interrupted: stopping the graph", flush=True)
+        graph.cancel_grasp()
+        status = 1 if args.grasp else 0
+    except LaunchError as exc:
+        print(f"[rrg-launch] error: {exc}", file=sys.stderr, flush=True)
+        status = 1
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the shutdown short
+        graph.disconnect()
+        graph.stop()
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    if bag_dir is not None:
+        from .bag_cli import bag_info
+
+        info = bag_info(bag_dir)
+        print(f"[rrg-launch] bag {bag_dir}: {info.message_count} messages on {len(info.topics)} topics, "
+              f"{'finalized' if info.finalized else 'NOT finalized'}", flush=True)
+    if outcome is not None:
+        print(f"[rrg-launch] outcome: actions {outcome.actions}, P(goal) = {outcome.p_goal:.3f}, planner "
+              f"{'succeeded' if outcome.planner_success else 'did not succeed'}; simulator judged the grasp a "
+              f"{'SUCCESS' if outcome.success else 'FAILURE'}" + (f" ({outcome.judge})" if outcome.judge else "")
+              + (f"; {outcome.error}" if outcome.error else ""), flush=True)
+        if outcome.error:
+            status = status or 1
+        if args.json:
+            print(json.dumps(asdict(outcome)), flush=True)
+    return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())

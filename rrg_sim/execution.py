@@ -1,0 +1,228 @@
+"""Executing a world-relative trajectory on a robot (DESIGN §4): the one sequence that the physics
+world runs in-process and the executor node runs over ROS against the arm/hand interface.
+
+τ(e) → straight Cartesian segments, densified and solved to one continuous IK chain
+(physics.trajectory.plan_path) → joint via-points timed per segment → a guarded move that
+stops at the first sensed contact → close the fingers until each stops → the Observation. The
+hand is left closed where it stopped; ``retreat`` opens it and retraces the path back home. A
+reorientation WRT also lifts the grasped object, turns it about the vertical through e, puts
+it down and opens the hand.
+
+The robot is anything with the small ``Robot`` interface: ``PhysicsWorld`` implements it
+directly, the executor node with action and service clients of the sim (or hardware) node.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Callable, Protocol
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from . import wam
+from .config import GEOMSIM, N_SENSORS, PHYSICS
+from .hand import hand_geoms_world
+from .observation import Observation
+from .physics.trajectory import DensePath, joint_path, plan_path, sample_times, solve_path
+from .wrt import WRT
+
+log = logging.getLogger(__name__)
+
+#: (m/s, rad/s) through free space: from home to a WRT's first pose, and back.
+FREE_SPEEDS = (PHYSICS.free_speed, PHYSICS.free_turn_speed)
+#: A retreat retraces the path only if the arm is still where the WRT left it, within this
+#: joint distance [rad] (chosen: far above servo error, far below any real move).
+RETREAT_TOLERANCE = 0.05
+
+#: Execution phases reported to a progress callback, with the fraction done when each starts.
+PHASES = {"planning": 0.0, "approach": 0.1, "closing": 0.6, "reorient": 0.7, "retreat": 0.8}
+
+
+@dataclass(frozen=True)
+class Reading:
+    """What the hand senses at one instant.
+
+    fired: (10,) bool, config.SENSOR_NAMES order. tip_points / tip_normals: (3,3) Nano17
+    contact points [m] and unit normals (object → tip) in the hand frame, NaN rows for tips
+    below threshold.
+    """
+
+    fired: np.ndarray
+    tip_points: np.ndarray
+    tip_normals: np.ndarray
+
+
+class Robot(Protocol):
+    """The arm and hand as the executor drives them."""
+
+    def arm_q(self) -> np.ndarray:
+        """(7,) measured WAM joint angles [rad]."""
+
+    def hand_angles(self) -> tuple[float, np.ndarray]:
+        """Measured spread [rad] and (3,) proximal angles [rad]."""
+
+    def hand_pose(self) -> np.ndarray:
+        """(4,4) hand (wrist flange) pose in ``world``."""
+
+    def follow(self, q: np.ndarray, t: np.ndarray, guard: bool) -> float | None:
+        """Track joint via-points q (M,7) (q[0]: where the arm is) reached at times t (M,) [s].
+        Guarded: stop and hold at the first control period any sensor fires. Returns the
+        fractional via-point index commanded at the stop, or None when the move completed."""
+
+    def move_hand(self, spread: float, proximal: float) -> None:
+        """Servo the spread and every proximal joint to the given angles [rad], arm held."""
+
+    def close_hand(self) -> None:
+        """Close every finger until it stops (stalls on the object or reaches its limit)."""
+
+    def reading(self) -> Reading:
+        """The hand's sensors now."""
+
+
+@dataclass
+class Execution:
+    """What the last WRT execution left behind for ``retreat`` (and a grasp judge)."""
+
+    wrt: WRT
+    e: np.ndarray
+    path: DensePath  # the hand path actually commanded, from its start to the stop
+    observation: Observation
+    q_end: np.ndarray  # (7,) where the arm was when the execution ended
+    #: Rigid motion (4,4) the object was given (a reorientation), applied to the way back.
+    moved: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+
+def rotation_about_z(centre_xy, angle: float) -> np.ndarray:
+    """(4,4) world rotation by ``angle`` about the vertical axis through centre_xy."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec([0.0, 0.0, angle]).as_matrix()
+    c = np.array([centre_xy[0], centre_xy[1], 0.0])
+    T[:3, 3] = c - T[:3, :3] @ c
+    return T
+
+
+def sensor_points(spread: float, proximal: np.ndarray) -> np.ndarray:
+    """(10,3) centre of each sensor's geom in the hand frame for the given hand angles."""
+    points = np.zeros((N_SENSORS, 3))
+    for g, T in hand_geoms_world(np.eye(4), spread, np.asarray(proximal, dtype=float)):
+        if g.sensor >= 0:
+            points[g.sensor] = T[:3, 3]
+    return points
+
+
+class WrtExecutor:
+    """Runs WRTs on a robot and retreats from them (see the module doc)."""
+
+    def __init__(self, robot: Robot):
+        self.robot = robot
+        self.last: Execution | None = None
+
+    def forget(self) -> None:
+        """Drop the pending retreat (the robot was reset elsewhere)."""
+        self.last = None
+
+    # ------------------------------------------------------------------ motion
+    def _follow(self, path: DensePath, guard: bool = False, speeds: dict | None = None) -> float | None:
+        return self.robot.follow(path.q, sample_times(path, speeds), guard)
+
+    def _move(self, waypoints: np.ndarray, rigid_from: int = 0) -> None:
+        """An unguarded straight-line move from the current hand pose through hand waypoints."""
+        self._follow(plan_path(waypoints, self.robot.arm_q(), rigid_from))
+
+    def _open(self, proximal: float) -> None:
+        spread, _ = self.robot.hand_angles()
+        self.robot.move_hand(spread, proximal)
+
+    # ------------------------------------------------------------------ WRTs
+    def execute(self, wrt: WRT, e, progress: Callable[[str, float], None] | None = None) -> Observation:
+        """Run τ(e) from home as a guarded move, close the fingers, and return the observation;
+        the hand is left closed at the stop (call ``retreat`` next, or judge the grasp first).
+        A pending retreat of the previous WRT runs first. Raises physics.trajectory's
+        InfeasiblePath when no continuous IK path follows τ(e); the robot has not moved then."""
+        report = progress or (lambda phase, fraction: None)
+        if self.last is not None:
+            self.retreat(report)
+        e = np.asarray(e, dtype=float)
+        report("planning", PHASES["planning"])
+        path = plan_path(wrt.world_poses(e), self.robot.arm_q(), rigid_from=1, reconfigure=True)
+        report("approach", PHASES["approach"])
+        self.robot.move_hand(wrt.spread, wrt.preclose)  # preshape at home, clear of everything
+        stop = self._follow(path, guard=True, speeds={k: FREE_SPEEDS for k in (0, -1, -2)})
+        contact = stop is not None
+        index = stop if contact else float(len(path.poses) - 1)
+        at_stop = self.robot.reading()
+        motion_dir = self._motion_dir(path, index, at_stop)
+        stop_pose = self.robot.hand_pose()
+        report("closing", PHASES["closing"])
+        self.robot.close_hand()
+        closed = self.robot.reading()
+        first = int(np.nonzero(path.segment == 0)[0][-1])  # the WRT's first pose
+        arc = path.arc
+        progress_m = max(0.0, float(np.interp(index, np.arange(len(arc)), arc)) - arc[first])
+        obs = Observation(contact=contact, progress=progress_m, hand_pose=stop_pose,
+                          sensors=at_stop.fired | closed.fired, closure=self.robot.hand_angles()[1],
+                          tip_points=closed.tip_points, tip_normals=closed.tip_normals, motion_dir=motion_dir)
+        self.last = Execution(wrt, e, path.upto(int(np.floor(index))), obs, self.robot.arm_q())
+        if wrt.kind == "reorient":
+            report("reorient", PHASES["reorient"])
+            self._reorient(wrt, e)
+        return obs
+
+    def _motion_dir(self, path: DensePath, index: float, reading: Reading) -> np.ndarray:
+        """Unit direction the sensed contact (a fired Nano17's contact point, else a fired pad,
+        else the palm) moved in world over the last dense step before ``index``."""
+        b = max(1, int(np.ceil(index)))
+        tips = reading.fired[7:]
+        if tips.any():
+            local = reading.tip_points[np.argmax(tips)]
+        elif reading.fired.any():
+            local = sensor_points(*self.robot.hand_angles())[np.argmax(reading.fired)]
+        else:
+            local = np.zeros(3)
+        a_pose, b_pose = path.poses[b - 1], path.poses[b]
+        v = (b_pose[:3, :3] @ local + b_pose[:3, 3]) - (a_pose[:3, :3] @ local + a_pose[:3, 3])
+        return v / max(np.linalg.norm(v), 1e-12)
+
+    def _reorient(self, wrt: WRT, e: np.ndarray) -> None:
+        """Lift, turn about the vertical through e, put down, open (after closing on the object)."""
+        up = np.eye(4)
+        up[2, 3] = PHYSICS.reorient_lift
+        T = self.robot.hand_pose()
+        self._move((up @ T)[None], rigid_from=1)
+        n = max(2, int(np.ceil(abs(wrt.reorient_angle) * GEOMSIM.rotation_sample_radius / PHYSICS.path_step)) + 1)
+        arc = np.stack([rotation_about_z(e[:2], a) @ up @ T for a in np.linspace(0.0, wrt.reorient_angle, n)])
+        self._follow(solve_path(arc, self.robot.arm_q()))
+        G = rotation_about_z(e[:2], wrt.reorient_angle)
+        self._move((G @ T)[None], rigid_from=1)
+        self._open(wrt.preclose)
+        self.last.moved, self.last.q_end = G, self.robot.arm_q()
+
+    def retreat(self, progress: Callable[[str, float], None] | None = None) -> None:
+        """Open the hand and retrace the executed path back to home. After a reorientation the
+        WRT's part of the path is retraced turned with the object, then the arm moves home in
+        joint space. If the arm is no longer where the WRT left it (e.g. the simulator was
+        reset), the retreat is dropped."""
+        if self.last is None:
+            return
+        last, self.last = self.last, None
+        if np.abs(self.robot.arm_q() - last.q_end).max() > RETREAT_TOLERANCE:
+            log.warning("retreat from %s dropped: the arm has moved since the WRT ended", last.wrt.name)
+            return
+        if progress is not None:
+            progress("retreat", PHASES["retreat"])
+        self._open(last.wrt.preclose)
+        q0 = self.robot.arm_q()
+        if np.allclose(last.moved, np.eye(4)):
+            back = last.path.reversed()
+            path = DensePath(np.concatenate([wam.fk(q0)[None], back.poses]), np.vstack([q0, back.q]),
+                             np.r_[back.segment[0], back.segment])
+            top = int(last.path.segment.max())  # segments 0 and the lead-ins are free space
+            self._follow(path, speeds={top - k: FREE_SPEEDS for k in (0, -1, -2)})
+        else:
+            passed = max(0, int(last.path.segment[-1]))  # WRT poses 0 … passed-1 were passed
+            back = last.moved @ last.wrt.world_poses(last.e)[:passed][::-1]
+            if len(back):
+                self._move(back, rigid_from=len(back))
+            self._follow(joint_path(self.robot.arm_q(), last.path.q[0]), speeds={0: FREE_SPEEDS})
+        self._open(0.0)

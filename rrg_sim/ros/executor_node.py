@@ -1,0 +1,153 @@
+"""The executor node (DESIGN §7): executes a WRT at an estimate e on the arm/hand interface and
+publishes what it observed.
+
+    python -m rrg_sim.ros.executor_node
+
+Serves ``/rrg/execute_wrt`` (rrg_msgs/ExecuteWrt): τ(e), a continuous IK path, timed joint
+via-points sent as guarded moves to ``/rrg/guarded_move``, closing through
+``/rrg/hand_command``, the observation (published on ``/rrg/observation`` and returned), then
+the retreat home. A goal WRT is left closed on the object so that it can be judged or lifted;
+``/rrg/retreat`` (std_srvs/Trigger), or the next execution, retreats from it. The sequence is
+the ROS-free ``rrg_sim.execution.WrtExecutor`` (the physics world runs the same one in-process);
+this node drives it through ``RosRobot``, so it runs unchanged against a hardware bridge.
+
+It lives in rrg_sim because everything it needs is there (the object catalogue with the
+WRTs, the WAM's IK, the path planning), and it is robot-side software: it never reads a belief.
+"""
+from __future__ import annotations
+
+import sys
+import threading
+
+import numpy as np
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.action.server import ServerGoalHandle
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+from std_srvs.srv import Trigger
+
+from rrg_msgs.action import ExecuteWrt
+from rrg_msgs.msg import Observation as ObservationMsg
+
+from ..execution import WrtExecutor
+from ..objects import OBJECT_NAMES, get_object
+from ..physics.trajectory import InfeasiblePath
+from .convert import observation_to_msg, planar_from_msg
+from .node_main import keep_serving, run_node
+from .robot_client import MotionCanceled, MotionFailed, RosRobot
+
+NODE_NAME = "executor"
+NAMESPACE = "rrg"
+R = ExecuteWrt.Result
+
+
+class ExecutorNode(Node):
+    """ExecuteWrt and retreat over the arm/hand interface."""
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME, namespace=NAMESPACE)
+        self.declare_parameter("motion_timeout", 300.0, ParameterDescriptor(
+            description="Longest wait [s] for one guarded move or hand command", read_only=True,
+            floating_point_range=[FloatingPointRange(from_value=1.0, to_value=3600.0)]))
+        self.declare_parameter("ready_timeout", 30.0, ParameterDescriptor(
+            description="Longest wait [s] for the arm/hand interface when a goal arrives",
+            floating_point_range=[FloatingPointRange(from_value=0.1, to_value=600.0)]))
+        group = ReentrantCallbackGroup()
+        self.robot = RosRobot(self, group, self.get_parameter("motion_timeout").value)
+        self.core = WrtExecutor(self.robot)
+        self._busy = threading.Lock()
+        self.obs_pub = self.create_publisher(ObservationMsg, "observation", 10)
+        ActionServer(self, ExecuteWrt, "execute_wrt", execute_callback=self.execute_wrt,
+                     goal_callback=self.on_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
+                     callback_group=group)
+        self.create_service(Trigger, "retreat", self.on_retreat, callback_group=group)
+        self.get_logger().info("executor ready")
+
+    def on_goal(self, goal: ExecuteWrt.Goal) -> GoalResponse:
+        if self._busy.locked():
+            self.get_logger().warn(f"execute_wrt {goal.wrt_name} rejected: busy")
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    def wait_ready(self) -> bool:
+        """Wait until the arm/hand interface is up and its joint states are fresh (stamped after
+        this call: the robot may have been moved meanwhile, e.g. by a simulator reset)."""
+        pause = threading.Event()
+        now = self.get_clock().now().nanoseconds
+        deadline = now + self.get_parameter("ready_timeout").value * 1e9
+        while not (self.robot.ready() and self.robot.synced_since(now)):
+            if self.get_clock().now().nanoseconds > deadline or not self.context.ok():
+                return False
+            pause.wait(0.005)
+        return True
+
+    def execute_wrt(self, handle: ServerGoalHandle) -> ExecuteWrt.Result:
+        goal, result = handle.request, ExecuteWrt.Result()
+        e = planar_from_msg(goal.estimate)
+        if goal.object_name not in OBJECT_NAMES:
+            result.error_code, result.error_msg = R.UNKNOWN_OBJECT, f"unknown object {goal.object_name!r}"
+        elif goal.wrt_name not in [w.name for w in get_object(goal.object_name).wrts()]:
+            result.error_code = R.UNKNOWN_WRT
+            result.error_msg = f"{goal.object_name} has no WRT {goal.wrt_name!r}"
+        elif not np.all(np.isfinite(e)):
+            result.error_code, result.error_msg = R.INFEASIBLE, f"non-finite estimate {e.tolist()}"
+        elif not self.wait_ready():
+            result.error_code, result.error_msg = R.MOTION_FAILED, "the arm/hand interface is not available"
+        else:
+            with self._busy:
+                self.run(handle, get_object(goal.object_name).wrt(goal.wrt_name), e, result)
+        if result.error_code == R.NONE:
+            handle.succeed()
+        elif result.error_code == R.CANCELED and handle.is_cancel_requested:
+            handle.canceled()
+        else:
+            handle.abort()
+            self.get_logger().error(f"execute_wrt {goal.object_name}/{goal.wrt_name} failed: {result.error_msg}")
+        return result
+
+    def run(self, handle: ServerGoalHandle, wrt, e: np.ndarray, result: ExecuteWrt.Result) -> None:
+        def progress(phase: str, fraction: float) -> None:
+            handle.publish_feedback(ExecuteWrt.Feedback(phase=phase, progress=fraction))
+
+        self.robot.interrupted = lambda: handle.is_cancel_requested or not self.context.ok()
+        try:
+            obs = self.core.execute(wrt, e, progress)
+            msg = observation_to_msg(obs, handle.request.object_name, wrt.name, e, self.get_clock().now().to_msg())
+            self.obs_pub.publish(msg)
+            result.observation = msg
+            self.get_logger().info(f"{wrt.name} at {np.round(e, 3).tolist()}: contact={obs.contact}, "
+                                   f"progress {obs.progress:.3f} m, sensors {np.flatnonzero(obs.sensors).tolist()}")
+            if wrt.kind != "goal":  # a goal grasp stays closed until judged or retreated from
+                self.core.retreat(progress)
+        except InfeasiblePath as exc:
+            result.error_code, result.error_msg = R.INFEASIBLE, f"no IK path for {wrt.name} at {e.tolist()}: {exc}"
+        except MotionCanceled as exc:
+            result.error_code, result.error_msg = R.CANCELED, str(exc)
+        except MotionFailed as exc:
+            result.error_code, result.error_msg = R.MOTION_FAILED, str(exc)
+        except Exception as exc:  # noqa: BLE001 - answer, log and keep serving
+            result.error_code, result.error_msg = R.UNKNOWN, f"{type(exc).__name__}: {exc}"
+        finally:
+            self.robot.interrupted = lambda: not self.context.ok()
+
+    @keep_serving
+    def on_retreat(self, req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
+        if not self.wait_ready():
+            resp.message = "the arm/hand interface is not available"
+            return resp
+        with self._busy:
+            try:
+                self.core.retreat()
+                resp.success, resp.message = True, "retreated"
+            except (MotionFailed, MotionCanceled, InfeasiblePath) as exc:
+                resp.message = f"retreat failed: {exc}"
+        return resp
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_node(ExecutorNode, multi_threaded=True, argv=argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

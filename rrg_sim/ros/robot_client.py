@@ -1,0 +1,138 @@
+"""The executor core's ``Robot`` (rrg_sim.execution) over ROS: action and service clients of the
+arm/hand interface node (the simulator, or the hardware bridge), for use inside a callback of
+a MultiThreadedExecutor (the clients must be in a reentrant callback group).
+
+Joint angles come from ``/rrg/joint_states`` and from the results of the commands themselves,
+whichever is newer; the sensor reading is the one the last command returned (at a guarded
+move's stop, after closing the hand).
+"""
+from __future__ import annotations
+
+import threading
+from typing import Callable
+
+import numpy as np
+from builtin_interfaces.msg import Duration
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from rrg_msgs.action import GuardedMove
+from rrg_msgs.srv import HandCommand
+
+from .. import wam
+from ..config import HAND, N_SENSORS
+from ..execution import Reading
+from .convert import ARM_JOINT_NAMES, PROXIMAL_JOINT_NAMES, SPREAD_JOINT_NAME, tip_contacts_from_msg
+from .futures import ThreadSafeActionClient, WaitInterrupted, WaitTimeout, wait_for
+
+
+class MotionFailed(RuntimeError):
+    """The arm/hand interface refused or failed a command, or did not answer in time."""
+
+
+class MotionCanceled(RuntimeError):
+    """The motion was interrupted (the caller's cancel request, or shutdown)."""
+
+
+def duration(seconds: float) -> Duration:
+    sec = int(np.floor(seconds))
+    return Duration(sec=sec, nanosec=int(round((seconds - sec) * 1e9)) % 1_000_000_000)
+
+
+def stamp_ns(msg: JointState) -> int:
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+class RosRobot:
+    """Robot interface over ``guarded_move``, ``hand_command`` and ``joint_states`` (relative
+    names: the node's namespace applies). ``interrupted`` is polled while waiting."""
+
+    def __init__(self, node: Node, callback_group, timeout_s: float):
+        self.node = node
+        self.timeout_s = timeout_s
+        self.move_client = ThreadSafeActionClient(node, GuardedMove, "guarded_move", callback_group=callback_group)
+        self.hand_client = node.create_client(HandCommand, "hand_command", callback_group=callback_group)
+        node.create_subscription(JointState, "joint_states", self.on_joint_state, 10, callback_group=callback_group)
+        self.interrupted: Callable[[], bool] = lambda: False
+        self._lock = threading.Lock()
+        self._joints: dict[str, float] = {}
+        self._stamp = -1
+        self._reading = Reading(np.zeros(N_SENSORS, bool), np.full((3, 3), np.nan), np.full((3, 3), np.nan))
+
+    # ------------------------------------------------------------------ state
+    def on_joint_state(self, msg: JointState) -> None:
+        with self._lock:
+            if stamp_ns(msg) >= self._stamp:
+                self._stamp = stamp_ns(msg)
+                self._joints.update(zip(msg.name, msg.position))
+
+    def ready(self) -> bool:
+        """Whether the joint states of every joint the executor needs have arrived."""
+        names = (*ARM_JOINT_NAMES, SPREAD_JOINT_NAME, *PROXIMAL_JOINT_NAMES)
+        return all(n in self._joints for n in names) and self.move_client.server_is_ready() \
+            and self.hand_client.service_is_ready()
+
+    def synced_since(self, since_ns: int) -> bool:
+        """Whether a joint state stamped at or after ``since_ns`` (ROS time) has arrived: the
+        state is fresh even if the robot was moved meanwhile by someone else (a reset)."""
+        return self._stamp >= since_ns
+
+    def arm_q(self) -> np.ndarray:
+        return np.array([self._joints[n] for n in ARM_JOINT_NAMES])
+
+    def hand_angles(self) -> tuple[float, np.ndarray]:
+        return float(self._joints[SPREAD_JOINT_NAME]), np.array([self._joints[n] for n in PROXIMAL_JOINT_NAMES])
+
+    def hand_pose(self) -> np.ndarray:
+        return wam.fk(self.arm_q())
+
+    def reading(self) -> Reading:
+        return self._reading
+
+    def _sensed(self, joint_state: JointState, sensors, tip_contacts) -> None:
+        self.on_joint_state(joint_state)
+        points, normals = tip_contacts_from_msg(tip_contacts)
+        self._reading = Reading(np.asarray(sensors, dtype=bool), points, normals)
+
+    def _wait(self, future, what: str):
+        try:
+            return wait_for(future, self.timeout_s, self.interrupted)
+        except WaitTimeout as exc:
+            raise MotionFailed(f"{what}: {exc}") from exc
+
+    # ------------------------------------------------------------------ commands
+    def follow(self, q: np.ndarray, t: np.ndarray, guard: bool) -> float | None:
+        traj = JointTrajectory(joint_names=list(ARM_JOINT_NAMES), points=[
+            JointTrajectoryPoint(positions=qk.tolist(), time_from_start=duration(tk)) for qk, tk in zip(q, t)])
+        handle = self._wait(self.move_client.send_goal_async(GuardedMove.Goal(trajectory=traj, stop_on_contact=guard)),
+                            "guarded_move")
+        if not handle.accepted:
+            raise MotionFailed("guarded_move rejected the goal")
+        try:
+            answer = self._wait(handle.get_result_async(), "guarded_move")
+        except WaitInterrupted as exc:
+            wait_for(handle.cancel_goal_async(), 10.0)
+            raise MotionCanceled("guarded move canceled") from exc
+        res = answer.result
+        if res.error_code != GuardedMove.Result.NONE:
+            raise MotionFailed(f"guarded_move failed ({res.error_code}): {res.error_msg}")
+        self._sensed(res.final_joint_state, res.sensors, res.tip_contacts)
+        return res.path_fraction * (len(q) - 1) if res.stopped_on_contact else None
+
+    def _hand(self, mode: int, spread: float, proximal) -> None:
+        req = HandCommand.Request(mode=mode, spread=float(np.clip(spread, *HAND.spread_range)),
+                                  proximal=np.clip(np.broadcast_to(proximal, 3), *HAND.proximal_range))
+        try:
+            resp = self._wait(self.hand_client.call_async(req), "hand_command")
+        except WaitInterrupted as exc:
+            raise MotionCanceled("hand command interrupted") from exc
+        if resp.error_code != HandCommand.Response.NONE:
+            raise MotionFailed(f"hand_command failed ({resp.error_code}): {resp.error_msg}")
+        self._sensed(resp.joint_state, resp.sensors, resp.tip_contacts)
+
+    def move_hand(self, spread: float, proximal) -> None:
+        self._hand(HandCommand.Request.MODE_POSITION, spread, proximal)
+
+    def close_hand(self) -> None:
+        self._hand(HandCommand.Request.MODE_CLOSE, self.hand_angles()[0], 0.0)

@@ -1,0 +1,62 @@
+"""The executor core's timing and retreat rules (rrg_sim.execution, physics.trajectory): the
+guarded move's via-point times, the servo targets that follow them, and a retreat that is
+dropped when the arm has moved since the WRT ended."""
+from __future__ import annotations
+
+import numpy as np
+
+from rrg_sim import wam
+from rrg_sim.config import PHYSICS
+from rrg_sim.physics.trajectory import SETTLE_TIME, plan_path, sample_times, servo_targets
+from rrg_sim.physics.world import PhysicsWorld
+
+
+def two_segment_path():
+    T1 = wam.fk(wam.HOME_Q)
+    T1[0, 3] += 0.10
+    T2 = T1.copy()
+    T2[2, 3] -= 0.08
+    return plan_path(np.stack([T1, T2]), wam.HOME_Q)
+
+
+def test_sample_times_rest_at_every_waypoint():
+    path = two_segment_path()
+    t = sample_times(path)
+    assert t[0] == 0.0 and np.all(np.diff(t) > 0.0)
+    steps = np.diff(t)
+    corner = int(np.nonzero(path.segment == 0)[0][-1])  # the last sample of segment 0
+    middle = steps[corner // 2]
+    assert steps[corner - 1] > 1.5 * middle and steps[corner] > 1.5 * middle  # slow in, slow out
+    cruise = np.linalg.norm(path.poses[corner // 2 + 1, :3, 3] - path.poses[corner // 2, :3, 3]) / middle
+    assert abs(cruise - PHYSICS.move_speed) < 0.01  # m/s between the ramps
+    fast = sample_times(path, {0: (2 * PHYSICS.move_speed, PHYSICS.turn_speed)})
+    assert fast[corner] < t[corner] and np.isclose(fast[-1] - fast[corner], t[-1] - t[corner])
+
+
+def test_servo_targets_pass_the_via_points_at_their_times():
+    path = two_segment_path()
+    t = sample_times(path)
+    ctrl, index = servo_targets(path.q, t)
+    dt = PHYSICS.timestep
+    settle = int(round(SETTLE_TIME / dt))
+    assert len(ctrl) == len(index) == int(np.ceil(t[-1] / dt)) + 1 + settle
+    assert index[0] == 0.0 and np.all(np.diff(index) >= 0.0) and np.all(index[-settle:] == len(t) - 1)
+    reached = np.searchsorted(index, np.arange(len(t)) - 1e-9) * dt  # first period commanding each via-point
+    assert np.abs(reached - t).max() <= dt + 1e-9
+    np.testing.assert_allclose(ctrl[-1], path.q[-1], atol=1e-6)  # at rest on the last via-point
+
+
+def test_retreat_is_dropped_when_the_arm_has_moved():
+    world = PhysicsWorld("box", sensor_noise=0.0)
+    e = world.true_object_pose()
+    world.execute_wrt(world.obj.goal_wrt, e)
+    ok, _ = world.judge_grasp(world.obj, e)  # lifts the object: the arm leaves the grasp pose
+    assert ok
+    lifted = world.arm_q()
+    world.retreat()
+    np.testing.assert_allclose(world.arm_q(), lifted, atol=1e-3)
+    assert world.executor.last is None
+    world.reset()
+    world.execute_wrt(world.obj.goal_wrt, e)
+    world.retreat()  # from where the WRT left it: back home
+    np.testing.assert_allclose(world.arm_q(), wam.HOME_Q, atol=0.02)

@@ -1,0 +1,175 @@
+"""The sim node and the executor node as separate processes: ExecuteWrt over ROS runs the same
+executor core as the physics world in-process (same observation, noiseless sensors), publishes
+its observation, and every bad request to ExecuteWrt, GuardedMove, HandCommand and ResetSim
+gets its error code and a message while the nodes keep serving."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from builtin_interfaces.msg import Duration
+from rclpy.action import ActionClient
+from std_srvs.srv import Trigger
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from rrg_msgs.action import ExecuteWrt, GuardedMove
+from rrg_msgs.msg import Observation as ObservationMsg
+from rrg_msgs.srv import HandCommand, ResetSim
+from rrg_sim import wam
+from rrg_sim.physics.world import PhysicsWorld
+from rrg_sim.ros.convert import ARM_JOINT_NAMES, observation_from_msg, planar_to_msg
+from ros_testing import RosClient, node_processes, ros_env
+
+DOMAIN_ID = 45
+TRUE_POSE = np.array([0.625, 0.004, 0.05])
+
+
+@pytest.fixture(scope="module")
+def graph(tmp_path_factory):
+    env = ros_env(DOMAIN_ID)
+    specs = [("rrg_sim.ros.sim_node", {"object_name": "box", "sensor_noise": 0.0}),
+             ("rrg_sim.ros.executor_node", {})]
+    with node_processes(specs, env, tmp_path_factory.mktemp("logs")) as procs:
+        client = RosClient(env)
+        n = client.node
+        c = {"reset": n.create_client(ResetSim, "/rrg/reset_sim"),
+             "hand": n.create_client(HandCommand, "/rrg/hand_command"),
+             "retreat": n.create_client(Trigger, "/rrg/retreat"),
+             "judge": n.create_client(Trigger, "/rrg/eval/judge_grasp")}
+        client.wait_for_services(c.values(), procs, timeout_s=60.0)
+        c["execute"] = ActionClient(n, ExecuteWrt, "/rrg/execute_wrt")
+        c["move"] = ActionClient(n, GuardedMove, "/rrg/guarded_move")
+        assert c["execute"].wait_for_server(timeout_sec=30.0) and c["move"].wait_for_server(timeout_sec=30.0)
+        observations = []
+        n.create_subscription(ObservationMsg, "/rrg/observation", observations.append, 10)
+        yield client, c, observations
+        client.close()
+
+
+def run_action(client: RosClient, action: ActionClient, goal, timeout_s: float = 120.0):
+    handle = client.result(action.send_goal_async(goal), 10.0)
+    assert handle.accepted
+    return client.result(handle.get_result_async(), timeout_s).result
+
+
+def reset(client: RosClient, c, pose=TRUE_POSE, name: str = "box") -> ResetSim.Response:
+    return client.call(c["reset"], ResetSim.Request(object_name=name, pose=planar_to_msg(pose)))
+
+
+def test_execute_wrt_over_ros_matches_the_in_process_execution(graph):
+    """goal (left closed), retreat, sweep (stops on a contact) over ROS and in-process, noiseless:
+    the same observations (the hand pose differs by the WAM model's FK vs MuJoCo, < 1 mm)."""
+    client, c, observations = graph
+    assert reset(client, c).error_code == ResetSim.Response.NONE
+    world = PhysicsWorld("box", sensor_noise=0.0)
+    world.reset(TRUE_POSE)
+    for name, e in [("goal", np.array([0.62, 0.0, 0.0])), ("sweep", np.array([0.61, 0.01, 0.0]))]:
+        res = run_action(client, c["execute"], ExecuteWrt.Goal(object_name="box", wrt_name=name,
+                                                               estimate=planar_to_msg(e)))
+        assert res.error_code == ExecuteWrt.Result.NONE, res.error_msg
+        assert client.spin_until(lambda: observations and observations[-1].wrt_name == name, 10.0)
+        assert observations[-1].header.stamp == res.observation.header.stamp
+        ros = observation_from_msg(res.observation)
+        local = world.execute_wrt(world.obj.wrt(name), e)
+        assert ros.contact == local.contact and (name == "goal" or ros.contact)
+        np.testing.assert_array_equal(ros.sensors, local.sensors)
+        np.testing.assert_allclose(ros.closure, local.closure, atol=1e-3)
+        assert ros.progress == pytest.approx(local.progress, abs=1e-4)
+        np.testing.assert_allclose(ros.motion_dir, local.motion_dir, atol=1e-3)
+        np.testing.assert_allclose(ros.hand_pose[:3, 3], local.hand_pose[:3, 3], atol=1e-3)
+        if name == "goal":
+            assert client.call(c["retreat"], Trigger.Request()).success
+            world.retreat()
+    np.testing.assert_allclose(ros.tip_points, local.tip_points, atol=1e-3)
+
+    judged = client.call(c["judge"], Trigger.Request())  # the sweep is no goal grasp
+    assert not judged.success and "not a goal grasp" in judged.message
+
+
+def test_goal_grasp_is_left_closed_for_the_judge(graph):
+    client, c, _ = graph
+    assert reset(client, c).error_code == ResetSim.Response.NONE
+    e = np.array([0.62, 0.0, 0.0])
+    res = run_action(client, c["execute"], ExecuteWrt.Goal(object_name="box", wrt_name="goal", estimate=planar_to_msg(e)))
+    assert res.error_code == ExecuteWrt.Result.NONE, res.error_msg
+    judged = client.call(c["judge"], Trigger.Request(), timeout_s=60.0)
+    world = PhysicsWorld("box", sensor_noise=0.0)
+    world.reset(TRUE_POSE)
+    world.execute_wrt(world.obj.goal_wrt, e)
+    ok, _ = world.judge_grasp(world.obj, e)
+    assert judged.success == ok and judged.success, judged.message
+
+
+def test_info_wrt_retreats_home(graph):
+    client, c, _ = graph
+    assert reset(client, c).error_code == ResetSim.Response.NONE
+    res = run_action(client, c["execute"], ExecuteWrt.Goal(object_name="box", wrt_name="info1",
+                                                           estimate=planar_to_msg(TRUE_POSE)))
+    assert res.error_code == ExecuteWrt.Result.NONE, res.error_msg
+    hand = client.call(c["hand"], HandCommand.Request(mode=HandCommand.Request.MODE_OPEN))
+    q = np.array([hand.joint_state.position[hand.joint_state.name.index(n)] for n in ARM_JOINT_NAMES])
+    np.testing.assert_allclose(q, wam.HOME_Q, atol=0.02)  # an info WRT ends at home
+    assert client.call(c["retreat"], Trigger.Request()).success  # nothing pending: a no-op
+
+
+BAD_EXECUTIONS = {
+    "unknown object": (dict(object_name="teapot"), ExecuteWrt.Result.UNKNOWN_OBJECT),
+    "unknown WRT": (dict(wrt_name="wave"), ExecuteWrt.Result.UNKNOWN_WRT),
+    "unreachable estimate": (dict(estimate=planar_to_msg([2.5, 1.5, 0.0])), ExecuteWrt.Result.INFEASIBLE),
+    "NaN estimate": (dict(estimate=planar_to_msg([np.nan, 0.0, 0.0])), ExecuteWrt.Result.INFEASIBLE),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_EXECUTIONS))
+def test_execute_wrt_rejects_bad_goals(graph, case):
+    client, c, _ = graph
+    fields, code = BAD_EXECUTIONS[case]
+    goal = ExecuteWrt.Goal(object_name="box", wrt_name="goal", estimate=planar_to_msg(TRUE_POSE))
+    for k, v in fields.items():
+        setattr(goal, k, v)
+    res = run_action(client, c["execute"], goal)
+    assert res.error_code == code and res.error_msg, res.error_msg
+
+
+def trajectory(q: np.ndarray, names=ARM_JOINT_NAMES, seconds: float = 1.0) -> JointTrajectory:
+    return JointTrajectory(joint_names=list(names), points=[
+        JointTrajectoryPoint(positions=qk.tolist(), time_from_start=Duration(sec=int(seconds * (k + 1))))
+        for k, qk in enumerate(q)])
+
+
+def test_guarded_move_runs_timed_via_points_and_rejects_bad_ones(graph):
+    client, c, _ = graph
+    assert reset(client, c).error_code == ResetSim.Response.NONE
+    target = wam.HOME_Q + np.array([0.1, 0.0, 0.0, -0.1, 0.0, 0.0, 0.0])
+    ok = run_action(client, c["move"], GuardedMove.Goal(trajectory=trajectory(target[None]), stop_on_contact=True))
+    assert ok.error_code == GuardedMove.Result.NONE and not ok.stopped_on_contact and ok.path_fraction == 1.0
+    q = np.array([ok.final_joint_state.position[ok.final_joint_state.name.index(n)] for n in ARM_JOINT_NAMES])
+    np.testing.assert_allclose(q, target, atol=0.01)
+    R = GuardedMove.Result
+    bad = {
+        R.INVALID_TRAJECTORY: [trajectory(target[None], names=["j1"] * 7), trajectory(np.zeros((0, 7))),
+                               trajectory(np.full((1, 7), np.nan))],
+        R.JOINT_LIMITS: [trajectory((wam.HOME_Q + np.array([0, 0, 0, 0, 0, 0, 9.0]))[None])],
+    }
+    for code, trajs in bad.items():
+        for traj in trajs:
+            res = run_action(client, c["move"], GuardedMove.Goal(trajectory=traj))
+            assert res.error_code == code and res.error_msg, res.error_msg
+
+
+def test_hand_command_and_reset_sim_reject_bad_requests(graph):
+    client, c, _ = graph
+    H = HandCommand
+    for req, code in [(H.Request(mode=7), H.Response.INVALID_MODE),
+                      (H.Request(mode=H.Request.MODE_OPEN, spread=4.0), H.Response.OUT_OF_RANGE),
+                      (H.Request(mode=H.Request.MODE_POSITION, proximal=[0.1, 3.0, 0.1]), H.Response.OUT_OF_RANGE)]:
+        resp = client.call(c["hand"], req)
+        assert resp.error_code == code and resp.error_msg
+    closed = client.call(c["hand"], H.Request(mode=H.Request.MODE_CLOSE, spread=0.0))
+    assert closed.error_code == H.Response.NONE
+    proximal = [closed.joint_state.position[closed.joint_state.name.index(f"bh_f{i}_prox")] for i in (1, 2, 3)]
+    assert min(proximal) > 1.0  # nothing in the way: the fingers closed far
+    assert reset(client, c, name="teapot").error_code == ResetSim.Response.UNKNOWN_OBJECT
+    assert reset(client, c, pose=[3.0, 0.0, 0.0]).error_code == ResetSim.Response.INVALID_POSE
+    assert reset(client, c, pose=[np.nan, 0.0, 0.0]).error_code == ResetSim.Response.INVALID_POSE
+    assert reset(client, c, name="can", pose=[0.6, 0.05, 0.0]).error_code == ResetSim.Response.NONE
+    assert reset(client, c).error_code == ResetSim.Response.NONE
