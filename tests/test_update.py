@@ -5,12 +5,12 @@ observation varies smoothly with the offset Δ, so likelihoods are informative i
 """
 import math
 import time
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
 
 from rrg_estimator.belief import Belief
+from rrg_estimator.obs_tables import ObservationTable
 from rrg_estimator.obs_model import (features_from_observation, features_from_table_rows,
                                      likelihood_over_table, log_likelihood_over_table, table_indices)
 from rrg_estimator.reference import table_index_reference, update_reference
@@ -23,25 +23,7 @@ from rrg_sim.poses import compose_planar, planar_pose, relative_planar
 E = np.array([0.62, 0.01, 0.3])
 
 
-@dataclass
-class SyntheticTable:
-    """The fields of ObservationTable, filled by a made-up probe WRT."""
-
-    object_name: str
-    wrt_name: str
-    grid: Grid
-    path_length: float
-    contact: np.ndarray
-    progress: np.ndarray
-    sensors: np.ndarray
-    closure: np.ndarray
-    tip_points: np.ndarray
-    tip_normals: np.ndarray
-    motion_dir: np.ndarray
-    stop_pose: np.ndarray
-
-
-def synthetic_table(grid: Grid) -> SyntheticTable:
+def synthetic_table(grid: Grid) -> ObservationTable:
     """Early contact when the object is ≥ 1.5 cm ahead; sensors, closures and tip points vary with Δ."""
     d = grid.points()
     n = len(d)
@@ -60,11 +42,11 @@ def synthetic_table(grid: Grid) -> SyntheticTable:
     tips[:, 2] = np.where(sensors[:, 9, None],
                           np.stack([d[:, 0] + 0.05 * d[:, 2], np.full(n, -0.05), np.full(n, 0.12)], 1), np.nan)
     motion = np.where(contact[:, None], [0.6, 0.0, -0.8], [0.0, 0.0, -1.0]).astype(np.float32)
-    return SyntheticTable("synthetic", "probe", grid, path, contact, progress, sensors, closure, tips,
+    return ObservationTable("synthetic", "probe", grid, path, contact, progress, sensors, closure, tips,
                           np.full((n, 3, 3), np.nan, np.float32), motion, np.tile(np.eye(4), (n, 1, 1)))
 
 
-def observation_of_row(table: SyntheticTable, row: int, e) -> Observation:
+def observation_of_row(table: ObservationTable, row: int, e) -> Observation:
     """The Observation the robot would report for table row `row` when τ(e) ran (motion in world)."""
     m = table.motion_dir[row].astype(float)
     c, s = math.cos(e[2]), math.sin(e[2])
@@ -75,7 +57,7 @@ def observation_of_row(table: SyntheticTable, row: int, e) -> Observation:
 
 
 @pytest.fixture(scope="module")
-def high_table() -> SyntheticTable:
+def high_table() -> ObservationTable:
     return synthetic_table(Grid.for_level(HIGH))
 
 
