@@ -44,8 +44,8 @@ _BLAS = ThreadpoolController()
 class SparseBelief:
     """A belief restricted to its support: points (S,3) in world (x, y, θ), weights (S,) sum 1.
 
-    table_index caches, per point, the table entry of its offset from w*(b), and features its
-    moment_features about w*(b) (both set by the search).
+    table_index caches, per point, the table entry of its offset from w*(b), features its
+    moment_features about w*(b), and weights32 the weights as float32 (all set by the search).
     """
 
     points: np.ndarray
@@ -53,6 +53,7 @@ class SparseBelief:
     level: str
     table_index: np.ndarray | None = None
     features: np.ndarray | None = None
+    weights32: np.ndarray | None = None
 
     @classmethod
     def compact(cls, points: np.ndarray, weights: np.ndarray, level: str,
@@ -108,13 +109,17 @@ def merge_branches(probs: np.ndarray, entropies: np.ndarray, covs: np.ndarray,
 
     Returns [(branch index, probability)], most probable first.
     """
+    flat = covs.reshape(len(covs), -1)
+    scale = np.maximum(np.linalg.norm(flat, axis=1), 1e-12)  # Frobenius norm of each covariance
+    # similar[k, r]: branch k may merge into representative r (criteria of the paper)
+    similar = ((np.abs(entropies[:, None] - entropies[None, :]) < params.merge_entropy_tol)
+               & (np.linalg.norm(flat[:, None, :] - flat[None, :, :], axis=2) / scale[None, :]
+                  < params.merge_cov_tol))
     reps: list[int] = []
     mass: list[float] = []
     for k in np.argsort(-probs, kind="stable"):
         for r_i, r in enumerate(reps):
-            scale = max(np.linalg.norm(covs[r]), 1e-12)
-            if (abs(entropies[k] - entropies[r]) < params.merge_entropy_tol
-                    and np.linalg.norm(covs[k] - covs[r]) / scale < params.merge_cov_tol):
+            if similar[k, r]:
                 mass[r_i] += float(probs[k])
                 break
         else:
@@ -266,7 +271,9 @@ class ForwardSearch:
             sb.features = moment_features(sb.points, sb.weights, e, sigma).astype(np.float32)
         # float32 gathers of the candidates' likelihood rows (take on a row subset is ~3x faster
         # than 2-D fancy indexing); moments and entropies are accumulated in float64.
-        unnorm = np.take(clusters.likelihood[cand], idx, axis=1) * sb.weights.astype(np.float32)
+        if sb.weights32 is None:
+            sb.weights32 = sb.weights.astype(np.float32)
+        unnorm = np.take(clusters.likelihood[cand], idx, axis=1) * sb.weights32
         z, ent, cov = branch_statistics(unnorm, np.take(clusters.log_likelihood[cand], idx, axis=1), sb.features)
         branches = []
         for k, p in merge_branches(pc[cand], ent, cov, self.params):
