@@ -14,6 +14,7 @@ import sys
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import Iterator
 
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
@@ -68,24 +69,30 @@ def _topics(channels: dict[int, Channel], schemas: dict[int, Schema]) -> dict[in
             for cid, c in channels.items()}
 
 
+def complete_records(path: Path) -> Iterator[object]:
+    """Every MCAP record of a file in order, stopping quietly where a truncated file ends
+    (a recorder killed before writing its summary leaves such a file)."""
+    with path.open("rb") as f:
+        try:
+            yield from StreamReader(f).records
+        except (McapError, ValueError, EOFError):
+            return  # truncated: keep what was complete
+
+
 def _scan(path: Path, info: BagInfo) -> None:
-    """Count messages by reading every record; stops quietly where a truncated file ends."""
+    """Count messages by reading every complete record."""
     channels: dict[int, Channel] = {}
     schemas: dict[int, Schema] = {}
     counts: dict[int, int] = {}
     times: list[int] = []
-    with path.open("rb") as f:
-        try:
-            for record in StreamReader(f).records:
-                if isinstance(record, Schema):
-                    schemas[record.id] = record
-                elif isinstance(record, Channel):
-                    channels[record.id] = record
-                elif isinstance(record, Message):
-                    counts[record.channel_id] = counts.get(record.channel_id, 0) + 1
-                    times.append(record.log_time)
-        except (McapError, ValueError, EOFError):
-            pass  # truncated: keep what was complete
+    for record in complete_records(path):
+        if isinstance(record, Schema):
+            schemas[record.id] = record
+        elif isinstance(record, Channel):
+            channels[record.id] = record
+        elif isinstance(record, Message):
+            counts[record.channel_id] = counts.get(record.channel_id, 0) + 1
+            times.append(record.log_time)
     topics = _topics(channels, schemas)
     for cid, n in counts.items():
         topics[cid].count = n

@@ -13,10 +13,9 @@ from typing import Any, Iterable, Iterator
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Channel, Message, Schema
-from mcap.stream_reader import StreamReader
 from rclpy.serialization import deserialize_message
 
-from .bag_cli import find_mcap
+from .bag_cli import complete_records, find_mcap
 from .bag_recorder import message_class
 
 
@@ -36,19 +35,15 @@ def _raw_scanned(path: Path, topics: set[str] | None) -> Iterator[tuple[Schema, 
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
     found = []
-    with path.open("rb") as f:
-        try:
-            for record in StreamReader(f).records:
-                if isinstance(record, Schema):
-                    schemas[record.id] = record
-                elif isinstance(record, Channel):
-                    channels[record.id] = record
-                elif isinstance(record, Message):
-                    ch = channels[record.channel_id]
-                    if topics is None or ch.topic in topics:
-                        found.append((schemas[ch.schema_id], ch, record))
-        except (McapError, ValueError, EOFError):
-            pass  # truncated: keep what was complete
+    for record in complete_records(path):
+        if isinstance(record, Schema):
+            schemas[record.id] = record
+        elif isinstance(record, Channel):
+            channels[record.id] = record
+        elif isinstance(record, Message):
+            ch = channels[record.channel_id]
+            if topics is None or ch.topic in topics:
+                found.append((schemas[ch.schema_id], ch, record))
     found.sort(key=lambda t: t[2].log_time)
     yield from found
 
