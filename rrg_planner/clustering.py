@@ -29,7 +29,7 @@ class ObservationClusters:
     representatives: (C,) table row of each cluster's canonical observation.
     prior: (C,) aggregate prior probability of each cluster.
     likelihood: (C, N_table) float32, P(o_c | Δ_j) of the canonical observations.
-    log_likelihood: (C, N_table) float32, its logarithm (for posterior entropies).
+    l_log_l: (C, N_table) float32, likelihood · log likelihood (for posterior entropies).
     contact: (C,) bool, whether the canonical observation has an early contact.
     """
 
@@ -37,7 +37,7 @@ class ObservationClusters:
     representatives: np.ndarray
     prior: np.ndarray
     likelihood: np.ndarray
-    log_likelihood: np.ndarray
+    l_log_l: np.ndarray
     contact: np.ndarray
 
     @property
@@ -83,4 +83,4 @@ def cluster_table(table: ObservationTable, level: UncertaintyLevel,
     feats = features_from_table_rows(table, reps)
     like = likelihood_over_table(table, feats).astype(np.float32)
     return ObservationClusters(assign=assign, representatives=reps, prior=mass[kept],
-                               likelihood=like, log_likelihood=np.log(like), contact=table.contact[reps].astype(bool))
+                               likelihood=like, l_log_l=like * np.log(like), contact=table.contact[reps].astype(bool))

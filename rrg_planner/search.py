@@ -35,6 +35,11 @@ def _wrap(a: np.ndarray) -> np.ndarray:
     return a - (2 * np.pi) * np.round(a / (2 * np.pi))
 
 
+#: A belief whose support fills at least this fraction of its span of table entries gets its
+#: posterior moments in table space (scatter_moments: one matrix product per action); a sparser
+#: one gathers its likelihood rows per point instead (measured cross-over ≈ 0.4 on this machine).
+DENSE_FRACTION = 0.4
+
 #: The search's matrices are small (K×S by S×11): multi-threaded BLAS only spins and roughly
 #: doubles the time on 2 cores, so planning runs with one BLAS thread.
 _BLAS = ThreadpoolController()
@@ -44,16 +49,16 @@ _BLAS = ThreadpoolController()
 class SparseBelief:
     """A belief restricted to its support: points (S,3) in world (x, y, θ), weights (S,) sum 1.
 
-    table_index caches, per point, the table entry of its offset from w*(b), features its
-    moment_features about w*(b), and weights32 the weights as float32 (all set by the search).
+    table_index caches, per point, the table entry of its offset from w*(b); moments the
+    belief's weighted moment_features, per table entry (scatter_moments) or per point (set by
+    the search).
     """
 
     points: np.ndarray
     weights: np.ndarray
     level: str
     table_index: np.ndarray | None = None
-    features: np.ndarray | None = None
-    weights32: np.ndarray | None = None
+    moments: tuple | None = None
 
     @classmethod
     def compact(cls, points: np.ndarray, weights: np.ndarray, level: str,
@@ -84,12 +89,27 @@ def moment_features(points: np.ndarray, weights: np.ndarray, ref: np.ndarray, si
     return np.column_stack([np.ones(len(d)), d, d[:, iu[0]] * d[:, iu[1]], np.where(weights > 0, logw, 0.0)])
 
 
-def branch_statistics(unnormalized: np.ndarray, log_likelihood: np.ndarray,
-                      features: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Mass Z (K,), entropy (K,) and covariance (K,3,3) of K posteriors b·L_k given unnormalized
-    (K,S) = b·L_k, log L_k (K,S) and moment_features (S,11): one matrix product for the moments,
-    H = log Z − Σ b L (log L + log b) / Z for the entropies."""
-    mom = (unnormalized @ features).astype(np.float64)
+def scatter_moments(idx: np.ndarray, weights: np.ndarray, features: np.ndarray) -> tuple[int, np.ndarray]:
+    """Σ over the states of each table entry of weight · moment_features, for the entries
+    lo … max(idx): (lo, (m, 11) float32). The moments of every posterior b·L_c are then one
+    product L_c[lo:lo+m] @ it, with no gather per cluster."""
+    lo = int(idx.min())
+    local = idx - lo
+    m = int(idx.max()) - lo + 1
+    weighted = weights[:, None] * features
+    if np.bincount(local, minlength=m).max() <= 1:  # one state per entry (the usual case)
+        tab = np.zeros((m, features.shape[1]), dtype=np.float32)
+        tab[local] = weighted
+    else:
+        tab = np.column_stack([np.bincount(local, weights=col, minlength=m) for col in weighted.T])
+    return lo, tab.astype(np.float32, copy=False)
+
+
+def branch_statistics(moments: np.ndarray, sum_l_log_l: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mass Z (K,), entropy (K,) and covariance (K,3,3) of K posteriors b·L_k, given their
+    moments Σ b L_k f (K,11) over moment_features f and Σ b L_k log L_k (K,):
+    H = log Z − Σ b L (log L + log b) / Z."""
+    mom = moments.astype(np.float64)
     z = mom[:, 0]
     mean = mom[:, 1:4] / z[:, None]
     second = np.empty((len(z), 3, 3))
@@ -97,7 +117,7 @@ def branch_statistics(unnormalized: np.ndarray, log_likelihood: np.ndarray,
     second[:, iu[0], iu[1]] = mom[:, 4:10] / z[:, None]
     second[:, iu[1], iu[0]] = second[:, iu[0], iu[1]]
     cov = second - mean[:, :, None] * mean[:, None, :]
-    ent = np.log(z) - (np.einsum("ks,ks->k", unnormalized, log_likelihood).astype(np.float64) + mom[:, 10]) / z
+    ent = np.log(z) - (sum_l_log_l.astype(np.float64) + mom[:, 10]) / z
     return z, ent, cov
 
 
@@ -149,15 +169,23 @@ def rotate_about(points: np.ndarray, center_xy: np.ndarray, angle: float) -> np.
 
 
 def reorient_mixture(points: np.ndarray, weights: np.ndarray, center_xy: np.ndarray,
-                     angle: float) -> tuple[np.ndarray, np.ndarray]:
-    """Transition of a reorientation grasp: full rotation, half, or none (TRANSITION)."""
+                     angle: float, support_rel: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Transition of a reorientation grasp: full rotation, half, or none (TRANSITION).
+
+    Returns the mixture's points and normalized weights, without the components' points below
+    ``support_rel`` of the mixture's largest weight (as SparseBelief.compact would drop them,
+    but before rotating, which is the cost).
+    """
     p_full, p_half = TRANSITION.p_reorient_success, TRANSITION.p_reorient_partial
-    parts = [(rotate_about(points, center_xy, angle), p_full),
-             (rotate_about(points, center_xy, angle / 2), p_half),
-             (points, 1.0 - p_full - p_half)]
-    pts = np.concatenate([p for p, _ in parts])
-    w = np.concatenate([weights * q for _, q in parts])
-    return pts, w / w.sum()
+    parts = ((angle, p_full), (angle / 2, p_half), (0.0, 1.0 - p_full - p_half))
+    threshold = support_rel * float(weights.max()) * max(q for _, q in parts)
+    pts, ws = [], []
+    for a, q in parts:
+        keep = np.flatnonzero(weights * q >= threshold) if threshold > 0 else slice(None)
+        pts.append(rotate_about(points[keep], center_xy, a) if a else points[keep])
+        ws.append(weights[keep] * q)
+    w = np.concatenate(ws)
+    return np.concatenate(pts), w / w.sum()
 
 
 def table_index(points: np.ndarray, e: np.ndarray, grid) -> np.ndarray:
@@ -227,16 +255,31 @@ class ForwardSearch:
         Only states whose offset from w*(b) can lie in the goal region contribute, so at the
         leaves (no cached table index) just those are indexed.
         """
-        e = sb.w_star
-        goals = [g for g in self.model.goal_actions if self.feasible(g, e)]
+        if sb.table_index is not None:
+            goals = self._feasible_goals(sb.w_star)
+            return max((float(sb.weights @ self.model.actions[g].goal_weight[sb.level][sb.table_index])
+                        for g in goals), default=0.0)
+        return self._leaf_value(sb.points, sb.weights, sb.level)
+
+    def _feasible_goals(self, e: np.ndarray) -> list[int]:
+        return [g for g in self.model.goal_actions if self.feasible(g, e)]
+
+    def _leaf_value(self, points: np.ndarray, weights: np.ndarray, level: str,
+                    compacted: bool = True) -> float:
+        """v(b) of the belief (points, weights) after SparseBelief.compact, computed without
+        compacting it (when ``compacted`` is False, the dropped points are masked instead)."""
+        i_star = int(np.argmax(weights))
+        e = points[i_star]
+        goals = self._feasible_goals(e)
         if not goals:
             return 0.0
-        if sb.table_index is not None:
-            idx, w = sb.table_index, sb.weights
-        else:
-            near = self._near_goal(sb.points, e, sb.level)
-            idx, w = table_index(sb.points[near], e, self._grid(sb.level)), sb.weights[near]
-        return max(float(w @ self.model.actions[g].goal_weight[sb.level][idx]) for g in goals)
+        if not compacted:
+            keep = np.flatnonzero(weights >= self.params.support_rel * weights[i_star])
+            points, weights = points[keep], weights[keep] / weights[keep].sum()
+        near = self._near_goal(points, e, level)
+        w = weights[near]
+        idx = table_index(points[near], e, self._grid(level))
+        return max(float(w @ self.model.actions[g].goal_weight[level][idx]) for g in goals)
 
     def _near_goal(self, points: np.ndarray, e: np.ndarray, level: str) -> np.ndarray:
         """Indices of points whose offset from e may fall in the goal region (one cell of margin)."""
@@ -251,6 +294,16 @@ class ForwardSearch:
 
     def expand(self, sb: SparseBelief, a: int) -> list[tuple[float, SparseBelief]]:
         """Observation branches of action a at w*(b): [(P(c | b, a), SE(b, a, o_c))]."""
+        return self._children(sb.level, self._branches(sb, a))
+
+    def _children(self, level: str, branches) -> list[tuple[float, SparseBelief]]:
+        return [(p, SparseBelief(pts, w, level) if compacted
+                 else SparseBelief.compact(pts, w, level, self.params))
+                for p, pts, w, compacted in branches]
+
+    def _branches(self, sb: SparseBelief, a: int) -> list[tuple[float, np.ndarray, np.ndarray, bool]]:
+        """Observation branches of action a at w*(b) before compaction: [(P(c | b, a), points,
+        normalized weights, whether already compact)]."""
         act = self.model.actions[a]
         clusters = act.clusters[sb.level]
         e = sb.w_star
@@ -266,22 +319,36 @@ class ForwardSearch:
         cum = np.cumsum(pc[order])
         n_cand = int(np.searchsorted(cum, 0.95) + 1)
         cand = order[:n_cand][pc[order[:n_cand]] > 0]
-        if sb.features is None:
-            sigma = np.asarray(self.model.levels[sb.level].sigma)
-            sb.features = moment_features(sb.points, sb.weights, e, sigma).astype(np.float32)
-        # float32 gathers of the candidates' likelihood rows (take on a row subset is ~3x faster
-        # than 2-D fancy indexing); moments and entropies are accumulated in float64.
-        if sb.weights32 is None:
-            sb.weights32 = sb.weights.astype(np.float32)
-        unnorm = np.take(clusters.likelihood[cand], idx, axis=1) * sb.weights32
-        z, ent, cov = branch_statistics(unnorm, np.take(clusters.log_likelihood[cand], idx, axis=1), sb.features)
+        z, ent, cov = branch_statistics(*self._posterior_moments(sb, clusters, cand))
         branches = []
         for k, p in merge_branches(pc[cand], ent, cov, self.params):
-            pts, w = sb.points, unnorm[k].astype(np.float64) / z[k]
+            w = clusters.likelihood[cand[k]][idx] * sb.weights
+            w /= w.sum()
             if act.kind == "reorient":
-                pts, w = reorient_mixture(pts, w, e[:2], act.wrt.reorient_angle)
-            branches.append((p, SparseBelief.compact(pts, w, sb.level, self.params)))
+                branches.append((p, *reorient_mixture(sb.points, w, e[:2], act.wrt.reorient_angle,
+                                                      self.params.support_rel), True))
+            else:
+                branches.append((p, sb.points, w, False))
         return branches
+
+    def _posterior_moments(self, sb: SparseBelief, clusters, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Σ b L_c f (K,11) over moment_features f, and Σ b L_c log L_c (K,), for clusters cand."""
+        idx = sb.table_index
+        if sb.moments is None:
+            sigma = np.asarray(self.model.levels[sb.level].sigma)
+            features = moment_features(sb.points, sb.weights, sb.w_star, sigma)
+            if len(idx) >= DENSE_FRACTION * (int(idx.max()) - int(idx.min()) + 1):
+                sb.moments = scatter_moments(idx, sb.weights, features)
+            else:
+                sb.moments = (features.astype(np.float32), sb.weights.astype(np.float32))
+        if isinstance(sb.moments[0], int):  # table space: no per-cluster gathers
+            lo, tab = sb.moments
+            cols = slice(lo, lo + len(tab))
+            return (clusters.likelihood[:, cols] @ tab)[cand], (clusters.l_log_l[:, cols] @ tab[:, 0])[cand]
+        features, weights32 = sb.moments
+        # take on a row subset is ~3x faster than 2-D fancy indexing
+        return ((np.take(clusters.likelihood[cand], idx, axis=1) * weights32) @ features,
+                np.take(clusters.l_log_l[cand], idx, axis=1) @ weights32)
 
     # ---------------------------------------------------------------- search
     def action_values(self, sb: SparseBelief, horizon: int) -> np.ndarray:
@@ -291,9 +358,14 @@ class ForwardSearch:
         for a in range(len(self.model.actions)):
             if not self.feasible(a, e):
                 continue
-            branches = self.expand(sb, a)
-            if branches:
-                q[a] = sum(p * self.value(b, horizon - 1) for p, b in branches) - self.params.action_cost
+            branches = self._branches(sb, a)
+            if not branches:
+                continue
+            if horizon == 1:  # leaves: v(b) straight from the uncompacted posteriors
+                values = [self._leaf_value(pts, w, sb.level, compacted) for _, pts, w, compacted in branches]
+            else:
+                values = [self.value(b, horizon - 1) for _, b in self._children(sb.level, branches)]
+            q[a] = sum(p * v for (p, *_), v in zip(branches, values)) - self.params.action_cost
         return q
 
     def value(self, sb: SparseBelief, horizon: int) -> float:

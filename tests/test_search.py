@@ -11,7 +11,8 @@ from rrg_estimator.update import goal_probability, update
 from rrg_planner.agent import initial_belief
 from rrg_planner.model import PlanningModel
 from rrg_planner.reference_search import ReferenceSearch
-from rrg_planner.search import ForwardSearch, SparseBelief, merge_branches
+from rrg_planner import search as search_module
+from rrg_planner.search import ForwardSearch, SparseBelief, merge_branches, scatter_moments
 from rrg_sim.config import SEARCH, WORLD, UncertaintyLevel
 from rrg_sim.geometric_sim import GeometricSimulator
 from rrg_sim.poses import compose_planar
@@ -36,9 +37,11 @@ def beliefs(model):
     return [b0, update(b0, goal.tables["small"], mean, obs)]
 
 
+@pytest.mark.parametrize("dense_fraction", [0.0, np.inf], ids=["table-space", "gathered"])
 @pytest.mark.parametrize("horizon", [1, 2])
 @pytest.mark.parametrize("params", [EXACT, SEARCH], ids=["full-support", "default-support"])
-def test_fast_search_matches_reference(model, beliefs, horizon, params):
+def test_fast_search_matches_reference(model, beliefs, horizon, params, dense_fraction, monkeypatch):
+    monkeypatch.setattr(search_module, "DENSE_FRACTION", dense_fraction)  # both moment paths
     fast, ref = ForwardSearch(model, params), ReferenceSearch(model, params)
     for b in beliefs:
         f, r = fast.select(b, horizon), ref.select(b, horizon)
@@ -99,3 +102,15 @@ def test_merge_combines_similar_posteriors_and_keeps_half_the_mass():
 def test_select_rejects_bad_horizon(model, beliefs):
     with pytest.raises(ValueError, match="horizon"):
         ForwardSearch(model).select(beliefs[0], 4)
+
+
+@pytest.mark.parametrize("duplicates", [False, True], ids=["one-per-entry", "shared-entries"])
+def test_scatter_moments_sums_states_per_table_entry(duplicates):
+    rng = np.random.default_rng(7)
+    idx = rng.choice(np.arange(40, 140), size=60, replace=duplicates)
+    w, f = rng.random(60), rng.random((60, 11))
+    lo, tab = scatter_moments(idx, w, f)
+    expected = np.zeros((idx.max() - idx.min() + 1, 11))
+    np.add.at(expected, idx - idx.min(), w[:, None] * f)
+    assert lo == idx.min() and tab.dtype == np.float32
+    np.testing.assert_allclose(tab, expected, rtol=1e-6)
