@@ -13,6 +13,7 @@ import numpy as np
 
 from rrg_estimator.obs_tables import ObservationTable, load_or_build
 from rrg_sim.config import LEVELS, SENSOR_NAMES, UncertaintyLevel
+from rrg_sim.observation import fingers_in_contact
 from rrg_sim.grid import Grid
 from rrg_sim.objects import ObjectModel, get_object
 from rrg_sim.wam import FeasibilityMap
@@ -22,15 +23,6 @@ from .clustering import ObservationClusters, cluster_table
 
 log = logging.getLogger(__name__)
 
-#: Sensor ids of each finger's links (proximal pad, distal pad, Nano17 tip).
-FINGER_SENSORS = tuple(
-    tuple(SENSOR_NAMES.index(f"{link}{i}") for link in ("prox", "dist", "tip")) for i in (1, 2, 3)
-)
-
-
-def fingers_in_contact(sensors: np.ndarray) -> np.ndarray:
-    """(…,10) sensor flags → (…,) number of fingers with any link in contact."""
-    return sum(np.any(sensors[..., list(ids)], axis=-1).astype(int) for ids in FINGER_SENSORS)
 
 
 def goal_holds(obj: ObjectModel, delta: np.ndarray, contact: np.ndarray, sensors: np.ndarray) -> np.ndarray:

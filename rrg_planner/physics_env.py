@@ -14,6 +14,8 @@ class PhysicsEnvironment:
 
     def __init__(self, world: PhysicsWorld):
         self.world = world
+        #: What the last judge found (rrg_sim.physics.judge: in_region, held, fingers, …).
+        self.last_judgement: dict = {}
 
     @classmethod
     def for_object(cls, object_name: str, seed: int = 0) -> "PhysicsEnvironment":
@@ -23,6 +25,7 @@ class PhysicsEnvironment:
         """Start a trial: robot home, object at its true pose, sensor noise reseeded."""
         self.world.reseed(seed)
         self.world.reset(np.asarray(true_pose, dtype=float))
+        self.last_judgement = {}
 
     def execute(self, wrt: WRT, e: np.ndarray) -> Observation:
         return self.world.execute_wrt(wrt, e)
@@ -31,5 +34,5 @@ class PhysicsEnvironment:
         self.world.retreat()
 
     def judge(self, wrt: WRT, e: np.ndarray) -> bool:
-        ok, _ = self.world.judge_grasp(self.world.obj, e)
+        ok, self.last_judgement = self.world.judge_grasp(self.world.obj, e)
         return bool(ok)

@@ -111,6 +111,9 @@ SENSOR_NAMES: tuple[str, ...] = (
 N_SENSORS = len(SENSOR_NAMES)
 PAD_SENSORS = tuple(range(7))
 TIP_SENSORS = (7, 8, 9)
+#: Sensor ids of each finger's links (proximal pad, distal pad, Nano17 tip), fingers 1-3.
+FINGER_SENSORS: tuple[tuple[int, int, int], ...] = tuple(
+    tuple(SENSOR_NAMES.index(f"{link}{i}") for link in ("prox", "dist", "tip")) for i in (1, 2, 3))
 
 
 # -------------------------------------------------------------------- the world

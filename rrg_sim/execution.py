@@ -3,7 +3,8 @@ world runs in-process and the executor node runs over ROS against the arm/hand i
 
 τ(e) → straight Cartesian segments, densified and solved to one continuous IK chain
 (physics.trajectory.plan_path) → joint via-points timed per segment → a guarded move that
-stops at the first sensed contact → close the fingers until each stops → the Observation. The
+stops at the first sensed contact → close the fingers until each stops (an information WRT's at
+its first touch) → the Observation. The
 hand is left closed where it stopped; ``retreat`` opens it and retraces the path back home. A
 reorientation WRT also lifts the grasped object, turns it about the vertical through e, puts
 it down and opens the hand.
@@ -73,8 +74,9 @@ class Robot(Protocol):
     def move_hand(self, spread: float, proximal: float) -> None:
         """Servo the spread and every proximal joint to the given angles [rad], arm held."""
 
-    def close_hand(self) -> None:
-        """Close every finger until it stops (stalls on the object or reaches its limit)."""
+    def close_hand(self, guarded: bool = False) -> None:
+        """Close every finger until it stops (stalls on the object or reaches its limit);
+        guarded: also stop each finger as soon as one of its own sensors fires."""
 
     def reading(self) -> Reading:
         """The hand's sensors now."""
@@ -155,7 +157,12 @@ class WrtExecutor:
         motion_dir = self._motion_dir(path, index, at_stop)
         stop_pose = self.robot.hand_pose()
         report("closing", PHASES["closing"])
-        self.robot.close_hand()
+        # An information-gathering WRT closes the fingers carefully (paper: "carefully closing
+        # the fingers when a collision is sensed"): each stops at its first touch, measuring
+        # where the object is instead of pushing it on (light objects slid 1-3 cm per firm
+        # closing in MuJoCo). Goal and reorientation WRTs are grasps and close firmly: they
+        # must hold, and a tight grasp (a handle) often touches on the way in.
+        self.robot.close_hand(guarded=wrt.kind == "info")
         closed = self.robot.reading()
         first = int(np.nonzero(path.segment == 0)[0][-1])  # the WRT's first pose
         arc = path.arc

@@ -5,7 +5,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .config import N_SENSORS
+from .config import FINGER_SENSORS, N_SENSORS
+
+
+def fingers_in_contact(sensors: np.ndarray) -> np.ndarray:
+    """(…,10) sensor flags → (…,) number of fingers with any link's sensor fired."""
+    return np.asarray(sensors)[..., FINGER_SENSORS].any(axis=-1).sum(axis=-1)
 
 
 @dataclass

@@ -109,13 +109,19 @@ def run_trial(spec: TrialSpec) -> dict:
         res = agent.run(env, cell.level, WORLD.nominal_pose)
         out = dict(success=res.success, declared=res.declared, n_actions=res.n_actions,
                    actions=[s.wrt for s in res.steps], p_goal=res.p_goal,
-                   planning_time_s=res.planning_time, error=res.error)
+                   planning_time_s=res.planning_time, error=res.error, judge=_jsonable(env.last_judgement))
     except Exception as exc:  # noqa: BLE001 - a crashed trial is recorded as a failure, never dropped
         log.exception("trial %s failed", spec.id)
         out = dict(success=False, declared=False, n_actions=0, actions=[], p_goal=float("nan"),
-                   planning_time_s=0.0, error=f"{type(exc).__name__}: {exc}")
+                   planning_time_s=0.0, error=f"{type(exc).__name__}: {exc}", judge={})
     return dict(id=spec.id, cell=cell.key, **asdict(cell), trial=spec.index, seed=spec.seed,
                 true_pose=[float(v) for v in true], wall_s=time.perf_counter() - t0, **out)
+
+
+def _jsonable(info: dict) -> dict:
+    """The judge's findings as plain JSON values (numpy scalars and bools converted)."""
+    return {k: (v.tolist() if isinstance(v, np.ndarray) else v.item() if isinstance(v, np.generic) else v)
+            for k, v in info.items()}
 
 
 # ------------------------------------------------------------------ campaign

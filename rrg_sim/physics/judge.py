@@ -17,7 +17,7 @@ import numpy as np
 
 from ..config import PHYSICS, SENSOR_NAMES
 from ..objects import ObjectModel
-from ..observation import Observation
+from ..observation import Observation, fingers_in_contact
 from ..poses import invert, relative_planar
 from .trajectory import InfeasiblePath
 
@@ -27,16 +27,6 @@ if TYPE_CHECKING:
 #: The object counts as lifted when it rose at least this fraction of the lift (chosen: a
 #: grasp that lets it slide half-way out has failed).
 HELD_FRACTION = 0.5
-#: Sensor ids of each finger's links (proximal pad, distal pad, Nano17 tip).
-FINGER_SENSORS = tuple(tuple(SENSOR_NAMES.index(f"{link}{i}") for link in ("prox", "dist", "tip"))
-                       for i in (1, 2, 3))
-
-
-def fingers_in_contact(sensors: np.ndarray) -> int:
-    """Number of fingers with any link's sensor fired, from (10,) sensor flags."""
-    return int(sum(np.any(sensors[list(ids)]) for ids in FINGER_SENSORS))
-
-
 def _object_in_hand_frame(world: "PhysicsWorld") -> np.ndarray:
     return invert(world.hand_pose()) @ world.object_pose()
 
@@ -57,7 +47,7 @@ def judge_grasp(world: "PhysicsWorld", obj: ObjectModel, e_used,
     w_true = world.true_object_pose()
     delta = relative_planar(np.asarray(e_used, dtype=float), w_true)
     in_region = bool(obj.goal.contains(delta))
-    fingers = fingers_in_contact(obs.sensors)
+    fingers = int(fingers_in_contact(obs.sensors))
     required_ok = all(obs.sensors[SENSOR_NAMES.index(name)] for name in obj.goal.required_sensors)
     z0, grip0 = world.object_height(), _object_in_hand_frame(world)
     up = np.eye(4)

@@ -21,7 +21,7 @@ import mujoco
 import numpy as np
 
 from .. import wam
-from ..config import HAND, PHYSICS, WORLD
+from ..config import FINGER_SENSORS, HAND, PHYSICS, WORLD
 from ..execution import Reading, WrtExecutor
 from ..objects import ObjectModel, get_object
 from ..observation import Observation
@@ -229,11 +229,14 @@ class PhysicsWorld:
         self.model.actuator_biasprm[a, 1] = -kp
         self.model.actuator_forcerange[a] = (-torque, torque)
 
-    def close_hand(self, monitor: Callable[[], bool] | None = None) -> None:
+    def close_hand(self, monitor: Callable[[], bool] | None = None, guarded: bool = False) -> None:
         """Close every finger at the hand's speed until it stops: stalled (closing slower than
         PHYSICS.stall_speed for PHYSICS.stall_time, e.g. at the torque limit on the object,
         or pushed back) or at its joint limit. A stopped finger keeps its stall torque and
         cannot be pushed back (the non-backdrivable worm drive, see config.PHYSICS.brake_kp).
+        ``guarded`` (the paper's "carefully closing the fingers" after an early contact): a
+        finger also stops in the period any of its own sensors (proximal or distal pad,
+        Nano17) fires, so it touches the object without pushing it on.
         ``monitor`` is called after every period (its answer is ignored: closing completes)."""
         m, d = self.model, self.data
         dt = PHYSICS.timestep
@@ -249,6 +252,14 @@ class PhysicsWorld:
                 monitor()
             slow = d.qvel[self._finger_v] < PHYSICS.stall_speed  # stopped, or pushed back
             still = np.where(slow, still + dt, 0.0)
+            if guarded and self.sensors.any_fired():
+                touching = self.sensors.fired()[np.array(FINGER_SENSORS)].any(axis=1) & ~stalled
+                for i in np.nonzero(touching)[0]:
+                    self._brake(i)
+                    stalled[i] = True
+                    target[i] = d.ctrl[8 + i]
+                if stalled.all():
+                    break
             if k >= grace:
                 for i in np.nonzero(~stalled & (still >= PHYSICS.stall_time))[0]:
                     self._brake(i)

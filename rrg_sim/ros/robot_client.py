@@ -134,5 +134,6 @@ class RosRobot:
     def move_hand(self, spread: float, proximal) -> None:
         self._hand(HandCommand.Request.MODE_POSITION, spread, proximal)
 
-    def close_hand(self) -> None:
-        self._hand(HandCommand.Request.MODE_CLOSE, self.hand_angles()[0], 0.0)
+    def close_hand(self, guarded: bool = False) -> None:
+        mode = HandCommand.Request.MODE_CLOSE_GUARDED if guarded else HandCommand.Request.MODE_CLOSE
+        self._hand(mode, self.hand_angles()[0], 0.0)

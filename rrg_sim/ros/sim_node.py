@@ -290,7 +290,7 @@ class SimNode(Node):
         proximal = np.asarray(req.proximal, dtype=float)
         lo, hi = HAND.proximal_range
         if req.mode not in (HandCommand.Request.MODE_POSITION, HandCommand.Request.MODE_OPEN,
-                            HandCommand.Request.MODE_CLOSE):
+                            HandCommand.Request.MODE_CLOSE, HandCommand.Request.MODE_CLOSE_GUARDED):
             resp.error_code, resp.error_msg = R.INVALID_MODE, f"unknown mode {req.mode}"
         elif not HAND.spread_range[0] <= req.spread <= HAND.spread_range[1]:
             resp.error_code, resp.error_msg = R.OUT_OF_RANGE, f"spread {req.spread} outside {HAND.spread_range} rad"
@@ -308,7 +308,7 @@ class SimNode(Node):
             else:
                 if abs(req.spread - self.world.hand_angles()[0]) > SPREAD_TOLERANCE:
                     self.world.move_hand(req.spread, self.world.finger_angles(), monitor)
-                self.world.close_hand(monitor)
+                self.world.close_hand(monitor, guarded=req.mode == HandCommand.Request.MODE_CLOSE_GUARDED)
             self.fill_hand(resp)
             resp.joint_state = self.joint_state()
             self.publish_state()
