@@ -34,6 +34,7 @@ log = logging.getLogger(__name__)
 
 STRATEGIES = ("open-loop", "rrg-goal", "rrg-info")
 MAX_BLOCKED = 20  # infeasible executions tolerated in one run before giving up
+MAX_FALLBACK_STATES = 300  # most likely states searched for one where the goal grasp is feasible
 
 
 class Environment(Protocol):
@@ -140,6 +141,17 @@ class RobustGraspAgent:
         action, res = self.choose(belief)
         return action, res, False
 
+    def most_likely_feasible(self, belief: Belief, action: int, candidates: int = MAX_FALLBACK_STATES) -> np.ndarray | None:
+        """The most likely of the belief's ``candidates`` most likely states at which
+        ``action`` is feasible, or None."""
+        w = belief.weights
+        top = np.argpartition(-w, min(candidates, w.size) - 1)[:candidates]
+        points = belief.grid.points()
+        for i in top[np.argsort(-w[top], kind="stable")]:
+            if w[i] > 0 and self.search.feasible(action, points[i]):
+                return points[i]
+        return None
+
     def grasp_probability(self, posterior: Belief, action: int, e: np.ndarray) -> float:
         """For a goal WRT just executed at e: P_b(G) under the updated belief; NaN otherwise."""
         act = self.model.actions[action]
@@ -175,9 +187,16 @@ class RobustGraspAgent:
             total_plan += plan_t
             e = belief.w_star()
             if action < 0 or not self.search.feasible(action, e):
-                name = self.model.names[action] if action >= 0 else "none"
-                return TrialResult(False, False, steps, p_goal, total_plan, belief,
-                                   error=f"no feasible action at w*={np.round(e, 3).tolist()} (chose {name})")
+                # Nothing (or not the forced last grasp) can run relative to w*: run the goal
+                # grasp relative to the most likely state where it can.
+                alt = self.most_likely_feasible(belief, self.goal)
+                if alt is None:
+                    name = self.model.names[action] if action >= 0 else "none"
+                    return TrialResult(False, False, steps, p_goal, total_plan, belief,
+                                       error=f"no feasible action at w*={np.round(e, 3).tolist()} (chose {name})")
+                log.info("%s infeasible at w*=%s: goal grasp at %s instead", self.model.names[action]
+                         if action >= 0 else "every action", np.round(e, 3).tolist(), np.round(alt, 3).tolist())
+                action, e = self.goal, alt
             act = self.model.actions[action]
             try:
                 obs = env.execute(act.wrt, e)

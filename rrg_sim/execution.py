@@ -3,8 +3,8 @@ world runs in-process and the executor node runs over ROS against the arm/hand i
 
 τ(e) → straight Cartesian segments, densified and solved to one continuous IK chain
 (physics.trajectory.plan_path) → joint via-points timed per segment → a guarded move that
-stops at the first sensed contact → close the fingers until each stops (an information WRT's at
-its first touch) → the Observation. The
+stops at the first sensed contact → close the fingers until each stops (carefully, each at its
+first touch, unless a grasp arrived) → the Observation. The
 hand is left closed where it stopped; ``retreat`` opens it and retraces the path back home. A
 reorientation WRT also lifts the grasped object, turns it about the vertical through e, puts
 it down and opens the hand.
@@ -35,6 +35,10 @@ FREE_SPEEDS = (PHYSICS.free_speed, PHYSICS.free_turn_speed)
 #: A retreat retraces the path only if the arm is still where the WRT left it, within this
 #: joint distance [rad] (chosen: far above servo error, far below any real move).
 RETREAT_TOLERANCE = 0.05
+
+#: A grasp (goal or reorientation WRT) whose guarded move stopped within this distance [m] of
+#: its end has arrived and closes firmly (chosen: handle grasps touch in their last cm).
+GRASP_ARRIVAL_TOLERANCE = 0.02
 
 #: Execution phases reported to a progress callback, with the fraction done when each starts.
 PHASES = {"planning": 0.0, "approach": 0.1, "closing": 0.6, "reorient": 0.7, "retreat": 0.8}
@@ -157,16 +161,19 @@ class WrtExecutor:
         motion_dir = self._motion_dir(path, index, at_stop)
         stop_pose = self.robot.hand_pose()
         report("closing", PHASES["closing"])
-        # An information-gathering WRT closes the fingers carefully (paper: "carefully closing
-        # the fingers when a collision is sensed"): each stops at its first touch, measuring
-        # where the object is instead of pushing it on (light objects slid 1-3 cm per firm
-        # closing in MuJoCo). Goal and reorientation WRTs are grasps and close firmly: they
-        # must hold, and a tight grasp (a handle) often touches on the way in.
-        self.robot.close_hand(guarded=wrt.kind == "info")
-        closed = self.robot.reading()
         first = int(np.nonzero(path.segment == 0)[0][-1])  # the WRT's first pose
         arc = path.arc
-        progress_m = max(0.0, float(np.interp(index, np.arange(len(arc)), arc)) - arc[first])
+        travelled = float(np.interp(index, np.arange(len(arc)), arc))
+        progress_m = max(0.0, travelled - arc[first])
+        # The fingers close carefully (paper: "carefully closing the fingers when a collision
+        # is sensed"), each stopping at its first touch, measuring where the object is instead
+        # of pushing it on (light objects slid 1-3 cm per firm closing in MuJoCo): always for
+        # an information-gathering WRT, and for a grasp stopped well short of its end. A goal
+        # or reorientation grasp that arrived closes firmly: it must hold, and a tight grasp
+        # (a handle) often touches in its last centimetre.
+        arrived = arc[-1] - travelled <= GRASP_ARRIVAL_TOLERANCE
+        self.robot.close_hand(guarded=wrt.kind == "info" or not arrived)
+        closed = self.robot.reading()
         obs = Observation(contact=contact, progress=progress_m, hand_pose=stop_pose,
                           sensors=at_stop.fired | closed.fired, closure=self.robot.hand_angles()[1],
                           tip_points=closed.tip_points, tip_normals=closed.tip_normals, motion_dir=motion_dir)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rrg_planner.agent import RobustGraspAgent
+from rrg_planner.agent import RobustGraspAgent, initial_belief
 from rrg_planner.geometric_env import GeometricEnvironment
 from rrg_planner.model import PlanningModel
 from rrg_sim.config import WORLD, UncertaintyLevel
@@ -59,3 +59,15 @@ def test_open_loop_runs_the_goal_once_and_max_actions_ends_with_the_goal(model):
     agent = RobustGraspAgent(model, strategy="rrg-info", horizon=1, delta=1e-9, max_actions=4)
     res = agent.run(GeometricEnvironment(model.obj, true_pose(), seed=3), SMALL, WORLD.nominal_pose)
     assert res.n_actions == 4 and res.steps[-1].kind == "goal" and not res.declared
+
+
+def test_goal_grasp_falls_back_to_the_most_likely_state_where_it_is_feasible(model):
+    agent = RobustGraspAgent(model, strategy="rrg-goal")
+    belief = initial_belief(SMALL, WORLD.nominal_pose)
+    e = belief.w_star()
+    assert np.array_equal(agent.most_likely_feasible(belief, agent.goal), e)  # feasible at w*
+    agent.search.block(agent.goal, e)  # now it is not: the next most likely state is used
+    alt = agent.most_likely_feasible(belief, agent.goal)
+    points = belief.grid.points()
+    i = int(np.flatnonzero(np.all(points == alt, axis=1))[0])
+    assert not np.array_equal(alt, e) and belief.weights[i] == np.sort(belief.weights)[-2]

@@ -23,11 +23,14 @@ class GoalRegion:
     w in the frame of the estimate e at which the goal WRT ran (θ bound inf: θ ignored).
     min_fingers: how many of the 3 fingers must end in contact with the object.
     required_sensors: names from config.SENSOR_NAMES that must fire.
+    theta_period: the object's rotational symmetry [rad] about its vertical axis through the
+    origin (π for a box: turned half round it is the same object), dθ is taken modulo it.
     """
 
     tol: tuple[float, float, float]
     min_fingers: int = 3
     required_sensors: tuple[str, ...] = ()
+    theta_period: float = 2 * np.pi
 
     def __post_init__(self) -> None:
         unknown = set(self.required_sensors) - set(SENSOR_NAMES)
@@ -46,7 +49,8 @@ class GoalRegion:
         ok = (np.abs(delta[..., 0]) <= self.tol[0]) & (np.abs(delta[..., 1]) <= self.tol[1])
         if self.ignores_theta:
             return ok
-        return ok & (np.abs(wrap_angle(delta[..., 2])) <= self.tol[2])
+        scale = 2 * np.pi / self.theta_period
+        return ok & (np.abs(wrap_angle(delta[..., 2] * scale)) / scale <= self.tol[2])
 
 
 @dataclass(frozen=True, eq=False)

@@ -131,7 +131,7 @@ def cooler() -> ObjectModel:
         "cooler", parts, mass=1.2, friction=0.5,
         dimensions=_dims(0.21, 0.29, 0.28, handle_clearance=0.035),
         source="chosen: small personal cooler 21 x 29 x 28 cm incl. its handle, 1.2 kg empty",
-        goal=GoalRegion((0.015, 0.03, 12 * DEG)), goal_wrt=goal_wrt,
+        goal=GoalRegion((0.015, 0.03, 12 * DEG), theta_period=np.pi), goal_wrt=goal_wrt,
         description="cooler; goal: the handle bar centred between the fingers")
 
 
@@ -212,7 +212,7 @@ def teabox() -> ObjectModel:
         "teabox", parts, mass=0.08, friction=0.5,
         dimensions=_dims(0.055, 0.115, 0.07),
         source="chosen: tea box of 20 bags, 5.5 x 11.5 x 7 cm, 80 g",
-        goal=GoalRegion((0.01, 0.01, 8 * DEG)), goal_wrt=goal_wrt,
+        goal=GoalRegion((0.01, 0.01, 8 * DEG), theta_period=np.pi), goal_wrt=goal_wrt,
         description="tea box; goal: centred within 1 cm both ways")
 
 
@@ -226,7 +226,7 @@ def rect_box() -> ObjectModel:
         "box", parts, mass=0.3, friction=0.5,
         dimensions=_dims(0.05, 0.20, 0.10),
         source="chosen: cardboard box 5 x 20 x 10 cm, 0.3 kg",
-        goal=GoalRegion((0.015, 0.05, 10 * DEG)), goal_wrt=goal_wrt,
+        goal=GoalRegion((0.015, 0.05, 10 * DEG), theta_period=np.pi), goal_wrt=goal_wrt,
         description="box; goal: centred across within 1.5 cm and 10 deg, anywhere along its length")
 
 
