@@ -141,6 +141,22 @@ class RobustGraspAgent:
         action, res = self.choose(belief)
         return action, res, False
 
+    def plan_step(self, belief: Belief, step: int) -> tuple[int, np.ndarray, SearchResult | None, bool]:
+        """next_action and the estimate e to run it at: w*(b), or, when the chosen action (or
+        every action) cannot run there, the goal grasp at the most likely state where it can.
+        Returns (action, or -1 when nothing can run; e; the search result, if any; last)."""
+        action, res, last = self.next_action(belief, step)
+        e = belief.w_star()
+        if action >= 0 and self.search.feasible(action, e):
+            return action, e, res, last
+        alt = self.most_likely_feasible(belief, self.goal)
+        if alt is None:
+            return -1, e, res, last
+        log.info("%s infeasible at w*=%s: goal grasp at %s instead",
+                 self.model.names[action] if action >= 0 else "every action",
+                 np.round(e, 3).tolist(), np.round(alt, 3).tolist())
+        return self.goal, alt, res, last
+
     def most_likely_feasible(self, belief: Belief, action: int, candidates: int = MAX_FALLBACK_STATES) -> np.ndarray | None:
         """The most likely of the belief's ``candidates`` most likely states at which
         ``action`` is feasible, or None."""
@@ -182,21 +198,12 @@ class RobustGraspAgent:
         while True:  # ends at the last action, which is always the goal grasp
             n = len(steps) + 1  # an execution found infeasible (nothing moved) is not an action
             t0 = time.perf_counter()
-            action, res, last = self.next_action(belief, n)
+            action, e, res, last = self.plan_step(belief, n)
             plan_t = time.perf_counter() - t0
             total_plan += plan_t
-            e = belief.w_star()
-            if action < 0 or not self.search.feasible(action, e):
-                # Nothing (or not the forced last grasp) can run relative to w*: run the goal
-                # grasp relative to the most likely state where it can.
-                alt = self.most_likely_feasible(belief, self.goal)
-                if alt is None:
-                    name = self.model.names[action] if action >= 0 else "none"
-                    return TrialResult(False, False, steps, p_goal, total_plan, belief,
-                                       error=f"no feasible action at w*={np.round(e, 3).tolist()} (chose {name})")
-                log.info("%s infeasible at w*=%s: goal grasp at %s instead", self.model.names[action]
-                         if action >= 0 else "every action", np.round(e, 3).tolist(), np.round(alt, 3).tolist())
-                action, e = self.goal, alt
+            if action < 0:
+                return TrialResult(False, False, steps, p_goal, total_plan, belief,
+                                   error=f"no feasible action at w*={np.round(e, 3).tolist()}")
             act = self.model.actions[action]
             try:
                 obs = env.execute(act.wrt, e)

@@ -60,9 +60,13 @@ def test_wilson_interval_and_fig9(tmp_path):
     assert lo < 0.95 < hi and hi - lo < 0.1
     records = [dict(cell=f"powerdrill/high/rrg-info/H{h}/d{d}", object="powerdrill", level="high",
                     strategy="rrg-info", horizon=h, delta=d, success=i % 3 != 0, n_actions=3 + h,
-                    planning_time_s=0.1, error="")
+                    planning_time_s=0.1, error="", declared=i == 3,
+                    judge=dict(in_region=i != 0, held=False) if i in (0, 3) else {})
                for h in (1, 2, 3) for d in (0.3, 0.1) for i in range(6)]
     summary = summarize(records)
     assert len(summary) == 6
+    # trials 0 and 3 of every cell failed: 0 out of the goal region and dropped, 3 dropped though declared
+    assert all(s["failures"] == dict(failed=2, declared=1, no_grasp=0, out_of_region=1, not_held=2)
+               for s in summary.values())
     fig9(summary, tmp_path / "fig9.png")
     assert (tmp_path / "fig9.png").stat().st_size > 0

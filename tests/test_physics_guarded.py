@@ -7,6 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from rrg_sim.config import SENSOR_NAMES
+from rrg_sim.objects import get_object
 from rrg_sim.physics.world import PhysicsWorld
 from rrg_sim.poses import make_pose
 from rrg_sim.wrt import WRT
@@ -62,3 +63,25 @@ def test_guard_reacts_in_the_period_the_signal_crosses():
     assert not world.sensors.fired().any()
     world._run(timed.ctrl[stop:stop + 1])
     assert world.sensors.fired().any()
+
+
+@pytest.mark.parametrize("guarded", [True, False], ids=["careful", "firm"])
+def test_careful_closing_stops_each_finger_at_its_first_touch(guarded, monkeypatch):
+    """The tea box's sweep (an information WRT) stopped by a fingertip: careful closing leaves
+    that finger where it stopped and the 80 g box within 1 cm; closing firmly instead (forced
+    here) shoves the box on by over 2 cm."""
+    world = PhysicsWorld("teabox", seed=3)
+    if not guarded:
+        monkeypatch.setattr(world, "close_hand", lambda monitor=None, guarded=False:
+                            PhysicsWorld.close_hand(world, monitor, guarded=False))
+    world.reset(np.array([0.6137, 0.0003, -0.0418]))
+    w0 = world.true_object_pose()
+    sweep = next(w for w in get_object("teabox").wrts() if w.name == "sweep")
+    obs = world.execute_wrt(sweep, np.array([0.62, 0.0, 0.0]))
+    assert obs.contact and obs.sensors[SENSOR_NAMES.index("tip3")]
+    moved = np.linalg.norm(world.true_object_pose()[:2] - w0[:2])
+    if guarded:
+        assert moved < 0.01
+        assert obs.closure[2] == pytest.approx(sweep.preclose, abs=0.02)  # finger 3 touched first: it stayed
+    else:
+        assert moved > 0.02

@@ -50,8 +50,41 @@ def summarize(records: list[dict]) -> dict[str, dict]:
             mean_actions=float(np.mean([r["n_actions"] for r in rs])),
             mean_planning_s=float(np.mean([r["planning_time_s"] for r in rs])),
             errors=sum(bool(r["error"]) for r in rs),
+            failures=failure_reasons(rs),
         )
     return out
+
+
+def failure_reasons(records: list[dict]) -> dict[str, int]:
+    """Why the failed trials of a cell failed (a trial can count under several judge reasons):
+    declared (the agent believed P(G) > 1 − δ), no_grasp (no goal grasp judged: nothing was
+    feasible, or the trial crashed), out_of_region, not_held, fingers (too few in contact)."""
+    failed = [r for r in records if not r["success"]]
+    judged = [r.get("judge") or {} for r in failed]
+    return dict(
+        failed=len(failed),
+        declared=sum(bool(r["declared"]) for r in failed),
+        no_grasp=sum(not j for j in judged),
+        out_of_region=sum(bool(j) and not j.get("in_region", True) for j in judged),
+        not_held=sum(bool(j) and not j.get("held", True) for j in judged),
+    )
+
+
+def failure_table(summary: dict[str, dict], objects: list[str], levels: list[str],
+                  strategy: str = "rrg-info") -> str:
+    """Markdown: the failed trials of one strategy per object and level, by reason."""
+    lines = [f"**why {STRATEGY_LABELS[strategy]} trials failed** (a trial may have several reasons)", "",
+             "| object | level | failed | declared success | no grasp judged | out of goal region | not held |",
+             "|---|---|---|---|---|---|---|"]
+    for level in levels:
+        for obj in objects:
+            s = summary.get(f"{obj}/{level}/{strategy}")
+            if s is None or not s.get("failures", {}).get("failed"):
+                continue
+            f = s["failures"]
+            lines.append(f"| {obj} | {level} | {f['failed']}/{s['trials']} | {f['declared']} | {f['no_grasp']} | "
+                         f"{f['out_of_region']} | {f['not_held']} |")
+    return "\n".join(lines) + "\n"
 
 
 def markdown_table(summary: dict[str, dict], objects: list[str], levels: list[str]) -> str:
@@ -127,7 +160,8 @@ def write_outputs(records: list[dict], out_dir: Path, objects: list[str], levels
     out_dir.mkdir(parents=True, exist_ok=True)
     summary = summarize(records)
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=1))
-    (out_dir / "table.md").write_text(markdown_table(summary, objects, levels))
+    (out_dir / "table.md").write_text(markdown_table(summary, objects, levels) + "\n"
+                                      + failure_table(summary, objects, levels))
     titles = {"low": "Fig. 7: simulation, low uncertainty (1 cm, 1 cm, 3°)",
               "high": "Fig. 8: simulation, high uncertainty (5 cm, 5 cm, 30°)"}
     for level, fig_name in (("low", "fig7_low.png"), ("high", "fig8_high.png")):

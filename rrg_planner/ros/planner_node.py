@@ -291,10 +291,9 @@ class PlannerNode(Node):
                 raise WaitInterrupted("canceled")
             step = len(result.actions_taken) + 1  # an infeasible execution (nothing moved) is not an action
             t0 = time.perf_counter()
-            action, res, last = agent.next_action(belief, step)
+            action, e, res, last = agent.plan_step(belief, step)
             plan_s = time.perf_counter() - t0
-            e = belief.w_star()
-            if action < 0 or not agent.search.feasible(action, e):
+            if action < 0:
                 raise RequestError(RG.PLANNING_FAILED, f"no feasible WRT at w* = {np.round(e, 3).tolist()}")
             name, kind = model.names[action], model.actions[action].kind
             p_goal = res.p_goal if res is not None else static_value(agent, belief)
@@ -304,7 +303,7 @@ class PlannerNode(Node):
             self.publish_step(goal, f"step {step}: {name}", DiagnosticStatus.OK, step=step, wrt=name, kind=kind,
                               value=value, p_goal=p_goal, planning_time_s=plan_s,
                               estimate=np.round(e, 4).tolist())
-            self.get_logger().info(f"step {step}: {name} ({kind}) at w* = {np.round(e, 3).tolist()}, "
+            self.get_logger().info(f"step {step}: {name} ({kind}) at e = {np.round(e, 3).tolist()}, "
                                    f"P(goal) = {p_goal:.3f}, planned in {plan_s * 1e3:.0f} ms")
             try:
                 obs = self.execute(goal.object_name, name, e, interrupted)
