@@ -119,15 +119,15 @@ def bar_chart(summary: dict[str, dict], objects: list[str], level: str, path: Pa
             s = summary.get(f"{obj}/{level}/{strat}")
             r = 100 * s["success_rate"] if s else 0.0
             rates.append(r)
-            err[0].append(r - 100 * s["ci95"][0] if s else 0.0)
-            err[1].append(100 * s["ci95"][1] - r if s else 0.0)
+            err[0].append(max(0.0, r - 100 * s["ci95"][0]) if s else 0.0)  # ≥ 0 despite rounding
+            err[1].append(max(0.0, 100 * s["ci95"][1] - r) if s else 0.0)
         ax.bar(x + (i - 1) * width, rates, width, yerr=err, capsize=2, label=STRATEGY_LABELS[strat])
     ax.axhline(95, color="k", lw=0.8, ls="--", label="95 % target")
     ax.set_xticks(x, objects, rotation=20)
     ax.set_ylabel("success (%)")
     ax.set_ylim(0, 105)
     ax.set_title(title)
-    ax.legend(loc="lower right", fontsize=8)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)  # outside: bars reach 100 %
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
