@@ -247,6 +247,11 @@ class SensingParams:
 
     tip_force_threshold: float = 0.5  # N on a Nano17 stops a guarded move
     pad_force_threshold: float = 0.3  # N on a touch pad counts as contact
+    #: External torque [N m] on any WAM joint that stops a guarded move: the arm's own
+    #: collision detection (motor current against the dynamics model), which catches contacts
+    #: on the hand's unsensed parts; the geometric model stops on those too. Chosen: about 2 N
+    #: at the hand, well above the 0.2 N m noise below.
+    arm_torque_threshold: float = 1.2
     nano17_force_noise: float = 0.01  # N, σ
     # Observation-level noise used by the geometric closed loop:
     progress_noise: float = 0.003  # m
@@ -346,6 +351,9 @@ class PhysicsParams:
     nano17_torque_noise: float = 1e-4
     #: Touch-pad force noise σ [N] (chosen: a tenth of the pad threshold).
     pad_force_noise: float = 0.03
+    #: Noise σ [N m] of the WAM's external joint-torque estimate (chosen: ~ 2 % of the
+    #: shoulder's rated torque, typical of current-based estimates).
+    arm_torque_noise: float = 0.2
     #: Sliding friction of the hand's rubber-coated links (chosen: rubber on plastic/cardboard).
     hand_friction: float = 0.8
     #: Judging: lift height [m], lift speed [m/s] and hold time [s] (issue: hold 2 s).

@@ -85,3 +85,24 @@ def test_careful_closing_stops_each_finger_at_its_first_touch(guarded, monkeypat
         assert obs.closure[2] == pytest.approx(sweep.preclose, abs=0.02)  # finger 3 touched first: it stayed
     else:
         assert moved > 0.02
+
+
+@pytest.mark.parametrize("arm_guard", [True, False], ids=["arm-guard", "no-arm-guard"])
+def test_arm_collision_detection_stops_on_unsensed_contacts(arm_guard, monkeypatch):
+    """With every hand sensor blind (as on an unsensed part of the hand), the WAM's joint-torque
+    collision detection still stops a sweep into the box within 1 cm; without it the hand
+    pushes the box on by more than 2 cm."""
+    from rrg_sim.physics.sensing import HandSensors
+
+    monkeypatch.setattr(HandSensors, "any_fired", lambda self: False)
+    if not arm_guard:
+        monkeypatch.setattr(HandSensors, "arm_collision", lambda self, dofs: False)
+    world = PhysicsWorld("box", seed=3)
+    w0 = world.true_object_pose()
+    _, _, stop = world.move_through(CASES[3][1].world_poses(w0), guard=True)
+    world.hold(0.2)
+    moved = np.linalg.norm(world.true_object_pose()[:2] - w0[:2])
+    if arm_guard:
+        assert stop is not None and moved < 0.01
+    else:
+        assert stop is None and moved > 0.02

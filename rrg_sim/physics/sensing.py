@@ -124,6 +124,18 @@ class HandSensors:
             return False
         return bool(self.fired().any())
 
+    def arm_collision(self, arm_dofs: np.ndarray) -> bool:
+        """Whether the WAM's collision detection trips now: the external (contact) torque on
+        any of the arm joints ``arm_dofs``, with noise (PHYSICS.arm_torque_noise), over
+        SENSING.arm_torque_threshold. Skips the noise draw while every joint is more than
+        QUIET_SIGMAS σ below the threshold."""
+        external = np.abs(self.data.qfrc_constraint[arm_dofs])
+        sigma = PHYSICS.arm_torque_noise * self.noise
+        if external.max() < SENSING.arm_torque_threshold - QUIET_SIGMAS * sigma:
+            return False
+        noisy = external + (self.rng.normal(0.0, sigma, external.shape) if sigma > 0 else 0.0)
+        return bool((np.abs(noisy) > SENSING.arm_torque_threshold).any())
+
     def reading(self) -> "Reading":
         """One noisy reading of every sensor, with the Nano17 contact points and normals."""
         pads, wrench = self.read()

@@ -59,6 +59,7 @@ class PhysicsWorld:
         self._arm_q = np.array([qadr(j) for j in ARM_JOINTS])
         self._finger_q = np.array([qadr(j) for j in FINGER_JOINTS])
         self._finger_v = np.array([vadr(j) for j in FINGER_JOINTS])
+        self._arm_v = np.array([vadr(j) for j in ARM_JOINTS])
         self._spread_q = qadr(SPREAD_JOINT)
         self._obj_q = qadr(OBJECT_JOINT)
         self._obj_v = vadr(OBJECT_JOINT)
@@ -171,7 +172,8 @@ class PhysicsWorld:
     def _run(self, arm: np.ndarray, hand: np.ndarray | None = None, guard: bool = False,
              monitor: Callable[[], bool] | None = None) -> int | None:
         """Step through arm servo targets (N,7) and hand targets (N',4), each held past its end.
-        With ``guard``, stop at the first period any sensor fires: hold the arm where it is
+        With ``guard``, stop at the first period any sensor fires or the arm's collision
+        detection trips (HandSensors.arm_collision): hold the arm where it is
         and return that period's index; None when the motion completed. ``monitor`` is called
         after every period; when it returns True the motion stops the same way (e.g. a cancel)."""
         m, d = self.model, self.data
@@ -180,7 +182,9 @@ class PhysicsWorld:
         ctrl[:, :7] = arm[np.minimum(np.arange(n), len(arm) - 1)]
         if hand is not None:
             ctrl[:, 7:] = hand[np.minimum(np.arange(n), len(hand) - 1)]
-        fired = self.sensors.any_fired
+        def fired() -> bool:  # a hand sensor, or the arm's collision detection (unsensed parts)
+            return self.sensors.any_fired() or self.sensors.arm_collision(self._arm_v)
+
         for k in range(n):
             d.ctrl[:] = ctrl[k]
             mujoco.mj_step(m, d)
