@@ -255,31 +255,16 @@ class ForwardSearch:
         Only states whose offset from w*(b) can lie in the goal region contribute, so at the
         leaves (no cached table index) just those are indexed.
         """
-        if sb.table_index is not None:
-            goals = self._feasible_goals(sb.w_star)
-            return max((float(sb.weights @ self.model.actions[g].goal_weight[sb.level][sb.table_index])
-                        for g in goals), default=0.0)
-        return self._leaf_value(sb.points, sb.weights, sb.level)
-
-    def _feasible_goals(self, e: np.ndarray) -> list[int]:
-        return [g for g in self.model.goal_actions if self.feasible(g, e)]
-
-    def _leaf_value(self, points: np.ndarray, weights: np.ndarray, level: str,
-                    compacted: bool = True) -> float:
-        """v(b) of the belief (points, weights) after SparseBelief.compact, computed without
-        compacting it (when ``compacted`` is False, the dropped points are masked instead)."""
-        i_star = int(np.argmax(weights))
-        e = points[i_star]
-        goals = self._feasible_goals(e)
+        e = sb.w_star
+        goals = [g for g in self.model.goal_actions if self.feasible(g, e)]
         if not goals:
             return 0.0
-        if not compacted:
-            keep = np.flatnonzero(weights >= self.params.support_rel * weights[i_star])
-            points, weights = points[keep], weights[keep] / weights[keep].sum()
-        near = self._near_goal(points, e, level)
-        w = weights[near]
-        idx = table_index(points[near], e, self._grid(level))
-        return max(float(w @ self.model.actions[g].goal_weight[level][idx]) for g in goals)
+        if sb.table_index is not None:
+            idx, w = sb.table_index, sb.weights
+        else:
+            near = self._near_goal(sb.points, e, sb.level)
+            idx, w = table_index(sb.points[near], e, self._grid(sb.level)), sb.weights[near]
+        return max(float(w @ self.model.actions[g].goal_weight[sb.level][idx]) for g in goals)
 
     def _near_goal(self, points: np.ndarray, e: np.ndarray, level: str) -> np.ndarray:
         """Indices of points whose offset from e may fall in the goal region (one cell of margin)."""
@@ -294,16 +279,6 @@ class ForwardSearch:
 
     def expand(self, sb: SparseBelief, a: int) -> list[tuple[float, SparseBelief]]:
         """Observation branches of action a at w*(b): [(P(c | b, a), SE(b, a, o_c))]."""
-        return self._children(sb.level, self._branches(sb, a))
-
-    def _children(self, level: str, branches) -> list[tuple[float, SparseBelief]]:
-        return [(p, SparseBelief(pts, w, level) if compacted
-                 else SparseBelief.compact(pts, w, level, self.params))
-                for p, pts, w, compacted in branches]
-
-    def _branches(self, sb: SparseBelief, a: int) -> list[tuple[float, np.ndarray, np.ndarray, bool]]:
-        """Observation branches of action a at w*(b) before compaction: [(P(c | b, a), points,
-        normalized weights, whether already compact)]."""
         act = self.model.actions[a]
         clusters = act.clusters[sb.level]
         e = sb.w_star
@@ -324,11 +299,12 @@ class ForwardSearch:
         for k, p in merge_branches(pc[cand], ent, cov, self.params):
             w = clusters.likelihood[cand[k]][idx] * sb.weights
             w /= w.sum()
-            if act.kind == "reorient":
-                branches.append((p, *reorient_mixture(sb.points, w, e[:2], act.wrt.reorient_angle,
-                                                      self.params.support_rel), True))
+            if act.kind == "reorient":  # the mixture comes out compact
+                child = SparseBelief(*reorient_mixture(sb.points, w, e[:2], act.wrt.reorient_angle,
+                                                       self.params.support_rel), sb.level)
             else:
-                branches.append((p, sb.points, w, False))
+                child = SparseBelief.compact(sb.points, w, sb.level, self.params)
+            branches.append((p, child))
         return branches
 
     def _posterior_moments(self, sb: SparseBelief, clusters, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -358,14 +334,9 @@ class ForwardSearch:
         for a in range(len(self.model.actions)):
             if not self.feasible(a, e):
                 continue
-            branches = self._branches(sb, a)
-            if not branches:
-                continue
-            if horizon == 1:  # leaves: v(b) straight from the uncompacted posteriors
-                values = [self._leaf_value(pts, w, sb.level, compacted) for _, pts, w, compacted in branches]
-            else:
-                values = [self.value(b, horizon - 1) for _, b in self._children(sb.level, branches)]
-            q[a] = sum(p * v for (p, *_), v in zip(branches, values)) - self.params.action_cost
+            branches = self.expand(sb, a)
+            if branches:
+                q[a] = sum(p * self.value(b, horizon - 1) for p, b in branches) - self.params.action_cost
         return q
 
     def value(self, sb: SparseBelief, horizon: int) -> float:
