@@ -8,9 +8,14 @@ import numpy as np
 from .config import FINGER_SENSORS, N_SENSORS
 
 
+def finger_contacts(sensors: np.ndarray) -> np.ndarray:
+    """(…,10) sensor flags → (…,3) bool: fingers 1-3 with any link's sensor fired."""
+    return np.asarray(sensors)[..., FINGER_SENSORS].any(axis=-1)
+
+
 def fingers_in_contact(sensors: np.ndarray) -> np.ndarray:
     """(…,10) sensor flags → (…,) number of fingers with any link's sensor fired."""
-    return np.asarray(sensors)[..., FINGER_SENSORS].any(axis=-1).sum(axis=-1)
+    return finger_contacts(sensors).sum(axis=-1)
 
 
 @dataclass

@@ -21,10 +21,10 @@ import mujoco
 import numpy as np
 
 from .. import wam
-from ..config import FINGER_SENSORS, HAND, PHYSICS, WORLD
+from ..config import HAND, PHYSICS, WORLD
 from ..execution import Reading, WrtExecutor
 from ..objects import ObjectModel, get_object
-from ..observation import Observation
+from ..observation import Observation, finger_contacts
 from ..wrt import WRT
 from .judge import judge_grasp
 from .mjcf_robot import (ARM_ACTUATORS, ARM_JOINTS, FINGER_ACTUATORS, FINGER_JOINTS, PALM_BODY,
@@ -106,12 +106,16 @@ class PhysicsWorld:
         p = self.data.xpos[self._obj_body]
         return np.array([p[0], p[1], np.arctan2(R[1, 0], R[0, 0])])
 
+    def _body_pose(self, body: int) -> np.ndarray:
+        """(4,4) pose of a body in world."""
+        T = np.eye(4)
+        T[:3, :3] = self.data.xmat[body].reshape(3, 3)
+        T[:3, 3] = self.data.xpos[body]
+        return T
+
     def object_pose(self) -> np.ndarray:
         """(4,4) object frame in world (ground truth)."""
-        T = np.eye(4)
-        T[:3, :3] = self.data.xmat[self._obj_body].reshape(3, 3)
-        T[:3, 3] = self.data.xpos[self._obj_body]
-        return T
+        return self._body_pose(self._obj_body)
 
     def object_height(self) -> float:
         """z of the object's frame origin [m] (0 when it rests on the table)."""
@@ -134,10 +138,7 @@ class PhysicsWorld:
 
     def hand_pose(self) -> np.ndarray:
         """(4,4) hand-frame pose in world (measured)."""
-        T = np.eye(4)
-        T[:3, :3] = self.data.xmat[self._palm].reshape(3, 3)
-        T[:3, 3] = self.data.xpos[self._palm]
-        return T
+        return self._body_pose(self._palm)
 
     def object_in_hand(self) -> bool:
         """True while any hand or arm geom touches the object."""
@@ -256,21 +257,17 @@ class PhysicsWorld:
                 monitor()
             slow = d.qvel[self._finger_v] < PHYSICS.stall_speed  # stopped, or pushed back
             still = np.where(slow, still + dt, 0.0)
+            stop = np.zeros(3, bool)
             if guarded and self.sensors.any_fired():
-                touching = self.sensors.fired()[np.array(FINGER_SENSORS)].any(axis=1) & ~stalled
-                for i in np.nonzero(touching)[0]:
-                    self._brake(i)
-                    stalled[i] = True
-                    target[i] = d.ctrl[8 + i]
-                if stalled.all():
-                    break
+                stop |= finger_contacts(self.sensors.fired())
             if k >= grace:
-                for i in np.nonzero(~stalled & (still >= PHYSICS.stall_time))[0]:
-                    self._brake(i)
-                    stalled[i] = True
-                    target[i] = d.ctrl[8 + i]
-                if stalled.all():
-                    break
+                stop |= still >= PHYSICS.stall_time
+            for i in np.nonzero(stop & ~stalled)[0]:
+                self._brake(i)
+                stalled[i] = True
+                target[i] = d.ctrl[8 + i]
+            if stalled.all():
+                break
 
     def _brake(self, finger: int) -> None:
         """Hold finger where it is with the torque it pushes with now (worm-drive brake)."""
