@@ -3,7 +3,9 @@ each WRT's observation (DESIGN §3), with the offline tables loaded on demand.
 
 One update is SE(b, τ(e), o) with the WRT's table at the belief's grid level, then, for a
 reorientation WRT, the commanded rotation about e; afterwards the belief is re-gridded finer
-when it has concentrated (variable resolution).
+when it has concentrated (variable resolution). A goal grasp that arrived moves the object
+as it closes and retreats (``settle_after_grasp``); the tracker applies that at the next
+update, since the belief that declares the grasp is the one before it.
 """
 from __future__ import annotations
 
@@ -20,7 +22,7 @@ from rrg_sim.wrt import WRT
 from .belief import Belief
 from .obs_model import TableLike
 from .obs_tables import ObservationTable, load_or_build
-from .transition import reorient
+from .transition import reorient, settle
 from .update import update
 from .varres import maybe_refine
 
@@ -51,6 +53,15 @@ def wrt_posterior(belief: Belief, table: TableLike, wrt: WRT, e, obs: Observatio
     return post
 
 
+def settle_after_grasp(belief: Belief, obj: ObjectModel, wrt: WRT, e, contact: bool) -> Belief:
+    """The belief after retreating from ``wrt`` run at e: a goal grasp that arrived (no early
+    contact, so it closed firmly) moved the object as the object's measured settling says;
+    anything else leaves it (the bump of an early contact is part of the update)."""
+    if wrt.kind != "goal" or contact or obj.settling is None:
+        return belief
+    return settle(belief, obj.settling, e)
+
+
 class BeliefTracker:
     """The belief over one object's pose and the tables that update it.
 
@@ -63,6 +74,8 @@ class BeliefTracker:
         self.variable_resolution = variable_resolution
         self.workers = workers
         self._tables: dict[tuple[str, str], ObservationTable] = {}
+        #: the last WRT, its estimate and whether it stopped early, until the next update
+        self._last: tuple[WRT, np.ndarray, bool] | None = None
 
     @classmethod
     def gaussian(cls, object_name: str, mean, sigma, level: UncertaintyLevel | None = None,
@@ -98,8 +111,9 @@ class BeliefTracker:
         re-grid it finer if it has concentrated. Raises KeyError for a WRT the object does not
         have and ValueError for an observation the belief cannot explain; the belief is kept then."""
         wrt = self.obj.wrt(wrt_name)
-        post = wrt_posterior(self.belief, self.table(wrt, level_of_grid(self.belief.grid)), wrt, e, obs)
+        prior = self.belief if self._last is None else settle_after_grasp(self.belief, self.obj, *self._last)
+        post = wrt_posterior(prior, self.table(wrt, level_of_grid(prior.grid)), wrt, e, obs)
         if self.variable_resolution:
             post = maybe_refine(post) or post
-        self.belief = post
+        self.belief, self._last = post, (wrt, np.asarray(e, dtype=float), bool(obs.contact))
         return post

@@ -6,6 +6,9 @@
   with σ = bump_sigma_xy in x, y and bump_sigma_theta in θ.
 * Reorientation grasp (``reorient``): the object turns by the commanded angle
   (p_reorient_success), half of it (p_reorient_partial), or not at all.
+* Firm goal grasp that arrived, then its retreat (``settle``): the object's offset from the
+  estimate moves as the object's measured settling map says (objects.Settling, fitted in
+  physics by rrg_sim.physics.settle), blurred by the map's residual σ.
 
 Both work on the (nx, ny, nθ) weight array. Mass moved off the grid is dropped and the
 rest renormalized.
@@ -18,7 +21,8 @@ from scipy.special import ndtr
 
 from rrg_sim.config import TRANSITION, TransitionParams
 from rrg_sim.grid import Grid
-from rrg_sim.poses import wrap_angle
+from rrg_sim.objects.model import AffineSettle, Settling
+from rrg_sim.poses import compose_planar, relative_planar, wrap_angle
 
 from .belief import Belief
 
@@ -108,3 +112,49 @@ def reorient(belief: Belief, angle: float, params: TransitionParams = TRANSITION
     mix = [(p_full, angle), (p_half, angle / 2.0), (1.0 - p_full - p_half, 0.0)]
     w = sum(p * rotated_density(belief, grid, a, center_xy) for p, a in mix if p > 0.0)
     return Belief(grid, w)
+
+
+def splat(grid: Grid, poses: np.ndarray, mass: np.ndarray) -> np.ndarray:
+    """(nx, ny, nθ) the masses (K,) at poses (K,3) spread trilinearly onto the grid's points
+    (θ offsets from the grid centre wrapped); mass beyond the grid is dropped."""
+    n = np.asarray(grid.shape)
+    d = poses - np.asarray(grid.center)
+    d[:, 2] = wrap_angle(d[:, 2])
+    c = d / np.asarray(grid.spacing) + (n - 1) / 2
+    lo = np.floor(c).astype(np.int64)
+    frac = c - lo
+    out = np.zeros(grid.size)
+    for corner in np.ndindex(2, 2, 2):
+        idx = lo + np.array(corner)
+        share = np.prod(np.where(np.array(corner), frac, 1.0 - frac), axis=1)
+        ok = np.all((idx >= 0) & (idx < n), axis=1)
+        flat = np.ravel_multi_index(idx[ok].T, grid.shape)
+        out += np.bincount(flat, weights=mass[ok] * share[ok], minlength=grid.size)
+    return out.reshape(grid.shape)
+
+
+def blur(a: np.ndarray, grid: Grid, sigma) -> np.ndarray:
+    """The grid array ``a`` blurred by a Gaussian of σ (x [m], y [m], θ [rad]) per axis."""
+    (nx, ny, nt), sp = grid.shape, grid.spacing
+    kx, ky, kt = (displacement_kernel(n, 0.0, s / h) for n, s, h in zip((nx, ny, nt), sigma, sp))
+    out = (kx @ a.reshape(nx, ny * nt)).reshape(nx, ny, nt)
+    return np.matmul(ky, out) @ kt.T
+
+
+def settle(belief: Belief, settling: Settling, e, stage: str = "retreated") -> Belief:
+    """Settling transition of a firm goal grasp run at estimate e that arrived: each state
+    whose offset Δ = relative_planar(e, w) lies in the studied box moves to e ⊕ (A·Δ + b) of
+    the ``stage`` map ("closed" or "retreated"), blurred by its σ; the others stay."""
+    fit: AffineSettle = getattr(settling, stage)
+    e = np.asarray(e, dtype=float).reshape(3)
+    pts = belief.grid.points()
+    w = belief.weights
+    live = np.nonzero(w > 0.0)[0]
+    delta = relative_planar(e, pts[live])
+    moving = settling.inside(delta)
+    if not moving.any():
+        return belief
+    stay = w.copy()
+    stay[live[moving]] = 0.0
+    moved = splat(belief.grid, compose_planar(e, fit.apply(delta[moving])), w[live[moving]])
+    return belief.with_weights(stay + blur(moved, belief.grid, fit.sigma).ravel())

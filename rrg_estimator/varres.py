@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rrg_sim.config import LOW, VARRES_EPS, UncertaintyLevel
+from rrg_sim.config import LOW, VARRES_EPS, VARRES_RECENTER, UncertaintyLevel
 from rrg_sim.grid import Grid
 from rrg_sim.poses import wrap_angle
 
@@ -51,16 +51,35 @@ def refinement_center(belief: Belief, half_extent: np.ndarray, eps: float) -> np
     return centers[np.argmin(np.sum(((centers - mean) / spacing) ** 2, axis=1))]
 
 
+def _recentered(belief: Belief, fine_level: UncertaintyLevel, half: np.ndarray, eps: float) -> Belief | None:
+    """A fine belief whose mean has left the middle of its grid (the object moved: a bump, a
+    firm grasp), re-gridded about the mean so it can follow further; None if it has not."""
+    g = belief.grid
+    off = belief.mean() - np.asarray(g.center)
+    off[2] = wrap_angle(off[2])
+    if not np.allclose(g.shape, fine_level.shape) or np.all(np.abs(off) <= VARRES_RECENTER * half):
+        return None
+    center = refinement_center(belief, half, eps)
+    if center is None:
+        return None
+    center[2] = wrap_angle(center[2])
+    grid = Grid(tuple(float(c) for c in center), tuple(g.spacing), tuple(g.shape))
+    return Belief(grid, sample_density(belief, grid.points()))
+
+
 def maybe_refine(belief: Belief, fine_level: UncertaintyLevel = LOW, eps: float = VARRES_EPS) -> Belief | None:
     """The belief re-gridded at fine_level's spacing and shape if its grid is coarser and at
     least 1 - eps of its mass fits in a box the size of the fine grid; None otherwise.
+    A belief already on a fine grid is re-centred on its mean once the mean is more than
+    VARRES_RECENTER of the grid's half extent off its centre on some axis (the fixed grid
+    of the paper cannot follow an object that moves further than that).
 
     Weights on the fine grid are the coarse density interpolated trilinearly, renormalized
     (the ≤ eps of mass outside the box is dropped).
     """
-    if not np.any(np.asarray(belief.grid.spacing) > np.asarray(fine_level.spacing) * (1 + 1e-9)):
-        return None
     half = (np.asarray(fine_level.shape) - 1) / 2 * np.asarray(fine_level.spacing)
+    if not np.any(np.asarray(belief.grid.spacing) > np.asarray(fine_level.spacing) * (1 + 1e-9)):
+        return _recentered(belief, fine_level, half, eps)
     center = refinement_center(belief, half, eps)
     if center is None:
         return None

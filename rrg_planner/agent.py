@@ -19,7 +19,7 @@ from typing import Callable, Protocol
 import numpy as np
 
 from rrg_estimator.belief import Belief
-from rrg_estimator.tracker import wrt_posterior
+from rrg_estimator.tracker import settle_after_grasp, wrt_posterior
 from rrg_estimator.update import goal_probability
 from rrg_estimator.varres import maybe_refine
 from rrg_sim.config import LEVELS, SEARCH, SENSOR_NAMES, UncertaintyLevel
@@ -185,6 +185,11 @@ class RobustGraspAgent:
         post = wrt_posterior(belief, act.tables[self.model.level_of(belief.grid)], act.wrt, e, obs)
         return post, self.grasp_probability(post, action, e)
 
+    def after_retreat(self, belief: Belief, action: int, e: np.ndarray, contact: bool) -> Belief:
+        """The belief once the robot retreated from an action run at e: a goal grasp that
+        arrived (no early contact: it closed firmly) moved the object as its settling says."""
+        return settle_after_grasp(belief, self.model.obj, self.model.actions[action].wrt, e, contact)
+
     # ------------------------------------------------------------ closed loop
     def run(self, env: Environment, level: UncertaintyLevel | str, mean,
             on_step: Callable[[Step, Belief], None] | None = None) -> TrialResult:
@@ -231,5 +236,6 @@ class RobustGraspAgent:
                 return TrialResult(bool(success), bool(p_exec > 1.0 - self.delta), steps, p_exec,
                                    total_plan, belief)
             env.retreat()
-            if self.variable_resolution:
+            if self.variable_resolution:  # as the estimator node does, before the settling
                 belief = maybe_refine(belief) or belief
+            belief = self.after_retreat(belief, action, e, bool(obs.contact))

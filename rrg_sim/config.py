@@ -159,6 +159,11 @@ LEVELS = {"high": HIGH, "low": LOW}
 #: Variable-resolution grid (DESIGN §3): re-grid to LOW's spacing once at least
 #: 1 - VARRES_EPS of the mass lies inside a LOW-sized box.
 VARRES_EPS = 0.01
+#: A fine belief is re-centred on its mean once the mean is off the grid centre by more
+#: than this fraction of the half extent on some axis (chosen: a firm grasp turns the
+#: pitcher ~0.1 rad per goal grasp, against LOW's ±0.156 rad; re-centring at a quarter
+#: keeps such a move on the grid).
+VARRES_RECENTER = 0.25
 
 
 # ------------------------------------------------------------- observation model

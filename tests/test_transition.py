@@ -1,13 +1,15 @@
-"""Transition models: the contact bump and the reorientation mixture."""
+"""Transition models: the contact bump, the reorientation mixture and the grasp settling."""
 import time
 
 import numpy as np
 import pytest
 
 from rrg_estimator.belief import Belief
-from rrg_estimator.transition import bump, displacement_kernel, reorient
+from rrg_estimator.transition import bump, displacement_kernel, reorient, settle, splat
 from rrg_sim.config import HIGH, LOW, TRANSITION
 from rrg_sim.grid import Grid
+from rrg_sim.objects.model import AffineSettle, Settling
+from rrg_sim.poses import relative_planar
 
 
 def narrow(level=HIGH, mean=(0.62, 0.0, 0.2), sigma=(0.012, 0.012, 0.12)) -> Belief:
@@ -87,3 +89,45 @@ def test_reorient_on_a_narrow_grid_keeps_the_full_turn():
     after = reorient(b, 1.0)  # far beyond the low grid's ±0.156 rad
     np.testing.assert_allclose(after.as_grid_array(), b.as_grid_array(), atol=1e-12)
     assert after.grid.center[2] == pytest.approx(b.grid.center[2] + 1.0)
+
+
+def settling(b=(0.0, 0.0, 0.0), A=np.eye(3), sigma=(0.0, 0.0, 0.0), box=(0.03, 0.03, 0.3)) -> Settling:
+    fit = AffineSettle(np.asarray(A, float), np.asarray(b, float), np.asarray(sigma, float))
+    return Settling(np.asarray(box, float), fit, fit, source="test")
+
+
+def test_splat_keeps_the_mass_and_its_mean():
+    g = Grid.for_level(LOW, center=(0.62, 0.0, 0.0))
+    rng = np.random.default_rng(3)
+    poses = np.array([0.62, 0.0, 0.0]) + rng.uniform(-0.02, 0.02, (50, 3))
+    mass = rng.uniform(0.1, 1.0, 50)
+    a = splat(g, poses, mass)
+    assert a.sum() == pytest.approx(mass.sum(), rel=1e-12)
+    np.testing.assert_allclose(Belief(g, a).mean(), mass @ poses / mass.sum(), atol=1e-7)  # θ: circular mean
+    assert splat(g, np.array([[0.9, 0.0, 0.0]]), np.ones(1)).sum() == 0.0  # beyond the grid: dropped
+
+
+def test_identity_settling_leaves_the_belief():
+    b = narrow(LOW, mean=(0.62, 0.0, 0.0), sigma=(0.004, 0.004, 0.02))
+    np.testing.assert_allclose(settle(b, settling(), (0.62, 0.0, 0.0)).weights, b.weights, atol=1e-15)
+
+
+def test_settling_shifts_states_in_the_box_by_the_map_in_the_estimate_frame():
+    e = np.array([0.62, 0.0, 0.5])  # shifts are in e's frame: +x of e is (cos 0.5, sin 0.5) in world
+    b = narrow(LOW, mean=e, sigma=(0.004, 0.004, 0.02))
+    after = settle(b, settling(b=(0.01, 0.0, 0.03)), e)
+    shift = relative_planar(e, after.mean()) - relative_planar(e, b.mean())
+    np.testing.assert_allclose(shift, [0.01, 0.0, 0.03], atol=2e-4)
+
+
+def test_settling_funnels_the_box_and_leaves_the_rest():
+    e = np.array([0.62, 0.0, 0.0])
+    g = Grid.for_level(LOW, center=e)
+    inside, outside = np.array([0.01, -0.01, 0.05]), np.array([0.0, 0.02, 0.0])  # the box is ±1.5 cm in y
+    w = np.zeros(g.size)
+    w[g.nearest_index(e + inside)] = w[g.nearest_index(e + outside)] = 0.5
+    after = settle(Belief(g, w), settling(A=np.zeros((3, 3)), sigma=(0.002, 0.002, 0.01), box=(0.015, 0.015, 0.3)), e)
+    assert after.weights[g.nearest_index(e + outside)] == pytest.approx(0.5)
+    near = np.all(np.abs(relative_planar(e, g.points())) <= (0.005, 0.005, 0.03), axis=1)
+    assert after.probability(near) == pytest.approx(0.5, abs=0.02)  # the funnel's mass: at Δ = 0 ± 2.5σ
+    assert after.probability(near) > after.weights[g.nearest_index(e)] * 2  # and is blurred by σ

@@ -70,3 +70,14 @@ def test_refine_time():
         maybe_refine(spread)
     t2 = time.perf_counter()
     print(f"\nmaybe_refine: refine {(t1 - t0) / 20 * 1e3:.2f} ms, reject {(t2 - t1) / 20 * 1e3:.2f} ms")
+
+
+def test_a_fine_belief_that_moved_off_centre_is_recentred_on_its_mean():
+    fine = Grid.for_level(LOW, center=(0.62, 0.0, 0.0))
+    moved = Belief.gaussian(fine, (0.62, 0.004, 0.09), (0.002, 0.002, 0.01))  # θ 0.09 of ±0.156 off
+    out = maybe_refine(moved)
+    assert out is not None and out.grid.spacing == fine.spacing and out.grid.shape == fine.shape
+    assert np.all(np.abs(np.asarray(out.grid.center) - moved.mean()) <= np.asarray(LOW.spacing) / 2 + 1e-9)
+    np.testing.assert_allclose(out.mean(), moved.mean(), atol=1e-4)
+    # a belief within a quarter of the half extent stays where it is
+    assert maybe_refine(Belief.gaussian(fine, (0.62, 0.004, 0.03), (0.002, 0.002, 0.01))) is None

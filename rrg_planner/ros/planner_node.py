@@ -327,6 +327,7 @@ class PlannerNode(Node):
                 return
             if kind == "goal":  # the executor leaves a goal grasp closed on the object
                 self.retreat(interrupted)
+                belief = agent.after_retreat(belief, action, e, bool(obs.contact))  # as the estimator will
 
     # ------------------------------------------------------------------ calls to the other nodes
     def reset_belief(self, goal: RobustGrasp.Goal, mean: np.ndarray, sigma: np.ndarray, interrupted) -> BeliefGrid:

@@ -1,8 +1,10 @@
 """An object of the catalogue: collision primitives, physical properties, goal region and WRTs."""
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from functools import cached_property
+from pathlib import Path
 
 import numpy as np
 import trimesh
@@ -13,6 +15,62 @@ from ..wrt import WRT
 from .primitives import Primitive, union_bounds
 from . import wrt_generation
 from .composites import turn_about_z
+
+
+#: The measured grasp-settling fits (rrg_sim.physics.settle writes it; committed).
+SETTLING_FILE = Path(__file__).with_name("settling.json")
+#: Half-width [rad] of the θ range of start offsets the settling study samples, at most
+#: (chosen: the low level's 3σ of 9° and then some).
+SETTLING_THETA_BOX = 0.25
+
+
+@dataclass(frozen=True)
+class AffineSettle:
+    """Δ_after = A·Δ + b, with residual σ (x [m], y [m], θ [rad]); Δ = relative_planar(e, w)."""
+
+    A: np.ndarray
+    b: np.ndarray
+    sigma: np.ndarray
+
+    def apply(self, delta: np.ndarray) -> np.ndarray:
+        """(…,3) the mean Δ after, θ wrapped."""
+        out = np.asarray(delta, dtype=float) @ self.A.T + self.b
+        out[..., 2] = wrap_angle(out[..., 2])
+        return out
+
+
+@dataclass(frozen=True)
+class Settling:
+    """How a firm goal grasp that arrived moves the object (rrg_sim.physics.settle): the map of
+    start offsets Δ inside ``box`` (3,) half-widths to Δ after the closing (what a judge sees;
+    kept for the record) and after the retreat (where the next action finds it: the belief's
+    transition). Outside the box the object is taken not to move (the study did not sample
+    there)."""
+
+    box: np.ndarray
+    closed: AffineSettle
+    retreated: AffineSettle
+    source: str
+
+    def inside(self, delta: np.ndarray) -> np.ndarray:
+        """(…) bool: Δ (…,3) lies in the studied box."""
+        d = np.asarray(delta, dtype=float).copy()
+        d[..., 2] = wrap_angle(d[..., 2])
+        return np.all(np.abs(d) <= self.box, axis=-1)
+
+
+def load_settling(name: str, path: Path = SETTLING_FILE) -> Settling | None:
+    """The object's measured Settling from the committed fits, or None if not measured."""
+    if not path.exists():
+        return None
+    fits = json.loads(path.read_text())
+    if name not in fits:
+        return None
+    f = fits[name]
+    maps = {k: AffineSettle(np.array(f[k]["A"]), np.array(f[k]["b"]), np.array(f[k]["sigma"]))
+            for k in ("closed", "retreated")}
+    return Settling(np.array(f["box"]), maps["closed"], maps["retreated"],
+                    source=f"{fits.get('_source', path.name)}: {f['arrived']} of {f['grasps']} grasps arrived")
 
 
 @dataclass(frozen=True)
@@ -81,6 +139,8 @@ class ObjectModel:
     reorient_wrts: tuple[WRT, ...] = ()
     symmetric: bool = False
     placement_yaw: float = 0.0
+    #: whether the belief applies the measured settling of the goal grasp (see ``settling``)
+    track_settling: bool = True
     description: str = field(default="", repr=False)
 
     def __post_init__(self) -> None:
@@ -115,6 +175,12 @@ class ObjectModel:
         if len(set(names)) != len(names):
             raise ValueError(f"{self.name}: WRT names are not unique: {names}")
         return wrts
+
+    @cached_property
+    def settling(self) -> Settling | None:
+        """How the firm goal grasp moves the object (measured), or None if not measured or
+        not tracked (``track_settling``)."""
+        return load_settling(self.name) if self.track_settling else None
 
     def wrts(self) -> tuple[WRT, ...]:
         """The goal WRT, the generated info WRTs, the sweep and the reorientation WRTs (cached)."""

@@ -1,0 +1,134 @@
+"""How a firm goal grasp moves the object it closes on: the grasp-settling study.
+
+A goal grasp that arrives closes firmly, and the closing fingers pull the object toward
+where the grasp settles it (a handle turns into the palm, a pinch twists a cup). The
+belief must know, or it drifts from the truth with every goal grasp it does not stop on.
+``measure`` runs the goal WRT from seeded start offsets Δ = relative_planar(e, w) drawn
+uniformly in a box around the goal region, and records Δ after the closing (what the judge
+sees) and after the retreat (where the next action finds the object). ``fit`` fits the
+affine maps Δ_after = A·Δ + b to the grasps that arrived (no early contact) with least
+squares and their residual σ; the result is the object's ``objects.Settling`` model.
+
+``python -m rrg_sim.physics.settle [objects…] [--grasps N] [--workers W]`` measures and
+writes ``rrg_sim/objects/settling.json`` (the committed fits the catalogue loads).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import multiprocessing as mp
+import time
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from ..config import WORLD
+from ..objects import OBJECT_NAMES, get_object
+from ..objects.model import SETTLING_FILE, SETTLING_THETA_BOX
+from ..observation import fingers_in_contact
+from ..poses import compose_planar, relative_planar, wrap_angle
+from .trajectory import InfeasiblePath
+from .world import PhysicsWorld
+
+log = logging.getLogger(__name__)
+
+#: The start box is this many goal tolerances wide each way in x, y (θ: SETTLING_THETA_BOX,
+#: or ±π for objects whose goal ignores θ), so the fit covers the goal region's edges.
+BOX_TOLERANCES = 2.0
+
+
+def start_box(object_name: str) -> np.ndarray:
+    """(3,) half-widths [m, m, rad] of the box of start offsets Δ the study samples."""
+    goal = get_object(object_name).goal
+    theta = np.pi if goal.ignores_theta else min(SETTLING_THETA_BOX, BOX_TOLERANCES * goal.tol[2])
+    return np.array([BOX_TOLERANCES * goal.tol[0], BOX_TOLERANCES * goal.tol[1], theta])
+
+
+def measure(object_name: str, grasps: int, seed: int = 0) -> list[dict]:
+    """Run the goal WRT from ``grasps`` seeded starts; one record per start (see module doc)."""
+    world = PhysicsWorld(object_name, seed=seed)
+    rng = np.random.default_rng(seed)
+    e = np.asarray(WORLD.nominal_pose, dtype=float)
+    box = start_box(object_name)
+    records = []
+    for delta in rng.uniform(-1.0, 1.0, (grasps, 3)) * box:
+        world.reset(compose_planar(e, delta))
+        try:
+            obs = world.execute_wrt(world.obj.goal_wrt, e)
+        except InfeasiblePath:
+            continue
+        closed = relative_planar(e, world.true_object_pose())
+        world.retreat()
+        after = relative_planar(e, world.true_object_pose())
+        records.append(dict(start=delta.tolist(), closed=closed.tolist(), retreated=after.tolist(),
+                            contact=bool(obs.contact), fingers=int(fingers_in_contact(obs.sensors))))
+    return records
+
+
+def _unwrapped(after: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """``after`` with θ unwrapped next to ``start`` (a small turn never reads as ±2π)."""
+    out = after.copy()
+    out[:, 2] = start[:, 2] + wrap_angle(after[:, 2] - start[:, 2])
+    return out
+
+
+def fit_affine(start: np.ndarray, after: np.ndarray, ignores_theta: bool) -> dict:
+    """Least-squares Δ_after = A·Δ + b over the rows; returns A (3,3), b (3,), sigma (3,)
+    (the residuals' standard deviation). θ of an object whose goal ignores it is left as is
+    (A row and column of the identity, b 0, σ 0): it turns freely and nothing depends on it."""
+    after = _unwrapped(after, start)
+    dims = 2 if ignores_theta else 3
+    X = np.hstack([start[:, :dims], np.ones((len(start), 1))])
+    coef, *_ = np.linalg.lstsq(X, after[:, :dims], rcond=None)
+    A, b, sigma = np.eye(3), np.zeros(3), np.zeros(3)
+    A[:dims, :dims], b[:dims] = coef[:dims].T, coef[dims]
+    sigma[:dims] = np.std(after[:, :dims] - X @ coef, axis=0, ddof=dims + 1)
+    return dict(A=A.tolist(), b=b.tolist(), sigma=sigma.tolist())
+
+
+def fit(object_name: str, records: list[dict]) -> dict:
+    """The settling model of an object from its records: the maps for the closing and the
+    retreat, fitted to the grasps that arrived (no early contact)."""
+    arrived = [r for r in records if not r["contact"]]
+    if len(arrived) < 8:
+        raise ValueError(f"{object_name}: only {len(arrived)} of {len(records)} grasps arrived; too few to fit")
+    start = np.array([r["start"] for r in arrived])
+    ignores = get_object(object_name).goal.ignores_theta
+    return dict(box=start_box(object_name).tolist(), grasps=len(records), arrived=len(arrived),
+                closed=fit_affine(start, np.array([r["closed"] for r in arrived]), ignores),
+                retreated=fit_affine(start, np.array([r["retreated"] for r in arrived]), ignores))
+
+
+def _measure_job(args: tuple[str, int, int]) -> tuple[str, list[dict]]:
+    name, grasps, seed = args
+    return name, measure(name, grasps, seed)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("objects", nargs="*", default=list(OBJECT_NAMES), help="objects (default: all)")
+    parser.add_argument("--grasps", type=int, default=60, help="goal grasps per object")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=SETTLING_FILE, help="JSON to update with the fits")
+    args = parser.parse_args(argv)
+    fits = json.loads(args.out.read_text()) if args.out.exists() else {}
+    t0 = time.perf_counter()
+    jobs = [(name, args.grasps, args.seed) for name in args.objects]
+    with mp.get_context("fork").Pool(args.workers) as pool:
+        for name, records in tqdm(pool.imap_unordered(_measure_job, jobs), total=len(jobs), desc="settling"):
+            fits[name] = fit(name, records)
+            c = fits[name]["closed"]
+            print(f"{name}: {fits[name]['arrived']}/{len(records)} arrived; closed b={np.round(c['b'], 3).tolist()} "
+                  f"σ={np.round(c['sigma'], 3).tolist()} diag(A)={np.round(np.diag(c['A']), 2).tolist()}", flush=True)
+    fits = {k: fits[k] for k in sorted(fits)}
+    fits["_source"] = (f"python -m rrg_sim.physics.settle --grasps {args.grasps} --seed {args.seed} "
+                       "(MuJoCo, goal WRT at the nominal pose)")
+    args.out.write_text(json.dumps(fits, indent=1) + "\n")
+    print(f"wrote {args.out} in {time.perf_counter() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()

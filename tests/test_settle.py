@@ -1,0 +1,49 @@
+"""The grasp-settling model: the affine fit of the settling study, the committed fits, and
+the belief moving after a firm goal grasp (agent and estimator alike)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rrg_estimator.belief import Belief
+from rrg_estimator.tracker import settle_after_grasp
+from rrg_sim.config import LOW
+from rrg_sim.grid import Grid
+from rrg_sim.objects import OBJECT_NAMES, get_object
+from rrg_sim.objects.model import load_settling
+from rrg_sim.physics.settle import fit_affine
+from rrg_sim.poses import relative_planar
+
+
+def test_fit_affine_recovers_a_known_map_with_its_noise():
+    rng = np.random.default_rng(7)
+    start = rng.uniform(-1, 1, (400, 3)) * (0.02, 0.02, 0.2)
+    A = np.array([[0.5, 0.1, 0.0], [0.0, 0.9, 0.02], [-3.0, 2.0, 0.8]])
+    b = np.array([-0.003, 0.001, 0.07])
+    after = start @ A.T + b + rng.normal(0, 1, (400, 3)) * (0.001, 0.002, 0.03)
+    after[:5, 2] += 2 * np.pi  # a wrapped angle reads as the same small turn
+    f = fit_affine(start, after, ignores_theta=False)
+    np.testing.assert_allclose(f["A"], A, atol=0.15)
+    np.testing.assert_allclose(f["b"], b, atol=0.005)
+    np.testing.assert_allclose(f["sigma"], (0.001, 0.002, 0.03), rtol=0.15)
+    sym = fit_affine(start, after, ignores_theta=True)  # θ of a symmetric object is left alone
+    assert sym["A"][2] == [0.0, 0.0, 1.0] and sym["b"][2] == 0.0 and sym["sigma"][2] == 0.0
+
+
+@pytest.mark.parametrize("name", OBJECT_NAMES)
+def test_every_object_has_a_committed_settling_fit(name):
+    s = load_settling(name)
+    assert s is not None and "arrived" in s.source
+    assert np.all(s.box > 0) and np.all(s.retreated.sigma >= 0)
+    assert (get_object(name).settling is None) == (not get_object(name).track_settling)
+
+
+def test_a_firm_goal_grasp_moves_the_belief_and_an_early_contact_does_not():
+    obj = get_object("powerdrill")  # its grasp turns the drill by about -0.07 rad
+    e = np.array([0.62, 0.0, 0.0])
+    b = Belief.gaussian(Grid.for_level(LOW, center=e), e, (0.003, 0.003, 0.02))
+    after = settle_after_grasp(b, obj, obj.goal_wrt, e, contact=False)
+    turn = relative_planar(e, after.mean())[2] - relative_planar(e, b.mean())[2]
+    assert turn == pytest.approx(obj.settling.retreated.b[2], abs=0.01)
+    assert settle_after_grasp(b, obj, obj.goal_wrt, e, contact=True) is b
+    assert settle_after_grasp(b, obj, obj.info_wrts[0], e, contact=False) is b
