@@ -5,7 +5,8 @@
   bumped along the hand's horizontal motion by a Gaussian displacement of mean bump_mean
   with σ = bump_sigma_xy in x, y and bump_sigma_theta in θ.
 * Reorientation grasp (``reorient``): the object turns by the commanded angle
-  (p_reorient_success), half of it (p_reorient_partial), or not at all.
+  (p_reorient_success), half of it (p_reorient_partial), or not at all, each give or take
+  reorient_sigma_theta.
 * Firm goal grasp that arrived, then its retreat (``settle``): the object's offset from the
   estimate moves as the object's measured settling map says (objects.Settling, fitted in
   physics by rrg_sim.physics.settle), blurred by the map's residual σ.
@@ -111,7 +112,7 @@ def reorient(belief: Belief, angle: float, params: TransitionParams = TRANSITION
     p_full, p_half = params.p_reorient_success, params.p_reorient_partial
     mix = [(p_full, angle), (p_half, angle / 2.0), (1.0 - p_full - p_half, 0.0)]
     w = sum(p * rotated_density(belief, grid, a, center_xy) for p, a in mix if p > 0.0)
-    return Belief(grid, w)
+    return Belief(grid, blur(w.reshape(grid.shape), grid, (0.0, 0.0, params.reorient_sigma_theta)).ravel())
 
 
 def splat(grid: Grid, poses: np.ndarray, mass: np.ndarray) -> np.ndarray:

@@ -51,20 +51,12 @@ def refinement_center(belief: Belief, half_extent: np.ndarray, eps: float) -> np
     return centers[np.argmin(np.sum(((centers - mean) / spacing) ** 2, axis=1))]
 
 
-def _recentered(belief: Belief, fine_level: UncertaintyLevel, half: np.ndarray, eps: float) -> Belief | None:
+def _off_centre(belief: Belief, fine_level: UncertaintyLevel, half: np.ndarray) -> bool:
     """A fine belief whose mean has left the middle of its grid (the object moved: a bump, a
-    firm grasp), re-gridded about the mean so it can follow further; None if it has not."""
-    g = belief.grid
-    off = belief.mean() - np.asarray(g.center)
+    firm grasp): more than VARRES_RECENTER of the half extent off the centre on some axis."""
+    off = belief.mean() - np.asarray(belief.grid.center)
     off[2] = wrap_angle(off[2])
-    if not np.allclose(g.shape, fine_level.shape) or np.all(np.abs(off) <= VARRES_RECENTER * half):
-        return None
-    center = refinement_center(belief, half, eps)
-    if center is None:
-        return None
-    center[2] = wrap_angle(center[2])
-    grid = Grid(tuple(float(c) for c in center), tuple(g.spacing), tuple(g.shape))
-    return Belief(grid, sample_density(belief, grid.points()))
+    return bool(np.allclose(belief.grid.shape, fine_level.shape) and np.any(np.abs(off) > VARRES_RECENTER * half))
 
 
 def maybe_refine(belief: Belief, fine_level: UncertaintyLevel = LOW, eps: float = VARRES_EPS) -> Belief | None:
@@ -72,14 +64,15 @@ def maybe_refine(belief: Belief, fine_level: UncertaintyLevel = LOW, eps: float 
     least 1 - eps of its mass fits in a box the size of the fine grid; None otherwise.
     A belief already on a fine grid is re-centred on its mean once the mean is more than
     VARRES_RECENTER of the grid's half extent off its centre on some axis (the fixed grid
-    of the paper cannot follow an object that moves further than that).
+    of the paper cannot follow an object that moves further than that), the same way.
 
     Weights on the fine grid are the coarse density interpolated trilinearly, renormalized
     (the ≤ eps of mass outside the box is dropped).
     """
     half = (np.asarray(fine_level.shape) - 1) / 2 * np.asarray(fine_level.spacing)
-    if not np.any(np.asarray(belief.grid.spacing) > np.asarray(fine_level.spacing) * (1 + 1e-9)):
-        return _recentered(belief, fine_level, half, eps)
+    fine_already = not np.any(np.asarray(belief.grid.spacing) > np.asarray(fine_level.spacing) * (1 + 1e-9))
+    if fine_already and not _off_centre(belief, fine_level, half):
+        return None
     center = refinement_center(belief, half, eps)
     if center is None:
         return None

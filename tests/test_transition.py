@@ -1,4 +1,5 @@
 """Transition models: the contact bump, the reorientation mixture and the grasp settling."""
+import dataclasses
 import time
 
 import numpy as np
@@ -10,6 +11,9 @@ from rrg_sim.config import HIGH, LOW, TRANSITION
 from rrg_sim.grid import Grid
 from rrg_sim.objects.model import AffineSettle, Settling
 from rrg_sim.poses import relative_planar
+
+
+EXACT_TURNS = dataclasses.replace(TRANSITION, reorient_sigma_theta=0.0)
 
 
 def narrow(level=HIGH, mean=(0.62, 0.0, 0.2), sigma=(0.012, 0.012, 0.12)) -> Belief:
@@ -63,7 +67,7 @@ def test_bump_is_fast_on_the_full_grid():
 def test_reorient_rotates_the_mass_by_the_angle():
     b = narrow(sigma=(0.012, 0.012, 0.02))
     angle = 0.4  # 4 cells: every component lands on grid points
-    after = reorient(b, angle)
+    after = reorient(b, angle, EXACT_TURNS)
     assert after.grid.center[2] == pytest.approx(b.grid.center[2] + angle)
     assert after.w_star()[2] == pytest.approx(b.w_star()[2] + angle)
     np.testing.assert_allclose(after.w_star()[:2], b.w_star()[:2])
@@ -86,9 +90,16 @@ def test_reorient_about_a_centre_moves_off_centre_states():
 
 def test_reorient_on_a_narrow_grid_keeps_the_full_turn():
     b = narrow(LOW, sigma=(0.004, 0.004, 0.02))
-    after = reorient(b, 1.0)  # far beyond the low grid's ±0.156 rad
+    after = reorient(b, 1.0, EXACT_TURNS)  # far beyond the low grid's ±0.156 rad
     np.testing.assert_allclose(after.as_grid_array(), b.as_grid_array(), atol=1e-12)
     assert after.grid.center[2] == pytest.approx(b.grid.center[2] + 1.0)
+
+
+def test_reorient_spreads_the_turn_by_its_sigma():
+    b = narrow(LOW, sigma=(0.004, 0.004, 0.02))
+    after = reorient(b, 1.0)  # the full turn only stays on the low grid
+    var = after.cov()[2, 2] - b.cov()[2, 2]
+    assert var == pytest.approx(TRANSITION.reorient_sigma_theta ** 2, rel=0.15)
 
 
 def settling(b=(0.0, 0.0, 0.0), A=np.eye(3), sigma=(0.0, 0.0, 0.0), box=(0.03, 0.03, 0.3)) -> Settling:
