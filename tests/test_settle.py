@@ -47,3 +47,24 @@ def test_a_firm_goal_grasp_moves_the_belief_and_an_early_contact_does_not():
     assert turn == pytest.approx(obj.settling.retreated.b[2], abs=0.01)
     assert settle_after_grasp(b, obj, obj.goal_wrt, e, contact=True) is b
     assert settle_after_grasp(b, obj, obj.info_wrts[0], e, contact=False) is b
+
+
+def test_the_estimator_settles_a_firm_goal_grasp_at_its_next_update():
+    """BeliefTracker: the belief that follows a goal grasp is the one that judged it; the
+    settling is applied before the next observation's update, as the agent does on retreat."""
+    from rrg_estimator.tracker import BeliefTracker, wrt_posterior
+    from rrg_sim.geometric_sim import GeometricSimulator
+
+    mean = np.array([0.62, 0.0, 0.0])
+    tracker = BeliefTracker.gaussian("powerdrill", mean, LOW.sigma, level=LOW, variable_resolution=False)
+    obj, goal, info = tracker.obj, tracker.obj.goal_wrt, tracker.obj.info_wrts[0]
+    grasped = GeometricSimulator(obj, goal).simulate(mean, mean)
+    assert not grasped.contact
+    after_goal = tracker.observe(goal.name, mean, grasped)
+    assert after_goal is tracker.belief
+    sensed = GeometricSimulator(obj, info).simulate(mean, mean)
+    expected = wrt_posterior(settle_after_grasp(after_goal, obj, goal, mean, contact=False),
+                             tracker.table(info, LOW), info, mean, sensed)
+    np.testing.assert_allclose(tracker.observe(info.name, mean, sensed).weights, expected.weights, atol=1e-12)
+    unsettled = wrt_posterior(after_goal, tracker.table(info, LOW), info, mean, sensed)
+    assert np.abs(unsettled.weights - expected.weights).sum() > 0.05  # the settling mattered
