@@ -96,10 +96,9 @@ def test_bag_plot_and_summary(grasp_run, capsys):
 
 
 def test_ctrl_c_mid_grasp_leaves_a_finalized_bag(tmp_path):
-    """SIGINT while the first WRT executes (the simulator paced at half real time, so the grasp
-    lasts well beyond the feedback's delivery even on a loaded machine): the launcher cancels
-    the grasp, stops the nodes and the recorder in order."""
-    proc = subprocess.Popen(launch_args(tmp_path, "interrupted", 44, "--real-time-factor", "0.5"), env=ros_env(44),
+    """SIGINT while the first WRT executes (the simulator paced at real time to make the grasp
+    last): the launcher cancels the grasp, stops the nodes and the recorder in order."""
+    proc = subprocess.Popen(launch_args(tmp_path, "interrupted", 44, "--real-time-factor", "1"), env=ros_env(44),
                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines = []
     try:
@@ -108,7 +107,7 @@ def test_ctrl_c_mid_grasp_leaves_a_finalized_bag(tmp_path):
             if "step 1:" in line:
                 break
         assert lines and "step 1:" in lines[-1], "".join(lines)
-        time.sleep(0.5)  # inside the WRT's guarded moves
+        time.sleep(1.0)  # inside the WRT's guarded moves
         proc.send_signal(signal.SIGINT)
         rest, _ = proc.communicate(timeout=60)
     except BaseException:

@@ -375,6 +375,10 @@ def main(argv: list[str] | None = None) -> int:
               "level when missing)", flush=True)
         warm_tables(object_name, levels)
         signal.signal(signal.SIGTERM, terminate)  # after the table workers, which must not inherit it
+        # Ctrl-C stops the graph even if this process started with SIGINT ignored (a background
+        # job of a non-interactive shell: Python keeps an inherited SIG_IGN), and the nodes
+        # started next inherit the default instead of the ignore.
+        signal.signal(signal.SIGINT, signal.default_int_handler)
         graph.start(object_name, levels, args.seed, args.real_time_factor, args.sensor_noise)
         graph.connect()
         print(f"[rrg-launch] started {len(graph.children)} processes in domain {args.domain_id}; waiting for "
