@@ -145,13 +145,16 @@ class WrtExecutor:
         """Run τ(e) from home as a guarded move, close the fingers, and return the observation;
         the hand is left closed at the stop (call ``retreat`` next, or judge the grasp first).
         A pending retreat of the previous WRT runs first. Raises physics.trajectory's
-        InfeasiblePath when no continuous IK path follows τ(e); the robot has not moved then."""
+        InfeasiblePath when no continuous IK path follows τ(e) (for a reorientation: or its
+        lift, turn and put-down from τ(e)'s end); the robot has not moved then."""
         report = progress or (lambda phase, fraction: None)
         if self.last is not None:
             self.retreat(report)
         e = np.asarray(e, dtype=float)
         report("planning", PHASES["planning"])
         path = plan_path(wrt.world_poses(e), self.robot.arm_q(), rigid_from=1, reconfigure=True)
+        if wrt.kind == "reorient":
+            self._check_reorient(wrt, e, path)
         report("approach", PHASES["approach"])
         self.robot.move_hand(wrt.spread, wrt.preclose)  # preshape at home, clear of everything
         stop = self._follow(path, guard=True, speeds={k: FREE_SPEEDS for k in (0, -1, -2)})
@@ -198,16 +201,31 @@ class WrtExecutor:
         v = (b_pose[:3, :3] @ local + b_pose[:3, 3]) - (a_pose[:3, :3] @ local + a_pose[:3, 3])
         return v / max(np.linalg.norm(v), 1e-12)
 
-    def _reorient(self, wrt: WRT, e: np.ndarray) -> None:
-        """Lift, turn about the vertical through e, put down, open (after closing on the object)."""
+    @staticmethod
+    def _reorient_poses(wrt: WRT, e: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """From the grasp's hand pose T (4,4): the lifted pose, the dense arc (n,4,4) turning it
+        about the vertical through e, and the rigid motion G (4,4) of the whole turn."""
         up = np.eye(4)
         up[2, 3] = PHYSICS.reorient_lift
-        T = self.robot.hand_pose()
-        self._move((up @ T)[None], rigid_from=1)
         n = max(2, int(np.ceil(abs(wrt.reorient_angle) * GEOMSIM.rotation_sample_radius / PHYSICS.path_step)) + 1)
         arc = np.stack([rotation_about_z(e[:2], a) @ up @ T for a in np.linspace(0.0, wrt.reorient_angle, n)])
+        return up @ T, arc, rotation_about_z(e[:2], wrt.reorient_angle)
+
+    def _check_reorient(self, wrt: WRT, e: np.ndarray, path: DensePath) -> None:
+        """Raise InfeasiblePath, before anything moves, when the arm could not lift, turn and
+        put down the object from the end of the WRT's path (the object would be left turned
+        part way while the agent is told nothing moved)."""
+        lifted, arc, G = self._reorient_poses(wrt, e, path.poses[-1])
+        q = plan_path(lifted[None], path.q[-1], rigid_from=1).q[-1]
+        q = solve_path(arc, q).q[-1]
+        plan_path((G @ path.poses[-1])[None], q, rigid_from=1)
+
+    def _reorient(self, wrt: WRT, e: np.ndarray) -> None:
+        """Lift, turn about the vertical through e, put down, open (after closing on the object)."""
+        T = self.robot.hand_pose()
+        lifted, arc, G = self._reorient_poses(wrt, e, T)
+        self._move(lifted[None], rigid_from=1)
         self._follow(solve_path(arc, self.robot.arm_q()))
-        G = rotation_about_z(e[:2], wrt.reorient_angle)
         self._move((G @ T)[None], rigid_from=1)
         self._open(wrt.preclose)
         self.last.moved, self.last.q_end = G, self.robot.arm_q()

@@ -4,10 +4,11 @@ dropped when the arm has moved since the WRT ended."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from rrg_sim import wam
 from rrg_sim.config import PHYSICS
-from rrg_sim.physics.trajectory import SETTLE_TIME, plan_path, sample_times, servo_targets
+from rrg_sim.physics.trajectory import SETTLE_TIME, InfeasiblePath, plan_path, sample_times, servo_targets
 from rrg_sim.physics.world import PhysicsWorld
 
 
@@ -60,3 +61,19 @@ def test_retreat_is_dropped_when_the_arm_has_moved():
     world.execute_wrt(world.obj.goal_wrt, e)
     world.retreat()  # from where the WRT left it: back home
     np.testing.assert_allclose(world.arm_q(), wam.HOME_Q, atol=0.02)
+
+
+def test_a_reorientation_the_arm_cannot_finish_is_refused_before_anything_moves():
+    """The giant teacup's ccw reorientation at θ = -0.9 rad: τ(e) itself is reachable, but the
+    lift-turn-put-down after the grasp has no continuous elbow swivel. It must be refused up
+    front (the agent is told nothing moved), not half way with the cup already turned."""
+    world = PhysicsWorld("giant_teacup", sensor_noise=0.0)
+    e = np.array([0.54, -0.06, -0.9])
+    world.reset(e)
+    wrt = world.obj.wrt("reorient_ccw")
+    plan_path(wrt.world_poses(e), world.arm_q(), rigid_from=1, reconfigure=True)  # the approach alone is fine
+    w0, q0 = world.true_object_pose(), world.arm_q()
+    with pytest.raises(InfeasiblePath):
+        world.execute_wrt(wrt, e)
+    np.testing.assert_allclose(world.true_object_pose(), w0, atol=1e-4)
+    np.testing.assert_allclose(world.arm_q(), q0, atol=1e-3)
