@@ -22,7 +22,7 @@ from scipy.special import ndtr
 
 from rrg_sim.config import TRANSITION, TransitionParams
 from rrg_sim.grid import Grid
-from rrg_sim.objects.model import AffineSettle, Settling
+from rrg_sim.objects.model import Settling
 from rrg_sim.poses import compose_planar, relative_planar, wrap_angle
 
 from .belief import Belief
@@ -54,15 +54,19 @@ def bump(belief: Belief, direction_xy_world, params: TransitionParams = TRANSITI
         raise ValueError(f"bump direction must be finite, got {d}")
     if norm > 1.0:
         d = d / norm
-    sx, sy, st = belief.grid.spacing
-    nx, ny, nt = belief.grid.shape
-    kx = displacement_kernel(nx, params.bump_mean * d[0] / sx, params.bump_sigma_xy / sx)
-    ky = displacement_kernel(ny, params.bump_mean * d[1] / sy, params.bump_sigma_xy / sy)
-    kt = displacement_kernel(nt, 0.0, params.bump_sigma_theta / st)
     a = belief.as_grid_array()
-    moved = (kx @ a.reshape(nx, ny * nt)).reshape(nx, ny, nt)
-    moved = np.matmul(ky, moved) @ kt.T
+    moved = displace(a, belief.grid, (params.bump_mean * d[0], params.bump_mean * d[1], 0.0),
+                     (params.bump_sigma_xy, params.bump_sigma_xy, params.bump_sigma_theta))
     return belief.with_weights(params.p_stay * a + (1.0 - params.p_stay) * moved)
+
+
+def displace(a: np.ndarray, grid: Grid, shift, sigma) -> np.ndarray:
+    """The grid array ``a`` moved by a Gaussian displacement N(shift, σ²) per axis (x [m],
+    y [m], θ [rad]); mass pushed off the grid is dropped."""
+    (nx, ny, nt), sp = grid.shape, grid.spacing
+    kx, ky, kt = (displacement_kernel(n, m / h, s / h) for n, m, s, h in zip((nx, ny, nt), shift, sigma, sp))
+    out = (kx @ a.reshape(nx, ny * nt)).reshape(nx, ny, nt)
+    return np.matmul(ky, out) @ kt.T
 
 
 def rotated_density(belief: Belief, grid: Grid, angle: float, center_xy=None) -> np.ndarray:
@@ -86,9 +90,7 @@ def rotated_density(belief: Belief, grid: Grid, angle: float, center_xy=None) ->
 
 def sample_density(belief: Belief, poses: np.ndarray) -> np.ndarray:
     """Trilinear interpolation of the belief's weights at poses (K,3); 0 beyond the grid."""
-    src = poses - np.asarray(belief.grid.center)
-    src[:, 2] = wrap_angle(src[:, 2])
-    coords = src / np.asarray(belief.grid.spacing) + (np.asarray(belief.grid.shape) - 1) / 2
+    coords = belief.grid.fractional_index(poses)
     return map_coordinates(belief.as_grid_array(), coords.T, order=1, mode="grid-constant", cval=0.0)
 
 
@@ -112,16 +114,14 @@ def reorient(belief: Belief, angle: float, params: TransitionParams = TRANSITION
     p_full, p_half = params.p_reorient_success, params.p_reorient_partial
     mix = [(p_full, angle), (p_half, angle / 2.0), (1.0 - p_full - p_half, 0.0)]
     w = sum(p * rotated_density(belief, grid, a, center_xy) for p, a in mix if p > 0.0)
-    return Belief(grid, blur(w.reshape(grid.shape), grid, (0.0, 0.0, params.reorient_sigma_theta)).ravel())
+    return Belief(grid, displace(w.reshape(grid.shape), grid, (0.0, 0.0, 0.0), (0.0, 0.0, params.reorient_sigma_theta)).ravel())
 
 
 def splat(grid: Grid, poses: np.ndarray, mass: np.ndarray) -> np.ndarray:
     """(nx, ny, nθ) the masses (K,) at poses (K,3) spread trilinearly onto the grid's points
     (θ offsets from the grid centre wrapped); mass beyond the grid is dropped."""
     n = np.asarray(grid.shape)
-    d = poses - np.asarray(grid.center)
-    d[:, 2] = wrap_angle(d[:, 2])
-    c = d / np.asarray(grid.spacing) + (n - 1) / 2
+    c = grid.fractional_index(poses)
     lo = np.floor(c).astype(np.int64)
     frac = c - lo
     out = np.zeros(grid.size)
@@ -134,19 +134,11 @@ def splat(grid: Grid, poses: np.ndarray, mass: np.ndarray) -> np.ndarray:
     return out.reshape(grid.shape)
 
 
-def blur(a: np.ndarray, grid: Grid, sigma) -> np.ndarray:
-    """The grid array ``a`` blurred by a Gaussian of σ (x [m], y [m], θ [rad]) per axis."""
-    (nx, ny, nt), sp = grid.shape, grid.spacing
-    kx, ky, kt = (displacement_kernel(n, 0.0, s / h) for n, s, h in zip((nx, ny, nt), sigma, sp))
-    out = (kx @ a.reshape(nx, ny * nt)).reshape(nx, ny, nt)
-    return np.matmul(ky, out) @ kt.T
-
-
-def settle(belief: Belief, settling: Settling, e, stage: str = "retreated") -> Belief:
-    """Settling transition of a firm goal grasp run at estimate e that arrived: each state
-    whose offset Δ = relative_planar(e, w) lies in the studied box moves to e ⊕ (A·Δ + b) of
-    the ``stage`` map ("closed" or "retreated"), blurred by its σ; the others stay."""
-    fit: AffineSettle = getattr(settling, stage)
+def settle(belief: Belief, settling: Settling, e) -> Belief:
+    """Settling transition of a firm goal grasp run at estimate e that arrived, then retreated
+    from: each state whose offset Δ = relative_planar(e, w) lies in the studied box moves to
+    e ⊕ (A·Δ + b) of the retreat map, blurred by its σ; the others stay."""
+    fit = settling.retreated
     e = np.asarray(e, dtype=float).reshape(3)
     pts = belief.grid.points()
     w = belief.weights
@@ -158,4 +150,4 @@ def settle(belief: Belief, settling: Settling, e, stage: str = "retreated") -> B
     stay = w.copy()
     stay[live[moving]] = 0.0
     moved = splat(belief.grid, compose_planar(e, fit.apply(delta[moving])), w[live[moving]])
-    return belief.with_weights(stay + blur(moved, belief.grid, fit.sigma).ravel())
+    return belief.with_weights(stay + displace(moved, belief.grid, (0.0, 0.0, 0.0), fit.sigma).ravel())

@@ -45,18 +45,21 @@ class Grid:
         X, Y, TH = np.meshgrid(*ax, indexing="ij")
         return np.stack([X.ravel(), Y.ravel(), TH.ravel()], axis=1)
 
+    def fractional_index(self, q: np.ndarray) -> np.ndarray:
+        """(…,3) fractional (ix, iy, iθ) of each pose in q (…,3), θ offsets from the centre
+        wrapped to [-π, π)."""
+        d = np.asarray(q, dtype=float) - np.asarray(self.center)
+        d[..., 2] = wrap_angle(d[..., 2])
+        return d / np.asarray(self.spacing) + (np.asarray(self.shape) - 1) / 2
+
     def nearest_index(self, q: np.ndarray, clip: bool = True) -> np.ndarray:
         """Flat index of the grid point nearest to each pose in q (…,3).
 
         θ offsets are wrapped to [-π, π) around the centre. With ``clip`` the indices are
         clamped to the grid border; otherwise points outside get -1.
         """
-        q = np.asarray(q, dtype=float)
-        c = np.asarray(self.center)
-        d = q - c
-        d[..., 2] = wrap_angle(d[..., 2])
         n = np.asarray(self.shape)
-        i = np.rint(d / np.asarray(self.spacing) + (n - 1) / 2).astype(np.int64)
+        i = np.rint(self.fractional_index(q)).astype(np.int64)
         if clip:
             i = np.clip(i, 0, n - 1)
             return (i[..., 0] * n[1] + i[..., 1]) * n[2] + i[..., 2]

@@ -42,13 +42,12 @@ class AffineSettle:
 @dataclass(frozen=True)
 class Settling:
     """How a firm goal grasp that arrived moves the object (rrg_sim.physics.settle): the map of
-    start offsets Δ inside ``box`` (3,) half-widths to Δ after the closing (what a judge sees;
-    kept for the record) and after the retreat (where the next action finds it: the belief's
-    transition). Outside the box the object is taken not to move (the study did not sample
-    there)."""
+    start offsets Δ inside ``box`` (3,) half-widths to Δ after the retreat (where the next
+    action finds it: the belief's transition; the study's map after the closing stays in the
+    JSON for the record). Outside the box the object is taken not to move (the study did not
+    sample there)."""
 
     box: np.ndarray
-    closed: AffineSettle
     retreated: AffineSettle
     source: str
 
@@ -67,9 +66,8 @@ def load_settling(name: str, path: Path = SETTLING_FILE) -> Settling | None:
     if name not in fits:
         return None
     f = fits[name]
-    maps = {k: AffineSettle(np.array(f[k]["A"]), np.array(f[k]["b"]), np.array(f[k]["sigma"]))
-            for k in ("closed", "retreated")}
-    return Settling(np.array(f["box"]), maps["closed"], maps["retreated"],
+    r = f["retreated"]
+    return Settling(np.array(f["box"]), AffineSettle(np.array(r["A"]), np.array(r["b"]), np.array(r["sigma"])),
                     source=f"{fits.get('_source', path.name)}: {f['arrived']} of {f['grasps']} grasps arrived")
 
 
