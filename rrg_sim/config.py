@@ -97,6 +97,11 @@ class HandParams:
     close_torque: float = 1.0
     #: Proximal closing speed [rad/s] (BH8-282 data sheet: 1.0 s open to close).
     close_speed: float = 2.4
+    #: Proximal speed [rad/s] of a careful closing, the one that stops each finger at its
+    #: first touch (paper: "carefully closing the fingers"; chosen: a quarter of close_speed,
+    #: the BH8's velocity mode; at full speed the worm drive's reflected inertia knocks an
+    #: 80 g tea box 1-1.5 cm away before the Nano17 reading stops the finger).
+    careful_close_speed: float = 0.6
 
 
 HAND = HandParams()
@@ -244,6 +249,11 @@ class GeometricSimParams:
     #: Rotation-only path parts are sampled as if a point this far from the palm moved [m]
     #: (chosen: about the fingertip reach, so the fingertips move ≤ path_step per sample).
     rotation_sample_radius: float = 0.2
+    #: A grasp (goal or reorientation WRT) whose guarded move stopped within this distance [m]
+    #: of its end has arrived: it closes firmly and its observation reports no early contact,
+    #: in the tables and in execution alike (chosen: handle grasps touch in their last cm; a
+    #: pitcher grasp stopped by its palm 5 mm short read as a failed grasp before).
+    grasp_arrival_tolerance: float = 0.02
 
 
 GEOMSIM = GeometricSimParams()

@@ -36,10 +36,6 @@ FREE_SPEEDS = (PHYSICS.free_speed, PHYSICS.free_turn_speed)
 #: joint distance [rad] (chosen: far above servo error, far below any real move).
 RETREAT_TOLERANCE = 0.05
 
-#: A grasp (goal or reorientation WRT) whose guarded move stopped within this distance [m] of
-#: its end has arrived and closes firmly (chosen: handle grasps touch in their last cm).
-GRASP_ARRIVAL_TOLERANCE = 0.02
-
 #: Execution phases reported to a progress callback, with the fraction done when each starts.
 PHASES = {"planning": 0.0, "approach": 0.1, "closing": 0.6, "reorient": 0.7, "retreat": 0.8}
 
@@ -78,9 +74,10 @@ class Robot(Protocol):
     def move_hand(self, spread: float, proximal: float) -> None:
         """Servo the spread and every proximal joint to the given angles [rad], arm held."""
 
-    def close_hand(self, guarded: bool = False) -> None:
+    def close_hand(self, guarded: bool = False) -> np.ndarray:
         """Close every finger until it stops (stalls on the object or reaches its limit);
-        guarded: also stop each finger as soon as one of its own sensors fires."""
+        guarded: also stop each finger as soon as one of its own sensors fires. Returns
+        (10,) bool: the sensors that fired at any time during the closing."""
 
     def reading(self) -> Reading:
         """The hand's sensors now."""
@@ -158,8 +155,7 @@ class WrtExecutor:
         report("approach", PHASES["approach"])
         self.robot.move_hand(wrt.spread, wrt.preclose)  # preshape at home, clear of everything
         stop = self._follow(path, guard=True, speeds={k: FREE_SPEEDS for k in (0, -1, -2)})
-        contact = stop is not None
-        index = stop if contact else float(len(path.poses) - 1)
+        index = stop if stop is not None else float(len(path.poses) - 1)
         at_stop = self.robot.reading()
         motion_dir = self._motion_dir(path, index, at_stop)
         stop_pose = self.robot.hand_pose()
@@ -174,11 +170,12 @@ class WrtExecutor:
         # an information-gathering WRT, and for a grasp stopped well short of its end. A goal
         # or reorientation grasp that arrived closes firmly: it must hold, and a tight grasp
         # (a handle) often touches in its last centimetre.
-        arrived = arc[-1] - travelled <= GRASP_ARRIVAL_TOLERANCE
-        self.robot.close_hand(guarded=wrt.kind == "info" or not arrived)
+        arrived = arc[-1] - travelled <= GEOMSIM.grasp_arrival_tolerance
+        contact = stop is not None and not (wrt.kind != "info" and arrived)
+        touched = self.robot.close_hand(guarded=wrt.kind == "info" or not arrived)
         closed = self.robot.reading()
         obs = Observation(contact=contact, progress=progress_m, hand_pose=stop_pose,
-                          sensors=at_stop.fired | closed.fired, closure=self.robot.hand_angles()[1],
+                          sensors=at_stop.fired | touched | closed.fired, closure=self.robot.hand_angles()[1],
                           tip_points=closed.tip_points, tip_normals=closed.tip_normals, motion_dir=motion_dir)
         self.last = Execution(wrt, e, path.upto(int(np.floor(index))), obs, self.robot.arm_q())
         if wrt.kind == "reorient":

@@ -542,7 +542,9 @@ class GeometricSimulator:
             stops[i] = len(framed.poses) - 1 if hit is None else hit
             if hit is not None:
                 geoms, pos, _, _ = self._contact_arrays()
-                out.contact[i], out.sensors[i], contact_points[i] = True, self._sensors(geoms), pos.mean(axis=0)
+                out.sensors[i], contact_points[i] = self._sensors(geoms), pos.mean(axis=0)
+                out.contact[i] = not (self.wrt.kind != "info"  # a grasp stopped in its last cm arrived
+                                      and self.path.length - self.path.progress[hit] <= GEOMSIM.grasp_arrival_tolerance)
         T_stop = framed.poses[stops]
         close_candidates = self._closing_candidates(T_stop, w)
         for i in range(n):

@@ -145,3 +145,17 @@ def test_world_simulation_of_a_shifted_pair_matches_the_relative_one():
     Te = make_pose([e[0], e[1], 0.0], Rotation.from_rotvec([0.0, 0.0, e[2]]))
     np.testing.assert_allclose(world.hand_pose, Te @ rel.hand_pose, atol=1e-6)
     np.testing.assert_allclose(world.motion_dir, Te[:3, :3] @ rel.motion_dir, atol=1e-6)
+
+
+@pytest.mark.parametrize("kind", ["goal", "info"])
+def test_a_grasp_stopped_in_its_last_centimetre_has_arrived(kind):
+    """A goal (or reorientation) grasp whose fingertips touch 1 cm before its end has arrived:
+    no early contact, as execution reports it (config.GEOMSIM.grasp_arrival_tolerance); the
+    same stop ends an information WRT early. The sensors that stopped it fire either way."""
+    z_end = 0.15 + TIP_REACH - 0.01
+    wrt = top_down(z_end)
+    sim = GeometricSimulator(BOX, WRT(wrt.name, kind, wrt.poses, spread=wrt.spread, preclose=wrt.preclose))
+    o = sim.simulate_relative((0.0, 0.0, 0.0))
+    assert o.contact == (kind == "info")
+    assert o.progress == pytest.approx(sim.path.length - 0.01, abs=STEP_TOL)
+    assert names(o.sensors) == {"tip1", "tip2", "tip3"}

@@ -106,3 +106,22 @@ def test_arm_collision_detection_stops_on_unsensed_contacts(arm_guard, monkeypat
         assert stop is not None and moved < 0.01
     else:
         assert stop is None and moved > 0.02
+
+
+def test_careful_pinch_reports_every_touch_and_leaves_a_light_box_in_place():
+    """The tea box's off-centre pinch (info3) from a seeded offset: the slow careful closing
+    moves the 80 g box by under 3 mm and 0.03 rad (at full closing speed finger 3 knocked it
+    1.4 cm and 0.18 rad), and every fingertip that stopped its finger is in the observation,
+    though the touches of fingers 1 and 3 have eased off by the end of the closing."""
+    world = PhysicsWorld("teabox", seed=7)
+    e = np.array([0.62, 0.0, 0.0])
+    world.reset(np.array([0.611, -0.005, -0.052]))
+    w0 = world.true_object_pose()
+    obs = world.execute_wrt(get_object("teabox").wrt("info3"), e)
+    moved = world.true_object_pose() - w0
+    assert np.linalg.norm(moved[:2]) < 0.003 and abs(moved[2]) < 0.03
+    assert not obs.contact
+    after = world.reading().fired
+    tips = [SENSOR_NAMES.index(n) for n in ("tip1", "tip2", "tip3")]
+    assert obs.sensors[tips].all()
+    assert not after[tips].all()  # what the reading after the closing alone would have said

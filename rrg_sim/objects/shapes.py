@@ -111,9 +111,10 @@ def brita_pitcher() -> ObjectModel:
                "(YCB: 6.4 cm) so two fingers fit through it",
         goal=GoalRegion((0.01, 0.01, 6 * DEG)), goal_wrt=goal_wrt, reorient_wrts=reorient_wrts(parts),
         placement_yaw=SIDE_APPROACH_YAW,
-        # Each goal grasp and retreat turns the pitcher ~0.1 rad (settling.json: +0.08 rad at
-        # Δ = 0, σ 0.047, coupled to x); tracking that fit lost it more often than leaving it
-        # out: RRG-Info 33-43 % against 62 % at low uncertainty (30-trial probes, session 3).
+        # Each goal grasp and retreat turns the pitcher ~0.06 rad (settling.json: +0.06 rad at
+        # Δ = 0, σ 0.05, coupled to x); tracking that fit did not help: RRG-Info 33-43 % against
+        # 62 % at low uncertainty (30-trial probes, session 3), and 22/40 against 24/40 at both
+        # levels after the careful closing and grasp-arrival changes (40-trial probes, session 4).
         track_settling=False,
         description="Brita-style pitcher; goal: held by the handle, fingers 1+2 through it")
 

@@ -21,7 +21,7 @@ import mujoco
 import numpy as np
 
 from .. import wam
-from ..config import HAND, PHYSICS, WORLD
+from ..config import HAND, N_SENSORS, PHYSICS, WORLD
 from ..execution import Reading, WrtExecutor
 from ..objects import ObjectModel, get_object
 from ..observation import Observation, finger_contacts
@@ -234,7 +234,7 @@ class PhysicsWorld:
         self.model.actuator_biasprm[a, 1] = -kp
         self.model.actuator_forcerange[a] = (-torque, torque)
 
-    def close_hand(self, monitor: Callable[[], bool] | None = None, guarded: bool = False) -> None:
+    def close_hand(self, monitor: Callable[[], bool] | None = None, guarded: bool = False) -> np.ndarray:
         """Close every finger at the hand's speed until it stops: stalled (closing slower than
         PHYSICS.stall_speed for PHYSICS.stall_time, e.g. at the torque limit on the object,
         or pushed back) or at its joint limit. A stopped finger keeps its stall torque and
@@ -242,15 +242,20 @@ class PhysicsWorld:
         ``guarded`` (the paper's "carefully closing the fingers" after an early contact): a
         finger also stops in the period any of its own sensors (proximal or distal pad,
         Nano17) fires, so it touches the object without pushing it on.
-        ``monitor`` is called after every period (its answer is ignored: closing completes)."""
+        ``monitor`` is called after every period (its answer is ignored: closing completes).
+
+        Returns (10,) bool: the sensors that fired at any time during the closing (a careful
+        touch often eases off once the finger has stopped, so the reading after it misses it)."""
         m, d = self.model, self.data
         dt = PHYSICS.timestep
         target = d.ctrl[8:11].copy()
         stalled = np.zeros(3, bool)
         still = np.zeros(3)
+        touched = np.zeros(N_SENSORS, bool)
         grace = int(round(CLOSE_START_TIME / dt))
-        for k in range(int(round(PHYSICS.close_timeout / dt))):
-            target = np.where(stalled, target, np.minimum(target + HAND.close_speed * dt, HAND.proximal_range[1]))
+        speed = HAND.careful_close_speed if guarded else HAND.close_speed
+        for k in range(int(round(PHYSICS.close_timeout * HAND.close_speed / speed / dt))):
+            target = np.where(stalled, target, np.minimum(target + speed * dt, HAND.proximal_range[1]))
             d.ctrl[8:11] = target
             mujoco.mj_step(m, d)
             if monitor is not None:
@@ -258,8 +263,11 @@ class PhysicsWorld:
             slow = d.qvel[self._finger_v] < PHYSICS.stall_speed  # stopped, or pushed back
             still = np.where(slow, still + dt, 0.0)
             stop = np.zeros(3, bool)
-            if guarded and self.sensors.any_fired():
-                stop |= finger_contacts(self.sensors.fired())
+            if self.sensors.any_fired():
+                fired = self.sensors.fired()
+                touched |= fired
+                if guarded:
+                    stop |= finger_contacts(fired)
             if k >= grace:
                 stop |= still >= PHYSICS.stall_time
             for i in np.nonzero(stop & ~stalled)[0]:
@@ -268,6 +276,7 @@ class PhysicsWorld:
                 target[i] = d.ctrl[8 + i]
             if stalled.all():
                 break
+        return touched
 
     def _brake(self, finger: int) -> None:
         """Hold finger where it is with the torque it pushes with now (worm-drive brake)."""

@@ -120,7 +120,7 @@ class RosRobot:
         self._sensed(res.final_joint_state, res.sensors, res.tip_contacts)
         return res.path_fraction * (len(q) - 1) if res.stopped_on_contact else None
 
-    def _hand(self, mode: int, spread: float, proximal) -> None:
+    def _hand(self, mode: int, spread: float, proximal) -> HandCommand.Response:
         req = HandCommand.Request(mode=mode, spread=float(np.clip(spread, *HAND.spread_range)),
                                   proximal=np.clip(np.broadcast_to(proximal, 3), *HAND.proximal_range))
         try:
@@ -130,10 +130,11 @@ class RosRobot:
         if resp.error_code != HandCommand.Response.NONE:
             raise MotionFailed(f"hand_command failed ({resp.error_code}): {resp.error_msg}")
         self._sensed(resp.joint_state, resp.sensors, resp.tip_contacts)
+        return resp
 
     def move_hand(self, spread: float, proximal) -> None:
         self._hand(HandCommand.Request.MODE_POSITION, spread, proximal)
 
-    def close_hand(self, guarded: bool = False) -> None:
+    def close_hand(self, guarded: bool = False) -> np.ndarray:
         mode = HandCommand.Request.MODE_CLOSE_GUARDED if guarded else HandCommand.Request.MODE_CLOSE
-        self._hand(mode, self.hand_angles()[0], 0.0)
+        return np.asarray(self._hand(mode, self.hand_angles()[0], 0.0).touched, dtype=bool)

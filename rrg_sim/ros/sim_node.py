@@ -308,7 +308,8 @@ class SimNode(Node):
             else:
                 if abs(req.spread - self.world.hand_angles()[0]) > SPREAD_TOLERANCE:
                     self.world.move_hand(req.spread, self.world.finger_angles(), monitor)
-                self.world.close_hand(monitor, guarded=req.mode == HandCommand.Request.MODE_CLOSE_GUARDED)
+                touched = self.world.close_hand(monitor, guarded=req.mode == HandCommand.Request.MODE_CLOSE_GUARDED)
+                resp.touched = [bool(t) for t in touched]
             self.fill_hand(resp)
             resp.joint_state = self.joint_state()
             self.publish_state()
