@@ -239,9 +239,10 @@ class PhysicsWorld:
         PHYSICS.stall_speed for PHYSICS.stall_time, e.g. at the torque limit on the object,
         or pushed back) or at its joint limit. A stopped finger keeps its stall torque and
         cannot be pushed back (the non-backdrivable worm drive, see config.PHYSICS.brake_kp).
-        ``guarded`` (the paper's "carefully closing the fingers" after an early contact): a
-        finger also stops in the period any of its own sensors (proximal or distal pad,
-        Nano17) fires, so it touches the object without pushing it on.
+        ``guarded`` (the paper's "carefully closing the fingers" after an early contact): the
+        fingers close at HAND.careful_close_speed, and a finger also stops in the period any
+        of its own sensors (proximal or distal pad, Nano17) fires, so it touches the object
+        without pushing it on.
         ``monitor`` is called after every period (its answer is ignored: closing completes).
 
         Returns (10,) bool: the sensors that fired at any time during the closing (a careful
