@@ -24,7 +24,7 @@ from scipy.spatial.transform import Rotation
 from . import wam
 from .config import GEOMSIM, N_SENSORS, PHYSICS
 from .hand import hand_geoms_world
-from .observation import Observation
+from .observation import Observation, grasp_arrived
 from .physics.trajectory import DensePath, joint_path, plan_path, sample_times, solve_path
 from .wrt import WRT
 
@@ -170,9 +170,9 @@ class WrtExecutor:
         # an information-gathering WRT, and for a grasp stopped well short of its end. A goal
         # or reorientation grasp that arrived closes firmly: it must hold, and a tight grasp
         # (a handle) often touches in its last centimetre.
-        arrived = arc[-1] - travelled <= GEOMSIM.grasp_arrival_tolerance
-        contact = stop is not None and not (wrt.kind != "info" and arrived)
-        touched = self.robot.close_hand(guarded=wrt.kind == "info" or not arrived)
+        arrived = grasp_arrived(wrt.kind, arc[-1] - travelled)
+        contact = stop is not None and not arrived
+        touched = self.robot.close_hand(guarded=not arrived)
         closed = self.robot.reading()
         obs = Observation(contact=contact, progress=progress_m, hand_pose=stop_pose,
                           sensors=at_stop.fired | touched | closed.fired, closure=self.robot.hand_angles()[1],

@@ -35,7 +35,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from .config import GEOMSIM, N_SENSORS
 from .hand import FINGERS, LINKS, BodySpec, body_poses, hand_tree, joint_angles
-from .observation import Observation
+from .observation import Observation, grasp_arrived
 from .poses import planar_pose
 from .wrt import WRT
 
@@ -543,8 +543,7 @@ class GeometricSimulator:
             if hit is not None:
                 geoms, pos, _, _ = self._contact_arrays()
                 out.sensors[i], contact_points[i] = self._sensors(geoms), pos.mean(axis=0)
-                out.contact[i] = not (self.wrt.kind != "info"  # a grasp stopped in its last cm arrived
-                                      and self.path.length - self.path.progress[hit] <= GEOMSIM.grasp_arrival_tolerance)
+                out.contact[i] = not grasp_arrived(self.wrt.kind, self.path.length - self.path.progress[hit])
         T_stop = framed.poses[stops]
         close_candidates = self._closing_candidates(T_stop, w)
         for i in range(n):

@@ -5,12 +5,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .config import FINGER_SENSORS, N_SENSORS
+from .config import FINGER_SENSORS, GEOMSIM, N_SENSORS
 
 
 def finger_contacts(sensors: np.ndarray) -> np.ndarray:
     """(…,10) sensor flags → (…,3) bool: fingers 1-3 with any link's sensor fired."""
     return np.asarray(sensors)[..., FINGER_SENSORS].any(axis=-1)
+
+
+def grasp_arrived(kind: str, remaining_m: float) -> bool:
+    """Whether a WRT of ``kind`` whose guarded move stopped ``remaining_m`` [m] short of its
+    end has arrived: a goal or reorientation grasp within GEOMSIM.grasp_arrival_tolerance
+    (it closes firmly, and its observation reports no early contact, in the tables and in
+    execution alike); an information-gathering WRT never arrives early."""
+    return kind != "info" and remaining_m <= GEOMSIM.grasp_arrival_tolerance
 
 
 def fingers_in_contact(sensors: np.ndarray) -> np.ndarray:
