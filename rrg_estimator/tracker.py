@@ -13,10 +13,10 @@ import logging
 
 import numpy as np
 
-from rrg_sim.config import LEVELS, UncertaintyLevel
+from rrg_sim.config import LEVELS, TRANSITION, UncertaintyLevel
 from rrg_sim.grid import Grid
 from rrg_sim.objects import ObjectModel, get_object
-from rrg_sim.observation import Observation
+from rrg_sim.observation import Observation, holds_object
 from rrg_sim.wrt import WRT
 
 from .belief import Belief
@@ -46,9 +46,10 @@ def closest_level(sigma) -> UncertaintyLevel:
 
 def wrt_posterior(belief: Belief, table: TableLike, wrt: WRT, e, obs: Observation) -> Belief:
     """The belief after executing ``wrt`` at estimate e and observing ``obs``: the Bayes update
-    with the WRT's table, then the reorientation's rotation about e for a reorient WRT."""
+    with the WRT's table, then the reorientation's rotation about e for a reorient WRT whose
+    grasp held the object (observation.holds_object; otherwise nothing was turned)."""
     post = update(belief, table, e, obs)
-    if wrt.kind == "reorient":
+    if wrt.kind == "reorient" and holds_object(obs.contact, obs.sensors, TRANSITION.reorient_min_fingers):
         post = reorient(post, wrt.reorient_angle, center_xy=np.asarray(e, dtype=float)[:2])
     return post
 

@@ -62,13 +62,13 @@ def update(belief: Belief, table: TableLike, e, obs_or_features: Observation | O
 def goal_probability(belief: Belief, goal_indicator: np.ndarray, e, table_grid: Grid | None = None) -> float:
     """P_b(G) of a goal WRT executed relative to e: Σ_w b(w)·G[idx(e, w)].
 
-    goal_indicator: (N_table,) bool over the goal WRT's table offsets; table_grid defaults
+    goal_indicator: (N_table,) P(G | Δ) (or bool) over the goal WRT's table offsets; table_grid defaults
     to the level grid of the belief's spacing and shape, centred at (0, 0, 0), as the
     tables are built.
     """
     if table_grid is None:
         table_grid = Grid((0.0, 0.0, 0.0), belief.grid.spacing, belief.grid.shape)
-    g = np.asarray(goal_indicator, dtype=bool).ravel()
+    g = np.asarray(goal_indicator, dtype=np.float64).ravel()
     if g.size != table_grid.size:
         raise ValueError(f"goal indicator has {g.size} entries, table grid has {table_grid.size}")
     idx = table_indices(belief.grid, np.asarray(e, dtype=float).reshape(3), table_grid)

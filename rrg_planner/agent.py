@@ -28,7 +28,7 @@ from rrg_sim.observation import Observation
 from rrg_sim.wrt import WRT, InfeasibleWRT
 
 from .model import PlanningModel
-from .search import ForwardSearch, SearchResult
+from .search import ForwardSearch, SearchResult, SparseBelief
 
 log = logging.getLogger(__name__)
 
@@ -129,8 +129,8 @@ class RobustGraspAgent:
         if self.strategy != "rrg-info":
             return self._goal_or_reorient(e), None
         res = self.search.select(belief, self.horizon)
-        if res.p_goal >= 1.0 - self.delta and self.search.feasible(self.goal, e):
-            return self.goal, res
+        if res.p_goal >= 1.0 - self.delta and res.goal_action >= 0:
+            return res.goal_action, res
         return res.action, res
 
     def next_action(self, belief: Belief, step: int) -> tuple[int, SearchResult | None, bool]:
@@ -147,6 +147,8 @@ class RobustGraspAgent:
         Returns (action, or -1 when nothing can run; e; the search result, if any; last)."""
         action, res, last = self.next_action(belief, step)
         e = belief.w_star()
+        if action >= 0 and self.model.actions[action].kind == "goal":
+            e = self.goal_estimate(belief, action, res)
         if action >= 0 and self.search.feasible(action, e):
             return action, e, res, last
         alt = self.most_likely_feasible(belief, self.goal)
@@ -156,6 +158,16 @@ class RobustGraspAgent:
                  self.model.names[action] if action >= 0 else "every action",
                  np.round(e, 3).tolist(), np.round(alt, 3).tolist())
         return self.goal, alt, res, last
+
+    def goal_estimate(self, belief: Belief, action: int, res: SearchResult | None = None) -> np.ndarray:
+        """Where to run goal WRT ``action``: of w*(b) and its aimed estimate
+        (ForwardSearch.goal_estimates), the one with the highest P_b(G); w*(b) if neither is
+        feasible. Reuses the search result's when it is for this action."""
+        if res is not None and res.goal_action == action and res.goal_estimate is not None:
+            return res.goal_estimate
+        sb = SparseBelief.from_belief(belief, self.model.level_of(belief.grid), self.search.params)
+        _, g, e = self.search.best_goal(sb, goals=(action,))
+        return e if g >= 0 else belief.w_star()
 
     def most_likely_feasible(self, belief: Belief, action: int, candidates: int = MAX_FALLBACK_STATES) -> np.ndarray | None:
         """The most likely of the belief's ``candidates`` most likely states at which

@@ -9,14 +9,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from rrg_sim.config import N_SENSORS, SENSING, SensingParams
+from rrg_sim.config import N_SENSORS, SENSING, TRANSITION, SensingParams
 from rrg_sim.geometric_sim import GeometricSimulator
 from rrg_sim.objects import ObjectModel
-from rrg_sim.observation import Observation
+from rrg_sim.observation import Observation, holds_object
 from rrg_sim.poses import relative_planar
 from rrg_sim.wrt import WRT
 
-from .model import fingers_in_contact, goal_holds
+from .model import goal_holds
 from .search import rotate_about
 
 
@@ -51,13 +51,9 @@ class GeometricEnvironment:
             self._sims[wrt.name] = GeometricSimulator(self.obj, wrt)
         return self._sims[wrt.name]
 
-    def _grasped(self, obs: Observation) -> bool:
-        """The hand reached the grasp pose and closed on the object with enough fingers."""
-        return (not obs.contact) and fingers_in_contact(obs.sensors) >= self.obj.goal.min_fingers
-
     def execute(self, wrt: WRT, e: np.ndarray) -> Observation:
         obs = self._sim(wrt).simulate(self.true_pose, e)
-        if wrt.kind == "reorient" and self._grasped(obs):
+        if wrt.kind == "reorient" and holds_object(obs.contact, obs.sensors, TRANSITION.reorient_min_fingers):
             self.true_pose = rotate_about(self.true_pose[None], e[:2], wrt.reorient_angle)[0]
         return add_sensor_noise(obs, self.rng, self.noise)
 

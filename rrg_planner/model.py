@@ -12,10 +12,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rrg_estimator.obs_tables import ObservationTable, load_or_build
-from rrg_sim.config import LEVELS, SENSOR_NAMES, UncertaintyLevel
-from rrg_sim.observation import fingers_in_contact
+from rrg_sim.config import LEVELS, SENSOR_NAMES, TRANSITION, UncertaintyLevel
+from rrg_sim.observation import holds_object
 from rrg_sim.grid import Grid
 from rrg_sim.objects import ObjectModel, get_object
+from rrg_sim.objects.model import KERNEL_BANDWIDTH
 from rrg_sim.wam import FeasibilityMap
 from rrg_sim.wrt import WRT
 
@@ -25,20 +26,69 @@ log = logging.getLogger(__name__)
 
 
 
-def goal_holds(obj: ObjectModel, delta: np.ndarray, contact: np.ndarray, sensors: np.ndarray) -> np.ndarray:
-    """G for a goal grasp executed relative to an estimate, with the object really at offset
-    delta (N,3): delta inside the goal region, the hand reached the grasp pose without an
-    early contact (contact (N,)), and the required contacts are made (sensors (N,10))."""
-    ok = obj.goal.contains(delta) & ~np.asarray(contact, dtype=bool)
-    ok &= fingers_in_contact(sensors) >= obj.goal.min_fingers
+def _grasp_made(obj: ObjectModel, contact: np.ndarray, sensors: np.ndarray) -> np.ndarray:
+    """(N,) bool: the hand reached the grasp pose without an early contact (contact (N,)) and
+    made the required contacts (sensors (N,10))."""
+    ok = holds_object(contact, sensors, obj.goal.min_fingers)
     for name in obj.goal.required_sensors:
         ok &= sensors[:, SENSOR_NAMES.index(name)]
     return ok
 
 
+def goal_holds(obj: ObjectModel, delta: np.ndarray, contact: np.ndarray, sensors: np.ndarray) -> np.ndarray:
+    """G for a goal grasp executed relative to an estimate, with the object really at offset
+    delta (N,3) and nothing moving it: delta inside the goal region and the grasp made
+    (no early contact, the required contacts)."""
+    return obj.goal.contains(delta) & _grasp_made(obj, contact, sensors)
+
+
+def goal_weights(obj: ObjectModel, delta: np.ndarray, contact: np.ndarray, sensors: np.ndarray) -> np.ndarray:
+    """P(G | Δ) (N,) for a goal grasp executed relative to an estimate, the object really at
+    offset delta (N,3): the grasp made (as in goal_holds), and the object, moved by the
+    closing as the settling study measured it (Settling.closed_outcome: Δ_closed ~ N(μ(Δ),
+    σ(Δ)²) inside the study's box), inside the goal region. Outside the box, or for an object
+    without a study, the object is taken not to move (goal_holds)."""
+    delta = np.asarray(delta, dtype=float)
+    p = goal_holds(obj, delta, contact, sensors).astype(np.float64)
+    settling = obj.grasp_settling
+    if settling is None:
+        return p
+    near = np.flatnonzero(settling.inside(delta))
+    bandwidth = KERNEL_BANDWIDTH * np.asarray(obj.goal.tol, dtype=float)  # inf along an ignored θ
+    mean, sigma = settling.closed_outcome(delta[near], bandwidth)
+    p[near] = _grasp_made(obj, contact[near], sensors[near]) * obj.goal.probability(mean, sigma)
+    return p
+
+
 def goal_indicator(obj: ObjectModel, table: ObservationTable) -> np.ndarray:
-    """G(Δ) over the goal WRT's table (the static evaluation's precomputed indicator)."""
-    return goal_holds(obj, table.grid.points(), table.contact, table.sensors)
+    """P(G | Δ) over the goal WRT's table offsets (the static evaluation's precomputed weights).
+    The table's outermost entries stand for every offset beyond them (indices are clamped), so
+    they get 0, except along a θ the goal ignores."""
+    p = goal_weights(obj, table.grid.points(), table.contact, table.sensors)
+    shape = table.grid.shape
+    edge = np.zeros(shape, dtype=bool)
+    edge[[0, -1], :, :] = edge[:, [0, -1], :] = True
+    if not obj.goal.ignores_theta:
+        edge[:, :, [0, -1]] = True
+    p[edge.ravel()] = 0.0
+    return p
+
+
+#: The aimed goal grasp targets the mean of the offsets whose P(G | Δ) is at least this
+#: fraction of the best (chosen: the flat top of the measured map, not a single noisy peak).
+AIM_FRACTION = 0.98
+
+
+def goal_aim(obj: ObjectModel, table: ObservationTable, weights: np.ndarray) -> np.ndarray:
+    """Δ_aim (3,): the offset of the object from the estimate that a goal grasp best meets,
+    the mean of the table offsets with P(G | Δ) ≥ AIM_FRACTION of the best (θ 0 for a goal
+    that ignores it). Without settling this is about 0: the goal region is centred."""
+    offsets = table.grid.points()
+    top = weights >= AIM_FRACTION * weights.max()
+    aim = offsets[top].mean(axis=0) if weights.max() > 0 else np.zeros(3)
+    if obj.goal.ignores_theta:
+        aim[2] = 0.0
+    return aim
 
 
 @dataclass(eq=False)
@@ -49,9 +99,13 @@ class ActionModel:
     feasibility: FeasibilityMap
     tables: dict[str, ObservationTable] = field(default_factory=dict)
     clusters: dict[str, ObservationClusters] = field(default_factory=dict)
+    #: P(G | Δ) over the table offsets, per level (goal WRTs only)
     goal: dict[str, np.ndarray] = field(default_factory=dict)
-    #: the goal indicators as float64, for fast dot products with belief weights
-    goal_weight: dict[str, np.ndarray] = field(default_factory=dict)
+    #: per level, the offset Δ_aim the grasp best meets (goal WRTs only; goal_aim)
+    aim: dict[str, np.ndarray] = field(default_factory=dict)
+    #: per level, (C,) whether each observation cluster's grasp holds the object, so that
+    #: the reorientation turns it (reorient WRTs only; observation.holds_object)
+    turns: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def name(self) -> str:
@@ -82,13 +136,22 @@ class PlanningModel:
                 act.clusters[name] = cluster_table(table, level)
                 if wrt.kind == "goal":
                     act.goal[name] = goal_indicator(self.obj, table)
-                    act.goal_weight[name] = act.goal[name].astype(np.float64)
+                    act.aim[name] = goal_aim(self.obj, table, act.goal[name])
+                if wrt.kind == "reorient":
+                    rep = act.clusters[name].representatives
+                    act.turns[name] = holds_object(table.contact[rep], table.sensors[rep], TRANSITION.reorient_min_fingers)
             self.actions.append(act)
             log.info("%s/%s: %s clusters", object_name, wrt.name,
                      {n: c.count for n, c in act.clusters.items()})
         self.goal_actions = [i for i, a in enumerate(self.actions) if a.kind == "goal"]
         if not self.goal_actions:
             raise ValueError(f"object {object_name!r} has no goal WRT")
+        #: per level, (3,) the largest |Δ| [m, m, rad] with P(G | Δ) > 0 for some goal WRT
+        self.goal_reach: dict[str, np.ndarray] = {}
+        for name in self.levels:
+            offsets = np.concatenate([self.actions[g].tables[name].grid.points()[self.actions[g].goal[name] > 0]
+                                      for g in self.goal_actions])
+            self.goal_reach[name] = np.abs(offsets).max(axis=0) if len(offsets) else np.zeros(3)
 
     @property
     def names(self) -> list[str]:

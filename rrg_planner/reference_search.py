@@ -52,17 +52,20 @@ class ReferenceSearch:
         return points[best]
 
     def static_value(self, points: Points, weights: list[float], level: str) -> float:
-        e = self._argmax(points, weights)
+        w_star = self._argmax(points, weights)
         best = 0.0
         for g in self.model.goal_actions:
-            if not self.model.feasible(g, np.asarray(e)):
-                continue
-            table_g = self.model.actions[g].goal[level]
-            total = 0.0
-            for p, w in zip(points, weights):
-                if table_g[self._table_index(level, e, p)]:
-                    total += w
-            best = max(best, total)
+            ax, ay, at = (float(v) for v in self.model.actions[g].aim.get(level, np.zeros(3)))
+            c, s = math.cos(w_star[2] - at), math.sin(w_star[2] - at)
+            aimed = (w_star[0] - c * ax + s * ay, w_star[1] - s * ax - c * ay, _wrap(w_star[2] - at))
+            for e in (w_star, aimed):  # w* and the estimate that puts w* at the aim
+                if not self.model.feasible(g, np.asarray(e)):
+                    continue
+                table_g = self.model.actions[g].goal[level]
+                total = 0.0
+                for p, w in zip(points, weights):
+                    total += w * float(table_g[self._table_index(level, e, p)])
+                best = max(best, total)
         return best
 
     def _stats(self, points: Points, post: list[float], e, sigma) -> tuple[float, np.ndarray]:
@@ -117,7 +120,7 @@ class ReferenceSearch:
         branches = []
         for k, p in merge_branches(np.array([pc[c] for c in cand]), np.array(ents), np.array(covs), self.params):
             child_pts, child_w = points, posts[k]
-            if act.kind == "reorient":
+            if act.kind == "reorient" and act.turns[level][cand[k]]:
                 child_pts, child_w = self._reorient(child_pts, child_w, e, act.wrt.reorient_angle)
             branches.append((p, *self._compact(child_pts, child_w)))
         return branches

@@ -1,7 +1,8 @@
 """Receding-horizon POMDP forward search over WRTs (paper: "POMDP forward search"; DESIGN §6).
 
 V_0(b) = v(b), the static evaluation: the best probability, over feasible goal WRTs g,
-that executing g relative to w*(b) achieves the goal.
+that executing g relative to w*(b) achieves the goal (or relative to w*(b) moved to g's
+aim: ForwardSearch.goal_estimates; P(G | Δ) is the measured physics closing's, model.py).
 V_h(b) = max_a [ Σ_c P(c | b, a) · V_{h-1}(SE(b, a, o_c)) − cost(a) ], infeasible a skipped.
 
 Beliefs inside the search are sparse: the grid points whose weight is above
@@ -25,6 +26,7 @@ from threadpoolctl import ThreadpoolController
 
 from rrg_estimator.belief import Belief
 from rrg_sim.config import SEARCH, TRANSITION, SearchParams
+from rrg_sim.poses import compose_planar, relative_planar
 
 from .model import PlanningModel
 
@@ -216,6 +218,9 @@ class SearchResult:
     action_values: np.ndarray
     p_goal: float
     planning_time: float
+    #: where the goal grasp reaches p_goal: (goal action, estimate), or (-1, None)
+    goal_action: int = -1
+    goal_estimate: np.ndarray | None = None
 
 
 class ForwardSearch:
@@ -249,33 +254,51 @@ class ForwardSearch:
     def _grid(self, level: str):
         return self.model.actions[0].tables[level].grid
 
-    def static_value(self, sb: SparseBelief) -> float:
-        """v(b): max over feasible goal WRTs of P_b(goal after executing it relative to w*(b)).
+    def goal_estimates(self, w_star: np.ndarray, level: str) -> list[tuple[int, np.ndarray]]:
+        """(goal action, estimate) pairs a goal grasp may run at, the feasible ones of: w*(b)
+        first, and w*(b) moved so that an object at w*(b) sits at the action's aim Δ_aim
+        (model.goal_aim: where the measured closing leaves it best placed)."""
+        out = []
+        for g in self.model.goal_actions:
+            aim = self.model.actions[g].aim.get(level, np.zeros(3))
+            for e in (w_star, compose_planar(w_star, relative_planar(aim, np.zeros(3)))):
+                if self.feasible(g, e) and not any(g == h and np.allclose(e, f) for h, f in out):
+                    out.append((g, e))
+        return out
 
-        Only states whose offset from w*(b) can lie in the goal region contribute, so at the
-        leaves (no cached table index) just those are indexed.
-        """
-        e = sb.w_star
-        goals = [g for g in self.model.goal_actions if self.feasible(g, e)]
-        if not goals:
-            return 0.0
-        if sb.table_index is not None:
-            idx, w = sb.table_index, sb.weights
-        else:
-            near = self._near_goal(sb.points, e, sb.level)
-            idx, w = table_index(sb.points[near], e, self._grid(sb.level)), sb.weights[near]
-        return max(float(w @ self.model.actions[g].goal_weight[sb.level][idx]) for g in goals)
+    def best_goal(self, sb: SparseBelief, goals: tuple[int, ...] | None = None) -> tuple[float, int, np.ndarray | None]:
+        """v(b) and where it is reached: (P_b(G), goal action or -1, estimate or None), the
+        best over goal_estimates (of the ``goals`` actions only, if given). Only states whose offset from the estimate can have
+        P(G | Δ) > 0 are indexed, except at w*(b) when its table index is cached."""
+        best = (0.0, -1, None)
+        w_star = sb.w_star
+        for g, e in self.goal_estimates(w_star, sb.level):
+            if goals is not None and g not in goals:
+                continue
+            if sb.table_index is not None and e is w_star:
+                idx, w = sb.table_index, sb.weights
+            else:
+                near = self._near_goal(sb.points, e, sb.level)
+                idx, w = table_index(sb.points[near], e, self._grid(sb.level)), sb.weights[near]
+            p = float(w @ self.model.actions[g].goal[sb.level][idx])
+            if p > best[0]:
+                best = (p, g, e)
+        return best
+
+    def static_value(self, sb: SparseBelief) -> float:
+        """v(b): max over feasible goal WRTs and their estimates (goal_estimates) of P_b(goal
+        after executing it there)."""
+        return self.best_goal(sb)[0]
 
     def _near_goal(self, points: np.ndarray, e: np.ndarray, level: str) -> np.ndarray:
-        """Indices of points whose offset from e may fall in the goal region (one cell of margin)."""
+        """Indices of points whose offset from e may have P(G | Δ) > 0 (one cell of margin;
+        x, y as a radius, since the offsets are in e's frame)."""
         grid = self._grid(level)
-        tol = np.asarray(self.model.obj.goal.tol, dtype=float)
-        radius = np.hypot(tol[0], tol[1]) + np.hypot(grid.spacing[0], grid.spacing[1])
+        reach = self.model.goal_reach[level]
+        radius = np.hypot(reach[0], reach[1]) + np.hypot(grid.spacing[0], grid.spacing[1])
         d = points[:, :2] - e[:2]
         ok = np.einsum("ij,ij->i", d, d) <= radius * radius
-        if np.isfinite(tol[2]):
-            ok &= np.abs(_wrap(points[:, 2] - e[2])) <= tol[2] + grid.spacing[2]
-        return np.flatnonzero(ok)
+        return np.flatnonzero(ok & (np.abs(_wrap(points[:, 2] - e[2])) <= reach[2] + grid.spacing[2]))
 
     def expand(self, sb: SparseBelief, a: int) -> list[tuple[float, SparseBelief]]:
         """Observation branches of action a at w*(b): [(P(c | b, a), SE(b, a, o_c))]."""
@@ -299,7 +322,7 @@ class ForwardSearch:
         for k, p in merge_branches(pc[cand], ent, cov, self.params):
             w = clusters.likelihood[cand[k]][idx] * sb.weights
             w /= w.sum()
-            if act.kind == "reorient":  # the mixture comes out compact
+            if act.kind == "reorient" and act.turns[sb.level][cand[k]]:  # the mixture comes out compact
                 child = SparseBelief(*reorient_mixture(sb.points, w, e[:2], act.wrt.reorient_angle,
                                                        self.params.support_rel), sb.level)
             else:
@@ -353,7 +376,8 @@ class ForwardSearch:
         sb = SparseBelief.from_belief(belief, self.model.level_of(belief.grid), self.params)
         with _BLAS.limit(limits=1, user_api="blas"):
             q = self.action_values(sb, horizon)
-            p_goal = self.static_value(sb)
+            p_goal, g, e_goal = self.best_goal(sb)
         best = int(np.argmax(q)) if np.isfinite(q).any() else -1
         return SearchResult(action=best, value=float(q[best]) if best >= 0 else float("nan"),
-                            action_values=q, p_goal=p_goal, planning_time=time.perf_counter() - t0)
+                            action_values=q, p_goal=p_goal, planning_time=time.perf_counter() - t0,
+                            goal_action=g, goal_estimate=e_goal)

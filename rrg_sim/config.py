@@ -210,6 +210,11 @@ class TransitionParams:
     #: reorientations of the giant teacup from 8 seeded starts each: 0.8-1.06 of the angle,
     #: σ ≈ 0.04 rad; the drill: σ ≈ 0.015 rad; the larger is used)
     reorient_sigma_theta: float = 0.04
+    #: A reorientation lifts and turns the object only when its grasp holds it: it arrived and
+    #: at least this many fingers touch (MuJoCo: a reorientation stopped early on one fingertip
+    #: turned the giant teacup by 0.03 rad where the belief turned it 0.6; the pitcher's
+    #: reorientation grasp holds its handle with two fingertips)
+    reorient_min_fingers: int = 2
 
 
 TRANSITION = TransitionParams()

@@ -22,9 +22,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from . import wam
-from .config import GEOMSIM, N_SENSORS, PHYSICS
+from .config import GEOMSIM, N_SENSORS, PHYSICS, TRANSITION
 from .hand import hand_geoms_world
-from .observation import Observation, grasp_arrived
+from .observation import Observation, grasp_arrived, holds_object
 from .physics.trajectory import DensePath, joint_path, plan_path, sample_times, solve_path
 from .wrt import WRT
 
@@ -178,7 +178,7 @@ class WrtExecutor:
                           sensors=at_stop.fired | touched | closed.fired, closure=self.robot.hand_angles()[1],
                           tip_points=closed.tip_points, tip_normals=closed.tip_normals, motion_dir=motion_dir)
         self.last = Execution(wrt, e, path.upto(int(np.floor(index))), obs, self.robot.arm_q())
-        if wrt.kind == "reorient":
+        if wrt.kind == "reorient" and holds_object(obs.contact, obs.sensors, TRANSITION.reorient_min_fingers):
             report("reorient", PHASES["reorient"])
             self._reorient(wrt, e)
         return obs

@@ -26,6 +26,14 @@ def fingers_in_contact(sensors: np.ndarray) -> np.ndarray:
     return finger_contacts(sensors).sum(axis=-1)
 
 
+def holds_object(contact, sensors: np.ndarray, min_fingers: int) -> np.ndarray:
+    """(…) whether a grasp holds the object: it arrived (no early contact, ``contact`` (…))
+    and at least ``min_fingers`` fingers touch it (sensors (…,10)). Only then does a
+    reorientation lift and turn the object (in execution, the geometric world and the belief
+    alike)."""
+    return ~np.asarray(contact, dtype=bool) & (fingers_in_contact(sensors) >= min_fingers)
+
+
 @dataclass
 class Observation:
     """What the robot senses when one WRT ends (DESIGN §5).

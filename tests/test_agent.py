@@ -10,7 +10,7 @@ from rrg_planner.agent import RobustGraspAgent, initial_belief
 from rrg_planner.geometric_env import GeometricEnvironment
 from rrg_planner.model import PlanningModel
 from rrg_sim.config import WORLD, UncertaintyLevel
-from rrg_sim.poses import compose_planar
+from rrg_sim.poses import compose_planar, relative_planar
 from rrg_sim.wrt import WRT, InfeasibleWRT
 
 SMALL = UncertaintyLevel("small", sigma=(0.02, 0.02, 0.2), spacing=(0.01, 0.01, 0.1), shape=(9, 9, 5))
@@ -47,7 +47,9 @@ def test_infeasible_execution_is_blocked_and_not_counted(model):
     assert not agent.search.feasible(refused, e0)
     # The run went on with another action at the same estimate, and the refusal was not counted.
     assert res.steps and res.steps[0].wrt != env.refused[0]
-    assert np.allclose(res.steps[0].estimate, e0)
+    first = res.steps[0]  # at w*, or for the goal grasp possibly at w* moved to its aim
+    aim = model.actions[model.index(first.wrt)].aim["small"] if first.kind == "goal" else np.zeros(3)
+    assert np.allclose(first.estimate, e0) or np.allclose(relative_planar(first.estimate, e0), aim)
     assert res.n_actions == 3 and res.steps[-1].kind == "goal"
 
 
@@ -71,3 +73,23 @@ def test_goal_grasp_falls_back_to_the_most_likely_state_where_it_is_feasible(mod
     points = belief.grid.points()
     i = int(np.flatnonzero(np.all(points == alt, axis=1))[0])
     assert not np.array_equal(alt, e) and belief.weights[i] == np.sort(belief.weights)[-2]
+
+
+def test_the_goal_grasp_runs_where_the_measured_closing_leaves_the_drill_best_placed():
+    """The drill's closing turns it about -0.07 rad (the committed settling study), so its goal
+    grasp aims at a drill turned the other way: run at w* moved by the aim, the grasp is more
+    likely to succeed than at w* itself, and the agent runs it there."""
+    fine = UncertaintyLevel("fine", sigma=(0.005, 0.005, 0.05), spacing=(0.004, 0.004, 0.03), shape=(9, 9, 13))
+    drill = PlanningModel("powerdrill", levels=(fine,), progress=False, wrt_names=("goal",))
+    agent = RobustGraspAgent(drill, strategy="rrg-goal")
+    aim = drill.actions[agent.goal].aim["fine"]
+    assert aim[2] > 0.02
+    w_star = np.asarray(WORLD.nominal_pose)
+    belief = initial_belief(UncertaintyLevel("tight", sigma=(0.002, 0.002, 0.05), spacing=fine.spacing,
+                                             shape=fine.shape), w_star)
+    e = agent.goal_estimate(belief, agent.goal)
+    np.testing.assert_allclose(relative_planar(e, w_star), aim, atol=1e-9)
+    p_aimed, p_w_star = (agent.grasp_probability(belief, agent.goal, x) for x in (e, w_star))
+    assert p_aimed > 0.95 and p_aimed > p_w_star + 0.03, (p_aimed, p_w_star)
+    action, e_run, _, _ = agent.plan_step(belief, step=1)
+    assert action == agent.goal and np.allclose(e_run, e)

@@ -47,6 +47,34 @@ def test_reorientation_turns_the_object_and_retreats_home():
     assert np.abs(world.finger_angles()).max() < 0.05 and run.observation is not None
 
 
+def test_a_reorientation_that_stopped_early_turns_neither_the_object_nor_the_belief(monkeypatch):
+    """The giant teacup 1.3 cm off its reorientation's pinch: a finger meets the rim early. The
+    executor does not lift and turn what it does not hold, and the belief does not turn either
+    (observation.holds_object); the same grasp that holds the cup turns both."""
+    from rrg_estimator import tracker
+    from rrg_estimator.belief import Belief
+    from rrg_sim.config import LOW
+    from rrg_sim.grid import Grid
+
+    monkeypatch.setattr(tracker, "update", lambda belief, *_: belief)  # only the turn is under test
+
+    world = PhysicsWorld("giant_teacup", seed=1)
+    wrt = world.obj.wrt("reorient_ccw")
+    e = world.true_object_pose()
+    for offset, turns in (((0.013, 0.009, -0.07), False), ((0.0, 0.0, 0.0), True)):
+        w0 = compose_planar(e, np.array(offset))
+        world.reset(w0)
+        obs = world.execute_wrt(wrt, e)
+        turn = wrap_angle(world.true_object_pose()[2] - w0[2])
+        world.retreat()
+        assert obs.contact != turns
+        assert (abs(turn - wrt.reorient_angle) < 0.15) if turns else (abs(turn) < 0.02), turn
+        belief = Belief.gaussian(Grid.for_level(LOW, center=e), e, (0.004, 0.004, 0.03))
+        post = tracker.wrt_posterior(belief, None, wrt, e, obs)
+        moved = wrap_angle(post.mean()[2] - belief.mean()[2])
+        assert (moved > 0.5 * wrt.reorient_angle) if turns else (abs(moved) < 1e-6), moved
+
+
 def test_sensor_noise_is_seeded():
     def tips(seed: int) -> np.ndarray:
         world = PhysicsWorld("box", seed=seed)

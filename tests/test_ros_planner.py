@@ -75,6 +75,9 @@ def test_select_action_answers_with_every_action_value(graph):
     assert 0.0 <= resp.p_goal <= 1.0 and resp.planning_time > 0.0
     goal = client.call(clients["select"], select_request(strategy="rrg-goal"))
     assert (goal.error_code, goal.wrt_name, list(goal.action_names)) == (SA.NONE, "goal", [])
+    # the goal grasp runs at w* moved to its measured aim: within a few mm and degrees of w*
+    aimed = np.array([goal.estimate.x, goal.estimate.y, goal.estimate.theta])
+    assert np.all(np.abs(aimed - NOMINAL) < (0.01, 0.01, 0.15)) and np.any(aimed != 0.0)
     assert goal.p_goal == pytest.approx(resp.p_goal, abs=0.005)  # the search drops the belief's far tail
 
 

@@ -68,3 +68,42 @@ def test_the_estimator_settles_a_firm_goal_grasp_at_its_next_update():
     np.testing.assert_allclose(tracker.observe(info.name, mean, sensed).weights, expected.weights, atol=1e-12)
     unsettled = wrt_posterior(after_goal, tracker.table(info, LOW), info, mean, sensed)
     assert np.abs(unsettled.weights - expected.weights).sum() > 0.05  # the settling mattered
+
+
+def test_closed_outcome_corrects_the_affine_map_where_the_samples_say_so():
+    """A closing that turns the object by +0.1 rad for Δθ < 0 and not at all otherwise: the
+    affine fit averages the two; the kernel-corrected outcome follows each side, and is the
+    affine map where there are no samples."""
+    from rrg_sim.objects.model import AffineSettle, Settling
+
+    rng = np.random.default_rng(3)
+    start = rng.uniform(-1, 1, (600, 3)) * (0.02, 0.02, 0.25)
+    closed = start + np.where(start[:, 2:] < 0, 0.1, 0.0) * [0, 0, 1] + rng.normal(0, 0.002, (600, 3))
+    f = fit_affine(start, closed, ignores_theta=False)
+    fit = AffineSettle(np.array(f["A"]), np.array(f["b"]), np.array(f["sigma"]))
+    s = Settling(np.array([0.02, 0.02, 0.25]), fit, fit, "test", start=start, closed_samples=closed)
+    q = np.array([[0.0, 0.0, -0.15], [0.0, 0.0, 0.15]])
+    mean, sigma = s.closed_outcome(q, np.array([0.005, 0.005, 0.03]))
+    np.testing.assert_allclose(mean[:, 2], [-0.05, 0.15], atol=0.02)
+    assert np.all(sigma[:, 2] < 0.5 * fit.sigma[2])  # sharper than the affine residual
+    bare = Settling(s.box, fit, fit, "test")
+    mean, sigma = bare.closed_outcome(q, np.array([0.005, 0.005, 0.03]))
+    np.testing.assert_allclose(mean, fit.apply(q), atol=1e-12)
+    np.testing.assert_allclose(sigma, np.broadcast_to(fit.sigma, (2, 3)))
+
+
+def test_the_goal_weights_follow_the_drill_grasps_measured_turn():
+    """The drill's closing turns it by about -0.07 rad (the committed study): a drill turned
+    +0.1 rad from the estimate ends in the goal region, one turned -0.1 rad does not, though
+    both start inside its ±10° region; beyond the studied box nothing moves."""
+    from rrg_planner.model import goal_holds, goal_weights
+
+    obj = get_object("powerdrill")
+    delta = np.array([[0.0, 0.0, 0.1], [0.0, 0.0, -0.1], [0.0, 0.0, 0.0], [0.03, 0.0, 0.0]])
+    contact = np.zeros(4, dtype=bool)
+    sensors = np.zeros((4, 10), dtype=bool)
+    sensors[:, 4:7] = True  # the three fingertips
+    p = goal_weights(obj, delta, contact, sensors)
+    assert goal_holds(obj, delta[:2], contact[:2], sensors[:2]).all()
+    assert p[0] > 0.9 and p[1] < 0.6 and p[2] > 0.9 and p[3] == 0.0
+    assert goal_weights(obj, delta, ~contact, sensors).max() == 0.0  # an early contact never grasps

@@ -104,7 +104,7 @@ def test_reorient_spreads_the_turn_by_its_sigma():
 
 def settling(b=(0.0, 0.0, 0.0), A=np.eye(3), sigma=(0.0, 0.0, 0.0), box=(0.03, 0.03, 0.3)) -> Settling:
     fit = AffineSettle(np.asarray(A, float), np.asarray(b, float), np.asarray(sigma, float))
-    return Settling(np.asarray(box, float), fit, source="test")
+    return Settling(np.asarray(box, float), fit, fit, source="test")
 
 
 def test_splat_keeps_the_mass_and_its_mean():

@@ -64,8 +64,9 @@ class RequestError(Exception):
 
 
 def static_value(agent: RobustGraspAgent, belief: Belief) -> float:
-    """v(b): P_b(goal) of the goal WRT executed relative to w*(b) (0 where it is infeasible)."""
-    e = belief.w_star()
+    """v(b): P_b(goal) of the goal WRT executed at its best estimate (agent.goal_estimate; 0
+    where it is infeasible)."""
+    e = agent.goal_estimate(belief, agent.goal)
     return agent.grasp_probability(belief, agent.goal, e) if agent.model.feasible(agent.goal, e) else 0.0
 
 
@@ -194,12 +195,13 @@ class PlannerNode(Node):
                 raise RequestError(SA.INVALID_GRID, str(exc)) from exc
             agent = RobustGraspAgent(model, req.strategy, req.horizon, req.delta)
             t0 = time.perf_counter()
-            action, res, _ = agent.next_action(belief, step=1)
+            action, e, res, _ = agent.plan_step(belief, step=1)
             elapsed = time.perf_counter() - t0
-            if action < 0 or not model.feasible(action, belief.w_star()):
+            if action < 0:
                 raise RequestError(SA.NO_FEASIBLE_ACTION, f"no WRT of {req.object_name} is feasible at "
                                                           f"w* = {np.round(belief.w_star(), 3).tolist()}")
             self.fill_choice(resp, agent, belief, action, res, elapsed)
+            resp.estimate = planar_to_msg(e)
         except RequestError as exc:
             resp.error_code, resp.error_msg = exc.code, str(exc)
             self.get_logger().warn(f"select_action refused: {exc}")

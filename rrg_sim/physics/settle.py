@@ -7,7 +7,9 @@ belief must know, or it drifts from the truth with every goal grasp it does not 
 uniformly in a box around the goal region, and records Δ after the closing (what the judge
 sees) and after the retreat (where the next action finds the object). ``fit`` fits the
 affine maps Δ_after = A·Δ + b to the grasps that arrived (no early contact) with least
-squares and their residual σ; the result is the object's ``objects.Settling`` model.
+squares and their residual σ, and keeps those grasps' (Δ, Δ_closed) samples (the goal model
+corrects the closing's affine map near each Δ with them); the result is the object's
+``objects.Settling`` model.
 
 ``python -m rrg_sim.physics.settle [objects…] [--grasps N] [--workers W]`` measures and
 writes ``rrg_sim/objects/settling.json`` (the committed fits the catalogue loads).
@@ -18,6 +20,7 @@ import argparse
 import json
 import logging
 import multiprocessing as mp
+import re
 import time
 from pathlib import Path
 
@@ -95,10 +98,18 @@ def fit(object_name: str, records: list[dict]) -> dict:
     if len(arrived) < 8:
         raise ValueError(f"{object_name}: only {len(arrived)} of {len(records)} grasps arrived; too few to fit")
     start = np.array([r["start"] for r in arrived])
+    closed = np.array([r["closed"] for r in arrived])
     ignores = get_object(object_name).goal.ignores_theta
     return dict(box=start_box(object_name).tolist(), grasps=len(records), arrived=len(arrived),
-                closed=fit_affine(start, np.array([r["closed"] for r in arrived]), ignores),
-                retreated=fit_affine(start, np.array([r["retreated"] for r in arrived]), ignores))
+                closed=fit_affine(start, closed, ignores),
+                retreated=fit_affine(start, np.array([r["retreated"] for r in arrived]), ignores),
+                samples=dict(start=np.round(start, 5).tolist(), closed=np.round(_unwrapped(closed, start), 5).tolist()))
+
+
+def _dumps(fits: dict) -> str:
+    """The fits as indented JSON with every innermost list of numbers on one line."""
+    text = json.dumps(fits, indent=1)
+    return re.sub(r"\[\s*([-+0-9.eE,\s]+?)\s*\]", lambda m: "[" + re.sub(r"\s+", " ", m.group(1)) + "]", text)
 
 
 def _measure_job(args: tuple[str, int, int]) -> tuple[str, list[dict]]:
@@ -126,7 +137,7 @@ def main(argv: list[str] | None = None) -> None:
     fits = {k: fits[k] for k in sorted(fits)}
     fits["_source"] = (f"python -m rrg_sim.physics.settle --grasps {args.grasps} --seed {args.seed} "
                        "(MuJoCo, goal WRT at the nominal pose)")
-    args.out.write_text(json.dumps(fits, indent=1) + "\n")
+    args.out.write_text(_dumps(fits) + "\n")
     print(f"wrote {args.out} in {time.perf_counter() - t0:.0f} s")
 
 
