@@ -137,8 +137,8 @@ def splat(grid: Grid, poses: np.ndarray, mass: np.ndarray) -> np.ndarray:
 def settle(belief: Belief, settling: Settling, e) -> Belief:
     """Settling transition of a firm goal grasp run at estimate e that arrived, then retreated
     from: each state whose offset Δ = relative_planar(e, w) lies in the studied box moves to
-    e ⊕ (A·Δ + b) of the retreat map, blurred by its σ; the others stay."""
-    fit = settling.retreated
+    e ⊕ μ(Δ) of the retreat map (Settling.outcome), blurred by its σ(Δ) averaged over the
+    moving mass; the others stay."""
     e = np.asarray(e, dtype=float).reshape(3)
     pts = belief.grid.points()
     w = belief.weights
@@ -149,5 +149,8 @@ def settle(belief: Belief, settling: Settling, e) -> Belief:
         return belief
     stay = w.copy()
     stay[live[moving]] = 0.0
-    moved = splat(belief.grid, compose_planar(e, fit.apply(delta[moving])), w[live[moving]])
-    return belief.with_weights(stay + displace(moved, belief.grid, (0.0, 0.0, 0.0), fit.sigma).ravel())
+    mass = w[live[moving]]
+    mean, sigma = settling.outcome(delta[moving], "retreated")
+    moved = splat(belief.grid, compose_planar(e, mean), mass)
+    blur = np.sqrt(mass @ sigma**2 / mass.sum())
+    return belief.with_weights(stay + displace(moved, belief.grid, (0.0, 0.0, 0.0), blur).ravel())

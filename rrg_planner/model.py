@@ -16,7 +16,6 @@ from rrg_sim.config import LEVELS, SENSOR_NAMES, TRANSITION, UncertaintyLevel
 from rrg_sim.observation import holds_object
 from rrg_sim.grid import Grid
 from rrg_sim.objects import ObjectModel, get_object
-from rrg_sim.objects.model import KERNEL_BANDWIDTH
 from rrg_sim.wam import FeasibilityMap
 from rrg_sim.wrt import WRT
 
@@ -45,7 +44,7 @@ def goal_holds(obj: ObjectModel, delta: np.ndarray, contact: np.ndarray, sensors
 def goal_weights(obj: ObjectModel, delta: np.ndarray, contact: np.ndarray, sensors: np.ndarray) -> np.ndarray:
     """P(G | Δ) (N,) for a goal grasp executed relative to an estimate, the object really at
     offset delta (N,3): the grasp made (as in goal_holds), and the object, moved by the
-    closing as the settling study measured it (Settling.closed_outcome: Δ_closed ~ N(μ(Δ),
+    closing as the settling study measured it (Settling.outcome: Δ_closed ~ N(μ(Δ),
     σ(Δ)²) inside the study's box), inside the goal region. Outside the box, or for an object
     without a study, the object is taken not to move (goal_holds)."""
     delta = np.asarray(delta, dtype=float)
@@ -54,8 +53,7 @@ def goal_weights(obj: ObjectModel, delta: np.ndarray, contact: np.ndarray, senso
     if settling is None:
         return p
     near = np.flatnonzero(settling.inside(delta))
-    bandwidth = KERNEL_BANDWIDTH * np.asarray(obj.goal.tol, dtype=float)  # inf along an ignored θ
-    mean, sigma = settling.closed_outcome(delta[near], bandwidth)
+    mean, sigma = settling.outcome(delta[near], "closed")
     p[near] = _grasp_made(obj, contact[near], sensors[near]) * obj.goal.probability(mean, sigma)
     return p
 

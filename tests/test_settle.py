@@ -70,7 +70,7 @@ def test_the_estimator_settles_a_firm_goal_grasp_at_its_next_update():
     assert np.abs(unsettled.weights - expected.weights).sum() > 0.05  # the settling mattered
 
 
-def test_closed_outcome_corrects_the_affine_map_where_the_samples_say_so():
+def test_the_outcome_corrects_the_affine_map_where_the_samples_say_so():
     """A closing that turns the object by +0.1 rad for Δθ < 0 and not at all otherwise: the
     affine fit averages the two; the kernel-corrected outcome follows each side, and is the
     affine map where there are no samples."""
@@ -81,15 +81,16 @@ def test_closed_outcome_corrects_the_affine_map_where_the_samples_say_so():
     closed = start + np.where(start[:, 2:] < 0, 0.1, 0.0) * [0, 0, 1] + rng.normal(0, 0.002, (600, 3))
     f = fit_affine(start, closed, ignores_theta=False)
     fit = AffineSettle(np.array(f["A"]), np.array(f["b"]), np.array(f["sigma"]))
-    s = Settling(np.array([0.02, 0.02, 0.25]), fit, fit, "test", start=start, closed_samples=closed)
+    box, bandwidth = np.array([0.02, 0.02, 0.25]), np.array([0.005, 0.005, 0.03])
+    s = Settling(box, fit, fit, "test", start=start, samples={"closed": closed}, bandwidth=bandwidth)
     q = np.array([[0.0, 0.0, -0.15], [0.0, 0.0, 0.15]])
-    mean, sigma = s.closed_outcome(q, np.array([0.005, 0.005, 0.03]))
+    mean, sigma = s.outcome(q, "closed")
     np.testing.assert_allclose(mean[:, 2], [-0.05, 0.15], atol=0.02)
     assert np.all(sigma[:, 2] < 0.5 * fit.sigma[2])  # sharper than the affine residual
-    bare = Settling(s.box, fit, fit, "test")
-    mean, sigma = bare.closed_outcome(q, np.array([0.005, 0.005, 0.03]))
-    np.testing.assert_allclose(mean, fit.apply(q), atol=1e-12)
-    np.testing.assert_allclose(sigma, np.broadcast_to(fit.sigma, (2, 3)))
+    for bare in (Settling(box, fit, fit, "test", bandwidth=bandwidth), s):  # no samples of this stage
+        mean, sigma = bare.outcome(q, "retreated" if bare is s else "closed")
+        np.testing.assert_allclose(mean, fit.apply(q), atol=1e-12)
+        np.testing.assert_allclose(sigma, np.broadcast_to(fit.sigma, (2, 3)))
 
 
 def test_the_goal_weights_follow_the_drill_grasps_measured_turn():

@@ -56,16 +56,21 @@ class Settling:
     """How a firm goal grasp that arrived moves the object (rrg_sim.physics.settle): the maps of
     start offsets Δ inside ``box`` (3,) half-widths to Δ once the hand has closed (where the
     judge finds it: the goal model, rrg_planner.model.goal_weights) and after the retreat
-    (where the next action finds it: the belief's transition), and the measured (Δ, Δ_closed)
-    samples (``start``, ``closed`` (M,3)). Outside the box the object is taken not to move (the
-    study did not sample there)."""
+    (where the next action finds it: the belief's transition), with the measured samples
+    (``start`` and, per map, the Δ after (M,3)). Outside the box the object is taken not to
+    move (the study did not sample there).
+
+    bandwidth: (3,) [m, m, rad] of the kernel that corrects an affine map near Δ with the
+    samples (inf: that axis ignored); ObjectModel sets KERNEL_BANDWIDTH goal tolerances.
+    """
 
     box: np.ndarray
     closed: AffineSettle
     retreated: AffineSettle
     source: str
     start: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    closed_samples: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    samples: dict[str, np.ndarray] = field(default_factory=dict)
+    bandwidth: np.ndarray = field(default_factory=lambda: np.full(3, np.inf))
 
     def inside(self, delta: np.ndarray) -> np.ndarray:
         """(…) bool: Δ (…,3) lies in the studied box."""
@@ -73,39 +78,45 @@ class Settling:
         d[..., 2] = wrap_angle(d[..., 2])
         return np.all(np.abs(d) <= self.box, axis=-1)
 
-    def closed_outcome(self, delta: np.ndarray, bandwidth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Δ_closed ~ N(mean, diag σ²) for starts Δ (N,3): the affine map, corrected by the
-        Gaussian-kernel (``bandwidth`` (3,) [m, m, rad], inf: that axis ignored) weighted mean
-        and spread of its residuals over the samples. Returns mean (N,3) and σ (N,3); θ of the
-        mean unwrapped next to Δ's."""
+    def outcome(self, delta: np.ndarray, stage: str = "closed") -> tuple[np.ndarray, np.ndarray]:
+        """Δ after ``stage`` ("closed" or "retreated") ~ N(mean, diag σ²) for starts Δ (N,3):
+        the stage's affine map, corrected by the Gaussian-kernel weighted mean and spread of
+        its residuals over the samples (not along an axis of infinite bandwidth). Returns mean (N,3) (θ unwrapped next to Δ's) and σ
+        (N,3); without samples, the affine map and its residual σ."""
+        fit = self.closed if stage == "closed" else self.retreated
         delta = np.asarray(delta, dtype=float)
-        mean = delta @ self.closed.A.T + self.closed.b
-        if len(self.start) == 0:
-            return mean, np.broadcast_to(self.closed.sigma, mean.shape).copy()
-        residual = self.closed_samples - (self.start @ self.closed.A.T + self.closed.b)
-        scaled = self.start / np.asarray(bandwidth, dtype=float)
+        mean = delta @ fit.A.T + fit.b
+        after = self.samples.get(stage)
+        if after is None or len(self.start) == 0:
+            return mean, np.broadcast_to(fit.sigma, mean.shape).copy()
+        residual = after - (self.start @ fit.A.T + fit.b)
+        scaled = self.start / self.bandwidth
         shift, second = np.empty_like(mean), np.empty_like(mean)
         for lo in range(0, len(delta), 2048):  # bounded memory: 2048 × M kernel weights
-            q = delta[lo:lo + 2048] / np.asarray(bandwidth, dtype=float)
+            q = delta[lo:lo + 2048] / self.bandwidth
             sq = np.sum(q * q, axis=1)[:, None] - 2 * q @ scaled.T + np.sum(scaled * scaled, axis=1)[None]
             k = np.exp(-0.5 * (sq - sq.min(axis=1, keepdims=True)))
             k /= k.sum(axis=1, keepdims=True)
             shift[lo:lo + 2048], second[lo:lo + 2048] = k @ residual, k @ (residual * residual)
-        return mean + shift, np.sqrt(np.maximum(second - shift * shift, 1e-12))
+        sigma = np.sqrt(np.maximum(second - shift * shift, 1e-12))
+        ignored = ~np.isfinite(self.bandwidth)  # an axis nothing depends on keeps its affine map
+        shift[:, ignored], sigma[:, ignored] = 0.0, fit.sigma[ignored]
+        return mean + shift, sigma
 
 
-def load_settling(name: str, path: Path = SETTLING_FILE) -> Settling | None:
-    """The object's measured Settling from the committed fits, or None if not measured."""
+def load_settling(name: str, path: Path = SETTLING_FILE, bandwidth: np.ndarray | None = None) -> Settling | None:
+    """The object's measured Settling from the committed fits, or None if not measured
+    (``bandwidth``: see Settling; default inf, the affine maps alone)."""
     if not path.exists():
         return None
     fits = json.loads(path.read_text())
     if name not in fits:
         return None
     f = fits[name]
-    samples = f.get("samples", {"start": np.zeros((0, 3)), "closed": np.zeros((0, 3))})
+    samples = {k: np.asarray(v, dtype=float).reshape(-1, 3) for k, v in f.get("samples", {}).items()}
+    start = samples.pop("start", np.zeros((0, 3)))
     return Settling(np.array(f["box"]), AffineSettle.from_json(f["closed"]), AffineSettle.from_json(f["retreated"]),
-                    start=np.asarray(samples["start"], dtype=float).reshape(-1, 3),
-                    closed_samples=np.asarray(samples["closed"], dtype=float).reshape(-1, 3),
+                    start=start, samples=samples, bandwidth=np.full(3, np.inf) if bandwidth is None else bandwidth,
                     source=f"{fits.get('_source', path.name)}: {f['arrived']} of {f['grasps']} grasps arrived")
 
 
@@ -229,7 +240,7 @@ class ObjectModel:
     @cached_property
     def grasp_settling(self) -> Settling | None:
         """How the firm goal grasp moves the object (measured), or None if not measured."""
-        return load_settling(self.name)
+        return load_settling(self.name, bandwidth=KERNEL_BANDWIDTH * np.asarray(self.goal.tol, dtype=float))
 
     @property
     def settling(self) -> Settling | None:

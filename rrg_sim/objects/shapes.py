@@ -112,10 +112,10 @@ def brita_pitcher() -> ObjectModel:
         goal=GoalRegion((0.01, 0.01, 6 * DEG)), goal_wrt=goal_wrt, reorient_wrts=reorient_wrts(parts),
         placement_yaw=SIDE_APPROACH_YAW,
         # Each goal grasp and retreat turns the pitcher ~0.06 rad (settling.json: +0.06 rad at
-        # Δ = 0, σ 0.05, coupled to x); tracking that fit did not help: RRG-Info 33-43 % against
-        # 62 % at low uncertainty (30-trial probes, session 3), and 22/40 against 24/40 at both
-        # levels after the careful closing and grasp-arrival changes (40-trial probes, session 4).
-        track_settling=False,
+        # Δ = 0, coupled to x). Tracked with the affine fit alone (σ 0.05 rad) this hurt (22/40
+        # against 24/40 at both levels, session 4); with the kernel-corrected map it helps at
+        # low uncertainty (35/40 against 32/40, 24/40 against 26/40 at high; 40-trial probes).
+        track_settling=True,
         description="Brita-style pitcher; goal: held by the handle, fingers 1+2 through it")
 
 

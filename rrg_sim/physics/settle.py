@@ -7,8 +7,9 @@ belief must know, or it drifts from the truth with every goal grasp it does not 
 uniformly in a box around the goal region, and records Δ after the closing (what the judge
 sees) and after the retreat (where the next action finds the object). ``fit`` fits the
 affine maps Δ_after = A·Δ + b to the grasps that arrived (no early contact) with least
-squares and their residual σ, and keeps those grasps' (Δ, Δ_closed) samples (the goal model
-corrects the closing's affine map near each Δ with them); the result is the object's
+squares and their residual σ, and keeps those grasps' samples (Δ, Δ_closed, Δ_retreated):
+the goal model and the belief's settling correct the affine maps near each Δ with them
+(objects.Settling.outcome); the result is the object's
 ``objects.Settling`` model.
 
 ``python -m rrg_sim.physics.settle [objects…] [--grasps N] [--workers W]`` measures and
@@ -99,11 +100,12 @@ def fit(object_name: str, records: list[dict]) -> dict:
         raise ValueError(f"{object_name}: only {len(arrived)} of {len(records)} grasps arrived; too few to fit")
     start = np.array([r["start"] for r in arrived])
     closed = np.array([r["closed"] for r in arrived])
+    retreated = np.array([r["retreated"] for r in arrived])
     ignores = get_object(object_name).goal.ignores_theta
     return dict(box=start_box(object_name).tolist(), grasps=len(records), arrived=len(arrived),
-                closed=fit_affine(start, closed, ignores),
-                retreated=fit_affine(start, np.array([r["retreated"] for r in arrived]), ignores),
-                samples=dict(start=np.round(start, 5).tolist(), closed=np.round(_unwrapped(closed, start), 5).tolist()))
+                closed=fit_affine(start, closed, ignores), retreated=fit_affine(start, retreated, ignores),
+                samples=dict(start=np.round(start, 5).tolist(), closed=np.round(_unwrapped(closed, start), 5).tolist(),
+                             retreated=np.round(_unwrapped(retreated, start), 5).tolist()))
 
 
 def _dumps(fits: dict) -> str:
