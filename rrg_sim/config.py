@@ -341,6 +341,12 @@ class PhysicsParams:
     #: ... and through free space: home to a WRT's first pose (still guarded) and back.
     free_speed: float = 0.5  # m/s
     free_turn_speed: float = 3.0  # rad/s
+    #: Height [m] above the table the hand passes over a WRT's first pose on its way from home
+    #: (execution.transit_via; home is at 0.45 m). Chosen above the tallest object but the
+    #: cooler (28 cm, approached from above anyway) plus a hand's reach: the straight line from
+    #: home to a side grasp's approach pose hit the pitcher and the drill with a finger for
+    #: about 3 in 10 poses drawn at high uncertainty (MuJoCo; the tables assume it is free).
+    transit_height: float = 0.40
     #: Joint speed limits of every move [rad/s] (chosen: about half the WAM's top speeds; its
     #: wrist joints, with lower transmission ratios, run about twice as fast as J1-J4).
     joint_speed: tuple[float, ...] = (1.5, 1.5, 1.5, 1.5, 3.0, 3.0, 3.0)

@@ -114,6 +114,17 @@ def sensor_points(spread: float, proximal: np.ndarray) -> np.ndarray:
     return points
 
 
+def transit_via(first: np.ndarray) -> np.ndarray | None:
+    """The pose (4,4) the hand passes on its way from home to a WRT's first pose: that pose
+    raised to PHYSICS.transit_height, so that the hand turns to it above every object and
+    comes down to it from above; None when the first pose is that high already."""
+    if first[2, 3] >= PHYSICS.transit_height:
+        return None
+    via = first.copy()
+    via[2, 3] = PHYSICS.transit_height
+    return via
+
+
 class WrtExecutor:
     """Runs WRTs on a robot and retreats from them (see the module doc)."""
 
@@ -149,7 +160,8 @@ class WrtExecutor:
             self.retreat(report)
         e = np.asarray(e, dtype=float)
         report("planning", PHASES["planning"])
-        path = plan_path(wrt.world_poses(e), self.robot.arm_q(), rigid_from=1, reconfigure=True)
+        poses = wrt.world_poses(e)
+        path = plan_path(poses, self.robot.arm_q(), rigid_from=1, reconfigure=True, via=transit_via(poses[0]))
         if wrt.kind == "reorient":
             self._check_reorient(wrt, e, path)
         report("approach", PHASES["approach"])

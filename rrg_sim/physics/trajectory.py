@@ -170,10 +170,20 @@ def _largest_step(q: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(q, axis=0) * JOINT_METRIC, axis=1).max(initial=0.0))
 
 
+def _densify_via(start: np.ndarray, waypoints: np.ndarray, via: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """densify from start through waypoints; with a via pose, segment 0 runs start → via →
+    waypoints[0] (both legs labelled 0)."""
+    if via is None:
+        return densify(np.concatenate([start[None], waypoints]))
+    poses, segment = densify(np.concatenate([start[None], via[None], waypoints]))
+    return poses, np.maximum(segment - 1, 0)
+
+
 def plan_path(waypoints: np.ndarray, q_start: np.ndarray, rigid_from: int = 0,
-              reconfigure: bool = False) -> DensePath:
+              reconfigure: bool = False, via: np.ndarray | None = None) -> DensePath:
     """Dense joint path from the arm's configuration q_start along straight Cartesian segments
-    from the current hand pose through hand waypoints (K,4,4).
+    from the current hand pose through hand waypoints (K,4,4); segment 0 passes through the
+    ``via`` pose (4,4) when one is given.
 
     The joints follow the ``chain_ik`` chain; segments before ``rigid_from`` (segment 0 leads
     to waypoints[0]) may swivel the elbow on the way. When the chain starts in another
@@ -184,7 +194,7 @@ def plan_path(waypoints: np.ndarray, q_start: np.ndarray, rigid_from: int = 0,
     """
     waypoints = np.asarray(waypoints, dtype=float)
     here = wam.fk(q_start)
-    poses, segment = densify(np.concatenate([here[None], waypoints]))
+    poses, segment = _densify_via(here, waypoints, via)
     q = chain_ik(poses, q_start, segment < rigid_from)
     try:
         lead = self_motion(here, q_start, q[0])[:-1]
@@ -199,7 +209,7 @@ def plan_path(waypoints: np.ndarray, q_start: np.ndarray, rigid_from: int = 0,
     rise, ok = wam.ik_batch(rise_poses, q_start)
     if not ok.all() or _largest_step(rise) > MAX_JOINT_STEP:
         raise InfeasiblePath("cannot rise to reconfigure the arm")
-    poses, segment = densify(np.concatenate([up[None], waypoints]))
+    poses, segment = _densify_via(up, waypoints, via)
     q = chain_ik(poses, rise[-1], segment < rigid_from)
     move = joint_path(rise[-1], q[0])
     lead_poses = np.concatenate([rise_poses, move.poses[1:-1]])
