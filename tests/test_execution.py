@@ -77,3 +77,21 @@ def test_a_reorientation_the_arm_cannot_finish_is_refused_before_anything_moves(
         world.execute_wrt(wrt, e)
     np.testing.assert_allclose(world.true_object_pose(), w0, atol=1e-4)
     np.testing.assert_allclose(world.arm_q(), q0, atol=1e-3)
+
+
+def test_the_transit_to_a_side_grasp_passes_above_the_object():
+    """The pitcher turned 0.44 rad: the straight line from home to its goal grasp's approach
+    pose brushed it with finger 3 (a contact at progress 0 no table predicts). Through the
+    pose above the approach pose the hand arrives without touching anything."""
+    from rrg_sim.execution import transit_via
+
+    world = PhysicsWorld("brita_pitcher", seed=1)
+    w = np.array([0.62, 0.0, 0.444])
+    world.reset(w)
+    first = world.obj.goal_wrt.world_poses(w)[0]
+    assert transit_via(first)[2, 3] == PHYSICS.transit_height
+    high = first.copy()
+    high[2, 3] = PHYSICS.transit_height + 0.1
+    assert transit_via(high) is None  # a WRT that starts high (a top-down grasp) goes straight
+    obs = world.execute_wrt(world.obj.goal_wrt, w)
+    assert not obs.contact and obs.progress > 0.3
