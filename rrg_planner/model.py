@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rrg_estimator.obs_tables import ObservationTable, load_or_build
-from rrg_sim.config import LEVELS, SENSOR_NAMES, TRANSITION, UncertaintyLevel
+from rrg_sim.config import GOAL_AIM_FRACTION, LEVELS, SENSOR_NAMES, TRANSITION, UncertaintyLevel
 from rrg_sim.observation import holds_object
 from rrg_sim.grid import Grid
 from rrg_sim.objects import ObjectModel, get_object
@@ -72,17 +72,12 @@ def goal_indicator(obj: ObjectModel, table: ObservationTable) -> np.ndarray:
     return p
 
 
-#: The aimed goal grasp targets the mean of the offsets whose P(G | Δ) is at least this
-#: fraction of the best (chosen: the flat top of the measured map, not a single noisy peak).
-AIM_FRACTION = 0.98
-
-
 def goal_aim(obj: ObjectModel, table: ObservationTable, weights: np.ndarray) -> np.ndarray:
     """Δ_aim (3,): the offset of the object from the estimate that a goal grasp best meets,
-    the mean of the table offsets with P(G | Δ) ≥ AIM_FRACTION of the best (θ 0 for a goal
+    the mean of the table offsets with P(G | Δ) ≥ GOAL_AIM_FRACTION of the best (θ 0 for a goal
     that ignores it). Without settling this is about 0: the goal region is centred."""
     offsets = table.grid.points()
-    top = weights >= AIM_FRACTION * weights.max()
+    top = weights >= GOAL_AIM_FRACTION * weights.max()
     aim = offsets[top].mean(axis=0) if weights.max() > 0 else np.zeros(3)
     if obj.goal.ignores_theta:
         aim[2] = 0.0

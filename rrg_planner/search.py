@@ -268,8 +268,9 @@ class ForwardSearch:
 
     def best_goal(self, sb: SparseBelief, goals: tuple[int, ...] | None = None) -> tuple[float, int, np.ndarray | None]:
         """v(b) and where it is reached: (P_b(G), goal action or -1, estimate or None), the
-        best over goal_estimates (of the ``goals`` actions only, if given). Only states whose offset from the estimate can have
-        P(G | Δ) > 0 are indexed, except at w*(b) when its table index is cached."""
+        best over goal_estimates (of the ``goals`` actions only, if given). Only states whose
+        offset from the estimate can have P(G | Δ) > 0 are indexed, except at w*(b) when its
+        table index is cached."""
         best = (0.0, -1, None)
         w_star = sb.w_star
         for g, e in self.goal_estimates(w_star, sb.level):

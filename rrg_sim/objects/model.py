@@ -10,7 +10,7 @@ import numpy as np
 import trimesh
 from scipy.special import ndtr
 
-from ..config import SENSOR_NAMES
+from ..config import SENSOR_NAMES, SETTLING_KERNEL_BANDWIDTH
 from ..poses import wrap_angle
 from ..wrt import WRT
 from .primitives import Primitive, union_bounds
@@ -44,13 +44,6 @@ class AffineSettle:
         return cls(np.array(fit["A"]), np.array(fit["b"]), np.array(fit["sigma"]))
 
 
-#: Bandwidth of the kernel that corrects the closing's affine map near an offset, in goal
-#: tolerances per axis (chosen on 300 measured grasps per object, half for fitting and half
-#: held out: 0.5 predicts "inside the goal region" best of 0.5, 1, 1.5 and the affine map alone
-#: (Brier score 0.017 / 0.039 / 0.049 for drill / teacup / pitcher against 0.037 / 0.067 / 0.085)).
-KERNEL_BANDWIDTH = 0.5
-
-
 @dataclass(frozen=True, eq=False)
 class Settling:
     """How a firm goal grasp that arrived moves the object (rrg_sim.physics.settle): the maps of
@@ -61,7 +54,8 @@ class Settling:
     move (the study did not sample there).
 
     bandwidth: (3,) [m, m, rad] of the kernel that corrects an affine map near Δ with the
-    samples (inf: that axis ignored); ObjectModel sets KERNEL_BANDWIDTH goal tolerances.
+    samples (inf: that axis ignored); ObjectModel sets config.SETTLING_KERNEL_BANDWIDTH goal
+    tolerances.
     """
 
     box: np.ndarray
@@ -81,8 +75,9 @@ class Settling:
     def outcome(self, delta: np.ndarray, stage: str = "closed") -> tuple[np.ndarray, np.ndarray]:
         """Δ after ``stage`` ("closed" or "retreated") ~ N(mean, diag σ²) for starts Δ (N,3):
         the stage's affine map, corrected by the Gaussian-kernel weighted mean and spread of
-        its residuals over the samples (not along an axis of infinite bandwidth). Returns mean (N,3) (θ unwrapped next to Δ's) and σ
-        (N,3); without samples, the affine map and its residual σ."""
+        its residuals over the samples (not along an axis of infinite bandwidth). Returns
+        mean (N,3) (θ unwrapped next to Δ's) and σ (N,3); without samples, the affine map and
+        its residual σ."""
         fit = self.closed if stage == "closed" else self.retreated
         delta = np.asarray(delta, dtype=float)
         mean = delta @ fit.A.T + fit.b
@@ -240,7 +235,7 @@ class ObjectModel:
     @cached_property
     def grasp_settling(self) -> Settling | None:
         """How the firm goal grasp moves the object (measured), or None if not measured."""
-        return load_settling(self.name, bandwidth=KERNEL_BANDWIDTH * np.asarray(self.goal.tol, dtype=float))
+        return load_settling(self.name, bandwidth=SETTLING_KERNEL_BANDWIDTH * np.asarray(self.goal.tol, dtype=float))
 
     @property
     def settling(self) -> Settling | None:
