@@ -46,6 +46,12 @@ RECORDER = "rrg_bag_recorder"
 #: SIGINT, then SIGTERM after this long [s], then SIGKILL after as long again (notes: a node
 #: sometimes misses the first SIGINT).
 STOP_ESCALATE_S = 3.0
+#: After the judgement the launcher waits (at most this long [s]) until its own subscription
+#: has the grasp outcome message, then OUTCOME_GRACE_S more, before it stops the graph: the
+#: recorder, busy writing beliefs on a loaded machine, lost that last message to the stop
+#: (CI on a fresh clone, once).
+OUTCOME_WAIT_S = 10.0
+OUTCOME_GRACE_S = 0.5
 #: Module of each node process, in start order (the recorder is started first, stopped last).
 NODES = {
     "sim": "rrg_sim.ros.sim_node",
@@ -118,6 +124,7 @@ class Graph:
         self._context = None
         self.clients: dict = {}  # service name → client (wait_ready creates them)
         self.actions: dict = {}  # action name → ActionClient
+        self.outcomes_seen = 0  # grasp outcome messages the launcher has received
         self.goal_handle = None  # the running robust grasp, if any
 
     # ------------------------------------------------------------------ processes
@@ -216,6 +223,7 @@ class Graph:
         returns the seconds since the launch."""
         from rclpy.action import ActionClient
 
+        from diagnostic_msgs.msg import DiagnosticStatus
         from rrg_msgs.action import ExecuteWrt, GuardedMove, RobustGrasp
         from rrg_msgs.srv import GetBelief, HandCommand, ResetBelief, ResetSim, SelectAction
         from std_srvs.srv import Trigger
@@ -226,6 +234,7 @@ class Graph:
                  "/rrg/execute_wrt": ExecuteWrt, "/rrg/robust_grasp": RobustGrasp}
         self.clients = {name: self.node.create_client(types[name], name) for name in SERVICES}
         self.actions = {name: ActionClient(self.node, types[name], name) for name in ACTIONS}
+        self.node.create_subscription(DiagnosticStatus, "/rrg/eval/grasp_outcome", self.on_outcome, 10)
         deadline = time.monotonic() + timeout_s
         for name, client in [*self.clients.items(), *self.actions.items()]:
             ready = client.service_is_ready if name in self.clients else client.server_is_ready
@@ -279,9 +288,19 @@ class Graph:
         if res.error_code != RobustGrasp.Result.NONE:
             outcome.error = f"robust_grasp error {res.error_code}: {res.error_msg}"
             return outcome
+        seen = self.outcomes_seen
         judged = self.result(self.clients["/rrg/eval/judge_grasp"].call_async(Trigger.Request()), 120.0, "judge_grasp")
         outcome.success, outcome.judge = judged.success, judged.message
+        try:  # let the outcome message reach the recorder before anything stops
+            self.spin_until(lambda: self.outcomes_seen > seen, OUTCOME_WAIT_S, "/rrg/eval/grasp_outcome")
+            grace = time.monotonic() + OUTCOME_GRACE_S
+            self.spin_until(lambda: time.monotonic() > grace, OUTCOME_GRACE_S + 1.0, "the recorder")
+        except LaunchError as exc:
+            print(f"[rrg-launch] warning: {exc}", file=sys.stderr, flush=True)
         return outcome
+
+    def on_outcome(self, _msg) -> None:
+        self.outcomes_seen += 1
 
     def cancel_grasp(self) -> None:
         """Cancel a running robust grasp (best effort, before the nodes are stopped)."""
