@@ -48,13 +48,14 @@ def goal_weights(obj: ObjectModel, delta: np.ndarray, contact: np.ndarray, senso
     σ(Δ)²) inside the study's box), inside the goal region. Outside the box, or for an object
     without a study, the object is taken not to move (goal_holds)."""
     delta = np.asarray(delta, dtype=float)
-    p = goal_holds(obj, delta, contact, sensors).astype(np.float64)
+    made = _grasp_made(obj, contact, sensors)
+    p = (obj.goal.contains(delta) & made).astype(np.float64)
     settling = obj.grasp_settling
     if settling is None:
         return p
     near = np.flatnonzero(settling.inside(delta))
     mean, sigma = settling.outcome(delta[near], "closed")
-    p[near] = _grasp_made(obj, contact[near], sensors[near]) * obj.goal.probability(mean, sigma)
+    p[near] = made[near] * obj.goal.probability(mean, sigma)
     return p
 
 

@@ -55,7 +55,7 @@ class ReferenceSearch:
         w_star = self._argmax(points, weights)
         best = 0.0
         for g in self.model.goal_actions:
-            ax, ay, at = (float(v) for v in self.model.actions[g].aim.get(level, np.zeros(3)))
+            ax, ay, at = (float(v) for v in self.model.actions[g].aim[level])
             c, s = math.cos(w_star[2] - at), math.sin(w_star[2] - at)
             aimed = (w_star[0] - c * ax + s * ay, w_star[1] - s * ax - c * ay, _wrap(w_star[2] - at))
             for e in (w_star, aimed):  # w* and the estimate that puts w* at the aim

@@ -260,7 +260,7 @@ class ForwardSearch:
         (model.goal_aim: where the measured closing leaves it best placed)."""
         out = []
         for g in self.model.goal_actions:
-            aim = self.model.actions[g].aim.get(level, np.zeros(3))
+            aim = self.model.actions[g].aim[level]
             for e in (w_star, compose_planar(w_star, relative_planar(aim, np.zeros(3)))):
                 if self.feasible(g, e) and not any(g == h and np.allclose(e, f) for h, f in out):
                     out.append((g, e))

@@ -7,10 +7,9 @@ belief must know, or it drifts from the truth with every goal grasp it does not 
 uniformly in a box around the goal region, and records Δ after the closing (what the judge
 sees) and after the retreat (where the next action finds the object). ``fit`` fits the
 affine maps Δ_after = A·Δ + b to the grasps that arrived (no early contact) with least
-squares and their residual σ, and keeps those grasps' samples (Δ, Δ_closed, Δ_retreated):
-the goal model and the belief's settling correct the affine maps near each Δ with them
-(objects.Settling.outcome); the result is the object's
-``objects.Settling`` model.
+squares and their residual σ, and keeps those grasps' samples (Δ, Δ_closed, Δ_retreated),
+with which the goal model and the belief's settling correct the affine maps near each Δ
+(objects.Settling.outcome); the result is the object's ``objects.Settling`` model.
 
 ``python -m rrg_sim.physics.settle [objects…] [--grasps N] [--workers W]`` measures and
 writes ``rrg_sim/objects/settling.json`` (the committed fits the catalogue loads).
