@@ -125,6 +125,18 @@ def transit_via(first: np.ndarray) -> np.ndarray | None:
     return via
 
 
+def lift_after(wrt: WRT, last: np.ndarray) -> np.ndarray | None:
+    """(1,4,4) the lift a WRT's grasp must be able to go on to from its last pose ``last``:
+    a goal grasp is lifted PHYSICS.lift_height to be judged, a reorientation
+    PHYSICS.reorient_lift to turn; None for other WRTs (they retrace their path)."""
+    height = {"goal": PHYSICS.lift_height, "reorient": PHYSICS.reorient_lift}.get(wrt.kind)
+    if height is None:
+        return None
+    up = last.copy()
+    up[2, 3] += height
+    return up[None]
+
+
 class WrtExecutor:
     """Runs WRTs on a robot and retreats from them (see the module doc)."""
 
@@ -161,7 +173,8 @@ class WrtExecutor:
         e = np.asarray(e, dtype=float)
         report("planning", PHASES["planning"])
         poses = wrt.world_poses(e)
-        path = plan_path(poses, self.robot.arm_q(), rigid_from=1, reconfigure=True, via=transit_via(poses[0]))
+        path = plan_path(poses, self.robot.arm_q(), rigid_from=1, reconfigure=True, via=transit_via(poses[0]),
+                         then=lift_after(wrt, poses[-1]))
         if wrt.kind == "reorient":
             self._check_reorient(wrt, e, path)
         report("approach", PHASES["approach"])

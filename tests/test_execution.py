@@ -95,3 +95,38 @@ def test_the_transit_to_a_side_grasp_passes_above_the_object():
     assert transit_via(high) is None  # a WRT that starts high (a top-down grasp) goes straight
     obs = world.execute_wrt(world.obj.goal_wrt, w)
     assert not obs.contact and obs.progress > 0.3
+
+
+def test_a_goal_grasp_ends_where_the_arm_can_lift_it():
+    """The can's top grasp at (0.66, 0.02): the least-motion chain down from the raised transit
+    ended with J5 at 1.16 rad, 0.09 from its limit, from where lifting the can 10 cm needs J5
+    past the limit (the judge found the grasp good and could not lift it). The chain is now
+    chosen through the lift too; the judged grasp lifts and holds."""
+    world = PhysicsWorld("can", seed=1)
+    e = np.array([0.66, 0.02, 0.0])
+    world.reset(e)
+    obs = world.execute_wrt(world.obj.goal_wrt, e)
+    ok, info = world.judge_grasp(world.obj, e, obs)
+    assert info["lift_feasible"] and info["held"] and ok
+
+
+def test_planned_paths_keep_clear_of_the_joint_limits_where_they_can():
+    """The same grasp's path once passed J5 exactly at its 1.25 rad limit: the servo's
+    overshoot pressed the limit stop and the collision detection read a contact at progress 0.
+    Paths now keep LIMIT_MARGIN inside the limits when some chain does, and still pass
+    through the margin when none does (the cooler's grasp at x = 0.75 touches J6's limit)."""
+    from rrg_sim.execution import lift_after, transit_via
+    from rrg_sim.objects import get_object
+    from rrg_sim.physics.trajectory import LIMIT_MARGIN, plan_path
+
+    def plan(name, e):
+        wrt = get_object(name).goal_wrt
+        poses = wrt.world_poses(np.array(e))
+        return plan_path(poses, wam.HOME_Q, rigid_from=1, reconfigure=True, via=transit_via(poses[0]),
+                         then=lift_after(wrt, poses[-1]))
+
+    def clearance(path):
+        return float(np.minimum(path.q - wam.LOWER, wam.UPPER - path.q).min())
+
+    assert clearance(plan("can", [0.66, 0.02, 0.0])) >= LIMIT_MARGIN
+    assert 0.0 <= clearance(plan("cooler", [0.752, 0.063, 0.388])) < LIMIT_MARGIN

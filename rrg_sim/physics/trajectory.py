@@ -41,6 +41,14 @@ START_WEIGHT = 1.0
 #: Height the hand rises at home before changing IK branch by a joint-space move [m] (chosen:
 #: the fingertips then clear the tallest object, the 28 cm cooler, by ~ 10 cm).
 RECONFIGURE_LIFT = 0.15
+#: Planned paths keep this far inside every joint limit where they can [rad] (chosen: the
+#: smoothed servo targets overshoot a via-point by up to ~ 0.01 rad, and a joint pressed on
+#: its limit stop trips the arm's collision detection like a contact) ...
+LIMIT_MARGIN = 0.03
+#: ... each sample inside that margin costs this much in the chain's cost [rad²] (chosen: as
+#: much as 5 of the largest steps, so a chain detours around the margin but still passes
+#: through it where nothing else reaches the path: some top-down grasps touch J6's limit).
+LIMIT_PENALTY = 5 * MAX_JOINT_STEP**2
 #: Joint-space sampling of a free move [rad].
 JOINT_STEP = 0.05
 #: Width of the moving average smoothing the joint targets [control periods] (chosen: 20 ms,
@@ -110,6 +118,9 @@ def chain_ik(poses: np.ndarray, q_prev: np.ndarray, free: np.ndarray | None = No
     order = np.argsort(sol.q3[:, 0])  # J3 samples in ascending order (q_prev's own among them)
     q = sol.angles().reshape(wam.N_JOINTS, 8, -1, M)[:, :, order]  # (7, branch, J3 sample, pose)
     usable = sol.usable().reshape(8, -1, M)[:, order]
+    inside = np.all((q >= wam.LOWER[:, None, None, None] + LIMIT_MARGIN)
+                    & (q <= wam.UPPER[:, None, None, None] - LIMIT_MARGIN), axis=0)
+    penalty = np.where(inside, 0.0, LIMIT_PENALTY)  # (branch, J3 sample, pose)
     S = q.shape[2]
     q = np.where(usable, q, np.nan)
     shifts = (-1, 0, 1)
@@ -127,9 +138,9 @@ def chain_ik(poses: np.ndarray, q_prev: np.ndarray, free: np.ndarray | None = No
             d2[..., ~free[1:]] = np.inf
         with np.errstate(invalid="ignore"):
             steps[k, :, :, lo:hi, 1:] = np.where(d2 <= MAX_JOINT_STEP**2, np.maximum(d2, 0.0), np.inf)
-    steps = steps.reshape(24, 8, S, M)
+    steps = steps.reshape(24, 8, S, M) + penalty[None]
     start = (q[..., 0] - q_prev[:, None, None]) * JOINT_METRIC[:, None, None]
-    cost = np.where(usable[..., 0], START_WEIGHT * np.sum(start**2, axis=0), np.inf)
+    cost = np.where(usable[..., 0], START_WEIGHT * np.sum(start**2, axis=0) + penalty[..., 0], np.inf)
     back = np.zeros((M, 8, S), dtype=int)  # (J3 shift + 1) * 8 + branch of the previous sample
     prev = np.full((3, 8, S), np.inf)
     for m in range(1, M):
@@ -180,10 +191,13 @@ def _densify_via(start: np.ndarray, waypoints: np.ndarray, via: np.ndarray | Non
 
 
 def plan_path(waypoints: np.ndarray, q_start: np.ndarray, rigid_from: int = 0,
-              reconfigure: bool = False, via: np.ndarray | None = None) -> DensePath:
+              reconfigure: bool = False, via: np.ndarray | None = None,
+              then: np.ndarray | None = None) -> DensePath:
     """Dense joint path from the arm's configuration q_start along straight Cartesian segments
     from the current hand pose through hand waypoints (K,4,4); segment 0 passes through the
-    ``via`` pose (4,4) when one is given.
+    ``via`` pose (4,4) when one is given. ``then`` (L,4,4): hand waypoints the arm must be
+    able to go on to from the last one (e.g. the lift after a grasp, J3 free along them);
+    the IK chain is chosen through them too, and they are not part of the returned path.
 
     The joints follow the ``chain_ik`` chain; segments before ``rigid_from`` (segment 0 leads
     to waypoints[0]) may swivel the elbow on the way. When the chain starts in another
@@ -193,9 +207,18 @@ def plan_path(waypoints: np.ndarray, q_start: np.ndarray, rigid_from: int = 0,
     chain starts from the raised pose. Lead-in samples have segment index -1 (the rise: -2).
     """
     waypoints = np.asarray(waypoints, dtype=float)
+    K = len(waypoints)
+    if then is not None:
+        waypoints = np.concatenate([waypoints, np.asarray(then, dtype=float)])
+
+    def chain(start: np.ndarray, q0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        poses, segment = _densify_via(start, waypoints, via)
+        q = chain_ik(poses, q0, (segment < rigid_from) | (segment >= K))
+        keep = segment < K
+        return poses[keep], segment[keep], q[keep]
+
     here = wam.fk(q_start)
-    poses, segment = _densify_via(here, waypoints, via)
-    q = chain_ik(poses, q_start, segment < rigid_from)
+    poses, segment, q = chain(here, q_start)
     try:
         lead = self_motion(here, q_start, q[0])[:-1]
         return DensePath(np.concatenate([np.repeat(here[None], len(lead), axis=0), poses]),
@@ -209,8 +232,7 @@ def plan_path(waypoints: np.ndarray, q_start: np.ndarray, rigid_from: int = 0,
     rise, ok = wam.ik_batch(rise_poses, q_start)
     if not ok.all() or _largest_step(rise) > MAX_JOINT_STEP:
         raise InfeasiblePath("cannot rise to reconfigure the arm")
-    poses, segment = _densify_via(up, waypoints, via)
-    q = chain_ik(poses, rise[-1], segment < rigid_from)
+    poses, segment, q = chain(up, rise[-1])
     move = joint_path(rise[-1], q[0])
     lead_poses = np.concatenate([rise_poses, move.poses[1:-1]])
     return DensePath(np.concatenate([lead_poses, poses]), np.vstack([rise, move.q[1:-1], q]),
