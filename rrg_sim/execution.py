@@ -25,7 +25,7 @@ from . import wam
 from .config import GEOMSIM, N_SENSORS, PHYSICS, TRANSITION
 from .hand import hand_geoms_world
 from .observation import Observation, grasp_arrived, holds_object
-from .physics.trajectory import DensePath, joint_path, plan_path, sample_times, solve_path
+from .physics.trajectory import DensePath, InfeasiblePath, joint_path, plan_path, sample_times, solve_path
 from .wrt import WRT
 
 log = logging.getLogger(__name__)
@@ -156,6 +156,20 @@ class WrtExecutor:
         """An unguarded straight-line move from the current hand pose through hand waypoints."""
         self._follow(plan_path(waypoints, self.robot.arm_q(), rigid_from))
 
+    def _rise(self) -> None:
+        """Raise the open hand straight up to PHYSICS.transit_height, clear of the object, or as
+        far as the arm can (halving the rise until it is feasible; none below 1 cm)."""
+        here = self.robot.hand_pose()
+        rise = PHYSICS.transit_height - here[2, 3]
+        while rise >= 0.01:
+            up = here.copy()
+            up[2, 3] += rise
+            try:
+                self._move(up[None], rigid_from=1)
+                return
+            except InfeasiblePath:
+                rise /= 2
+
     def _open(self, proximal: float) -> None:
         spread, _ = self.robot.hand_angles()
         self.robot.move_hand(spread, proximal)
@@ -277,6 +291,11 @@ class WrtExecutor:
             passed = max(0, int(last.path.segment[-1]))  # WRT poses 0 … passed-1 were passed
             back = last.moved @ last.wrt.world_poses(last.e)[:passed][::-1]
             if len(back):
-                self._move(back, rigid_from=len(back))
+                try:
+                    self._move(back, rigid_from=len(back))
+                except InfeasiblePath as exc:  # the turned approach leaves the arm's reach
+                    log.warning("retreat from %s: the turned approach is infeasible (%s); rising instead",
+                                last.wrt.name, exc)
+                    self._rise()
             self._follow(joint_path(self.robot.arm_q(), last.path.q[0]), speeds={0: FREE_SPEEDS})
         self._open(0.0)

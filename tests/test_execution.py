@@ -60,7 +60,7 @@ def test_retreat_is_dropped_when_the_arm_has_moved():
     world.reset()
     world.execute_wrt(world.obj.goal_wrt, e)
     world.retreat()  # from where the WRT left it: back home
-    np.testing.assert_allclose(world.arm_q(), wam.HOME_Q, atol=0.02)
+    np.testing.assert_allclose(world.arm_q(), wam.HOME_Q, atol=0.05)  # servo lag [rad]
 
 
 def test_a_reorientation_the_arm_cannot_finish_is_refused_before_anything_moves():
@@ -130,3 +130,21 @@ def test_planned_paths_keep_clear_of_the_joint_limits_where_they_can():
 
     assert clearance(plan("can", [0.66, 0.02, 0.0])) >= LIMIT_MARGIN
     assert 0.0 <= clearance(plan("cooler", [0.752, 0.063, 0.388])) < LIMIT_MARGIN
+
+
+def test_a_retreat_whose_turned_approach_is_out_of_reach_rises_and_goes_home():
+    """After the pitcher's reorient_cw at (0.77, 0.01, 0.8) the approach turned with the object
+    has no continuous IK chain from where the arm put it down (this ended two campaign
+    trials with an InfeasiblePath). The open hand rises instead, and the arm goes home."""
+    world = PhysicsWorld("brita_pitcher", seed=1)
+    e = np.array([0.77, 0.01, 0.8])
+    world.reset(np.array([0.787, 0.0007, 0.702]))
+    wrt = next(w for w in world.obj.wrts() if w.name == "reorient_cw")
+    world.execute_wrt(wrt, e)
+    last = world.executor.last
+    assert not np.allclose(last.moved, np.eye(4))  # the grasp held: the pitcher was turned
+    back = last.moved @ wrt.world_poses(e)[:max(0, int(last.path.segment[-1]))][::-1]
+    with pytest.raises(InfeasiblePath):
+        plan_path(back, world.arm_q(), rigid_from=len(back))
+    world.retreat()
+    np.testing.assert_allclose(world.arm_q(), wam.HOME_Q, atol=0.05)  # servo lag [rad]
