@@ -10,7 +10,9 @@ samples less than MAX_JOINT_STEP apart) with the least joint motion. J3 is held 
 WRT's own segments, whose straightness the geometric simulator relies on, and may walk
 between neighbouring samples (an elbow swivel on the way) on free-space moves. When the
 chain starts in another configuration than the arm's, the arm first swivels its elbow in
-place (same hand pose) or, from home, rises and reconfigures in joint space.
+place (same hand pose) or, from home, rises and reconfigures in joint space. Chains keep
+LIMIT_MARGIN inside the joint limits where they can, and a grasp's chain is chosen through
+the lift that follows it (``plan_path``'s ``then``), so that the arm can lift what it grasped.
 ``sample_times`` times a dense path with a trapezoidal speed profile per segment (rest at
 every waypoint): these are the joint via-points' times of a guarded move. ``servo_targets``
 turns timed via-points into servo targets for every control period.
