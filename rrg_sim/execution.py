@@ -26,6 +26,7 @@ from .config import GEOMSIM, N_SENSORS, PHYSICS, TRANSITION
 from .hand import hand_geoms_world
 from .observation import Observation, grasp_arrived, holds_object
 from .physics.trajectory import DensePath, InfeasiblePath, joint_path, plan_path, sample_times, solve_path
+from .poses import raised
 from .wrt import WRT
 
 log = logging.getLogger(__name__)
@@ -130,11 +131,7 @@ def lift_after(wrt: WRT, last: np.ndarray) -> np.ndarray | None:
     a goal grasp is lifted PHYSICS.lift_height to be judged, a reorientation
     PHYSICS.reorient_lift to turn; None for other WRTs (they retrace their path)."""
     height = {"goal": PHYSICS.lift_height, "reorient": PHYSICS.reorient_lift}.get(wrt.kind)
-    if height is None:
-        return None
-    up = last.copy()
-    up[2, 3] += height
-    return up[None]
+    return None if height is None else raised(last, height)[None]
 
 
 class WrtExecutor:
@@ -162,10 +159,8 @@ class WrtExecutor:
         here = self.robot.hand_pose()
         rise = PHYSICS.transit_height - here[2, 3]
         while rise >= 0.01:
-            up = here.copy()
-            up[2, 3] += rise
             try:
-                self._move(up[None], rigid_from=1)
+                self._move(raised(here, rise)[None], rigid_from=1)
                 return
             except InfeasiblePath:
                 rise /= 2
@@ -241,11 +236,10 @@ class WrtExecutor:
     def _reorient_poses(wrt: WRT, e: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """From the grasp's hand pose T (4,4): the lifted pose, the dense arc (n,4,4) turning it
         about the vertical through e, and the rigid motion G (4,4) of the whole turn."""
-        up = np.eye(4)
-        up[2, 3] = PHYSICS.reorient_lift
+        lifted = raised(T, PHYSICS.reorient_lift)
         n = max(2, int(np.ceil(abs(wrt.reorient_angle) * GEOMSIM.rotation_sample_radius / PHYSICS.path_step)) + 1)
-        arc = np.stack([rotation_about_z(e[:2], a) @ up @ T for a in np.linspace(0.0, wrt.reorient_angle, n)])
-        return up @ T, arc, rotation_about_z(e[:2], wrt.reorient_angle)
+        arc = np.stack([rotation_about_z(e[:2], a) @ lifted for a in np.linspace(0.0, wrt.reorient_angle, n)])
+        return lifted, arc, rotation_about_z(e[:2], wrt.reorient_angle)
 
     def _check_reorient(self, wrt: WRT, e: np.ndarray, path: DensePath) -> None:
         """Raise InfeasiblePath, before anything moves, when the arm could not lift, turn and

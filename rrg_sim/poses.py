@@ -71,6 +71,13 @@ def compose_planar(e, d) -> np.ndarray:
                      wrap_angle(e[..., 2] + d[..., 2])], axis=-1)
 
 
+def raised(T: np.ndarray, dz: float) -> np.ndarray:
+    """A copy of hand pose(s) T (…,4,4) moved up by dz [m] along the world's z."""
+    up = np.array(T, dtype=float)
+    up[..., 2, 3] += dz
+    return up
+
+
 def home_pose() -> np.ndarray:
     """The home hand pose in ``world`` (every WRT starts and ends here)."""
     return make_pose(WORLD.home_position, Rotation.from_rotvec(HOME_ROTVEC))

@@ -18,7 +18,7 @@ import numpy as np
 from ..config import PHYSICS, SENSOR_NAMES
 from ..objects import ObjectModel
 from ..observation import Observation, fingers_in_contact
-from ..poses import invert, relative_planar
+from ..poses import invert, raised, relative_planar
 from .trajectory import InfeasiblePath
 
 if TYPE_CHECKING:
@@ -50,11 +50,9 @@ def judge_grasp(world: "PhysicsWorld", obj: ObjectModel, e_used,
     fingers = int(fingers_in_contact(obs.sensors))
     required_ok = all(obs.sensors[SENSOR_NAMES.index(name)] for name in obj.goal.required_sensors)
     z0, grip0 = world.object_height(), _object_in_hand_frame(world)
-    up = np.eye(4)
-    up[2, 3] = PHYSICS.lift_height
     lift = {0: (PHYSICS.lift_speed, PHYSICS.turn_speed)}
     try:
-        world.move_through((up @ world.hand_pose())[None], speeds=lift, rigid_from=1)
+        world.move_through(raised(world.hand_pose(), PHYSICS.lift_height)[None], speeds=lift, rigid_from=1)
         lift_feasible = True
     except InfeasiblePath:  # the arm cannot lift from this grasp: it cannot be held either
         lift_feasible = False

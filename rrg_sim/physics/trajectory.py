@@ -25,7 +25,7 @@ import numpy as np
 
 from .. import wam
 from ..config import GEOMSIM, PHYSICS
-from ..poses import interpolate_poses
+from ..poses import interpolate_poses, raised
 from ..wrt import InfeasibleWRT
 
 #: Time to reach cruise speed on a segment [s] (chosen: 2 m/s² at 0.2 m/s, a smooth WAM move).
@@ -228,8 +228,7 @@ def plan_path(waypoints: np.ndarray, q_start: np.ndarray, rigid_from: int = 0,
     except InfeasiblePath:
         if not reconfigure:
             raise
-    up = here.copy()
-    up[2, 3] += RECONFIGURE_LIFT
+    up = raised(here, RECONFIGURE_LIFT)
     rise_poses, _ = densify(np.stack([here, up]))
     rise, ok = wam.ik_batch(rise_poses, q_start)
     if not ok.all() or _largest_step(rise) > MAX_JOINT_STEP:
