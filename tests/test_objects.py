@@ -252,3 +252,21 @@ def test_signed_distance_of_primitives():
         Primitive("cone", (0.1,))
     with pytest.raises(ValueError):
         cylinder(0.1, -0.1, (0.0, 0.0, 0.0))
+
+
+def _closures(name: str, wrt_name: str, thetas) -> np.ndarray:
+    """(len(thetas), 3) predicted finger closures [rad] with the object turned by each Δθ [rad]."""
+    obj = get_object(name)
+    deltas = np.array([[0.0, 0.0, t] for t in thetas])
+    return GeometricSimulator(obj, obj.wrt(wrt_name)).simulate_batch(deltas).closure
+
+
+def test_the_teacups_handle_pinch_measures_how_it_is_turned():
+    """The round teacup's generated rim pinches see the same rim at any θ; the designed pinch
+    across the handle's upper arm closes finger 1 further and finger 3 less as the cup turns
+    (~1 rad of closure per rad of θ), so it tells the planner what the rim pinches cannot."""
+    thetas = (-0.1, 0.0, 0.1)
+    handle = _closures("giant_teacup", "info_handle", thetas)
+    assert np.all(np.diff(handle[:, 0]) > 0.08) and np.all(np.diff(handle[:, 2]) < -0.05)
+    rim = _closures("giant_teacup", "info1", thetas)
+    assert np.ptp(rim[:, 0]) < 0.02 and np.ptp(rim[:, 2]) < 0.02

@@ -178,6 +178,8 @@ class ObjectModel:
     extents, other keys name features (e.g. a handle's opening). source: where they come from.
     goal / goal_wrt: the goal region and the hand-designed goal WRT.
     reorient_wrts: reorientation WRTs (empty when the goal grasp stays feasible at any θ).
+    designed_info_wrts: hand-designed information-gathering WRTs, added to the generated ones
+    (the paper's WRTs were mostly demonstrated by hand).
     symmetric: the goal region ignores θ.
     placement_yaw: the parts are the object built in its canonical frame (where the
     documented sizes are the bounding box) turned by this yaw [rad] about z, so that its goal
@@ -193,6 +195,7 @@ class ObjectModel:
     goal: GoalRegion
     goal_wrt: WRT
     reorient_wrts: tuple[WRT, ...] = ()
+    designed_info_wrts: tuple[WRT, ...] = ()
     symmetric: bool = False
     placement_yaw: float = 0.0
     #: whether the belief applies the measured settling of the goal grasp (see ``settling``)
@@ -221,8 +224,10 @@ class ObjectModel:
 
     @cached_property
     def info_wrts(self) -> tuple[WRT, ...]:
-        """Information-gathering WRTs generated from the primitives (pinches, then the sweep)."""
-        return wrt_generation.info_wrts(self.parts) + (wrt_generation.sweep_wrt(self.parts),)
+        """Information-gathering WRTs: generated from the primitives (pinches, then the sweep),
+        then the hand-designed ones."""
+        return (wrt_generation.info_wrts(self.parts) + (wrt_generation.sweep_wrt(self.parts),)
+                + self.designed_info_wrts)
 
     @cached_property
     def _wrts(self) -> tuple[WRT, ...]:

@@ -19,7 +19,8 @@ from ..wrt import WRT
 from .composites import box, cylinder, cylinder_between, loop_handle, ring_wall, turn_about_z
 from .model import GoalRegion, ObjectModel
 from .primitives import Primitive
-from .wrt_generation import line_grasp_wrt, reorient_wrts, side_rotation, top_down_rotation
+from .surface_pairs import Pinch
+from .wrt_generation import designed_pinch_wrt, line_grasp_wrt, reorient_wrts, side_rotation, top_down_rotation
 
 YCB = "YCB object set (shared/notes/mujoco-world.md)"
 DEG = np.pi / 180.0
@@ -256,13 +257,22 @@ def giant_teacup() -> ObjectModel:
     parts, goal_wrt = _placed_side_grasp(
         canonical, (0.0, gap_centre, z_high), pitch=0.2, roll=-np.pi / 2, standoff=0.03,
         description="side pinch of the handle's upper arm: finger 3 through the handle under it, fingers 1+2 on top")
+    # The rim pinches the generator finds tell where the round cup is, not how it is turned:
+    # only the handle does. Fingers 1+2 and finger 3 come down on either side of the upper arm,
+    # near the bar, and close across it; at 9-11 cm from the cup's axis, 0.1 rad of θ moves
+    # the arm ~1 cm across the pinch.
+    turn = Rotation.from_euler("z", SIDE_APPROACH_YAW)
+    handle_pinch = designed_pinch_wrt(
+        parts, "info_handle",
+        Pinch(turn.apply((1.0, 0.0, 0.0)), turn.apply((0.0, 0.108, z_high + radius)), 2 * radius, 0.0, 0.0),
+        "across the handle's upper arm, near the bar")
     return ObjectModel(
         "giant_teacup", parts, mass=0.5, friction=0.5,
         dimensions=_dims(0.140, 0.193, z_high + radius, handle_gap=0.05,
                          handle_opening_height=z_high - z_low - 2 * radius),
         source="chosen: giant novelty teacup, 14 cm rim, 11 cm tall, 0.5 kg; thin 1 cm handle",
         goal=GoalRegion((0.01, 0.01, 8 * DEG)), goal_wrt=goal_wrt, reorient_wrts=reorient_wrts(parts),
-        placement_yaw=SIDE_APPROACH_YAW,
+        designed_info_wrts=(handle_pinch,), placement_yaw=SIDE_APPROACH_YAW,
         description="giant teacup; goal: held by the handle's upper arm, finger 3 through the handle")
 
 

@@ -156,6 +156,16 @@ def info_wrts(parts: Sequence[Primitive]) -> tuple[WRT, ...]:
                  for k, (pinch, poses) in enumerate(_info_pinches(tuple(parts))))
 
 
+def designed_pinch_wrt(parts: Sequence[Primitive], name: str, pinch: Pinch, what: str) -> WRT:
+    """A hand-designed top-down pinch info WRT (``what`` names what it pinches); ValueError
+    when its descent collides (``top_down_poses``)."""
+    poses = top_down_poses(parts, pinch)
+    if poses is None:
+        raise ValueError(f"{name}: the top-down pinch of {what} collides on the way down")
+    return WRT(name, "info", poses, spread=pinch.spread, description=f"{_describe(pinch)}: {what}",
+               meta=_pinch_meta(pinch))
+
+
 def reorient_wrts(parts: Sequence[Primitive], angle: float = REORIENT_ANGLE) -> tuple[WRT, ...]:
     """Two reorientation WRTs ("reorient_ccw" +angle, "reorient_cw" -angle): the collision-free
     top-down pinch nearest the object's centre, then a turn about the object's vertical axis."""
