@@ -264,7 +264,8 @@ def giant_teacup() -> ObjectModel:
     turn = Rotation.from_euler("z", SIDE_APPROACH_YAW)
     handle_pinch = designed_pinch_wrt(
         parts, "info_handle",
-        Pinch(turn.apply((1.0, 0.0, 0.0)), turn.apply((0.0, 0.108, z_high + radius)), 2 * radius, 0.0, 0.0),
+        Pinch(axis=turn.apply((1.0, 0.0, 0.0)), centre=turn.apply((0.0, 0.108, z_high + radius)),
+              separation=2 * radius, spread=0.0, score=0.0),
         "across the handle's upper arm, near the bar")
     return ObjectModel(
         "giant_teacup", parts, mass=0.5, friction=0.5,

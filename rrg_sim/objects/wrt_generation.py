@@ -5,7 +5,8 @@
   comes within a margin of the object or the table.
 * Information-gathering WRTs are generated: the pinches of ``surface_pairs`` (fingers on
   nearly parallel, opposing, roughly vertical surfaces), approached from above; two or three
-  diverse, collision-free ones are kept, deterministically.
+  diverse, collision-free ones are kept, deterministically. An object may add hand-designed
+  pinches (``designed_pinch_wrt``) where the generated ones miss what matters (a handle).
 * The sweep moves the hand low over the table across the object's whole uncertainty region.
 * Reorientation WRTs grasp from above at the pinch nearest the object's centre and turn it.
 
