@@ -13,7 +13,8 @@ The likelihood of one table entry is the product of
   * max(exp(-½((c_o - c_t)/σ_closure)²), κ_closure) per finger closure angle;
   * max(exp(-½(|x_o - x_t|/σ_tip)²), κ_tip) per fingertip contact point present on both
     sides (a point present on one side only is already judged by that tip's sensor term);
-the κ are per-term outlier floors (LIKELIHOOD.outlier_*): a finger that pushes a light object
+(the closure term is left out for a WRT whose closures physics does not reproduce:
+``likelihood_params``); the κ are per-term outlier floors (LIKELIHOOD.outlier_*): a finger that pushes a light object
 on while closing disagrees with the geometric prediction in one term, which then costs a
 bounded factor instead of flooring every state and erasing what the other terms said;
 and is then floored: L' = (1 - ε)·L + ε with ε = LIKELIHOOD.floor, so no single
@@ -22,7 +23,7 @@ from unmodelled dynamics, and later observations can bring it back).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 import numpy as np
@@ -31,6 +32,7 @@ from rrg_sim.config import LIKELIHOOD, N_SENSORS, LikelihoodParams
 from rrg_sim.grid import Grid
 from rrg_sim.observation import Observation
 from rrg_sim.poses import wrap_angle
+from rrg_sim.wrt import WRT
 
 
 class TableLike(Protocol):
@@ -112,6 +114,12 @@ def _sensor_log_tables(params: LikelihoodParams) -> tuple[np.ndarray, np.ndarray
     not_predicted = np.log([1.0 - pfa, pfa])  # [silent, fired]
     predicted = np.log([1.0 - pd, pd])
     return not_predicted, predicted
+
+
+def likelihood_params(wrt: WRT, params: LikelihoodParams = LIKELIHOOD) -> LikelihoodParams:
+    """The likelihood parameters of observations made by ``wrt``: an infinite σ_closure (the
+    closure term is 1) when its closures are not informative (WRT.closure_informative)."""
+    return params if wrt.closure_informative else replace(params, sigma_closure=float("inf"))
 
 
 def log_likelihood_over_table(table: TableLike, feats: ObsFeatures,

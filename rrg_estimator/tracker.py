@@ -20,7 +20,7 @@ from rrg_sim.observation import Observation, holds_object
 from rrg_sim.wrt import WRT
 
 from .belief import Belief
-from .obs_model import TableLike
+from .obs_model import TableLike, likelihood_params
 from .obs_tables import ObservationTable, load_or_build
 from .transition import reorient, settle
 from .update import update
@@ -48,7 +48,7 @@ def wrt_posterior(belief: Belief, table: TableLike, wrt: WRT, e, obs: Observatio
     """The belief after executing ``wrt`` at estimate e and observing ``obs``: the Bayes update
     with the WRT's table, then the reorientation's rotation about e for a reorient WRT whose
     grasp held the object (observation.holds_object; otherwise nothing was turned)."""
-    post = update(belief, table, e, obs)
+    post = update(belief, table, e, obs, params=likelihood_params(wrt))
     if wrt.kind == "reorient" and holds_object(obs.contact, obs.sensors, TRANSITION.reorient_min_fingers):
         post = reorient(post, wrt.reorient_angle, center_xy=np.asarray(e, dtype=float)[:2])
     return post

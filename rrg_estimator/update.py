@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rrg_sim.config import LIKELIHOOD, LikelihoodParams
 from rrg_sim.grid import Grid
 from rrg_sim.observation import Observation
 
@@ -46,15 +47,16 @@ def apply_likelihood(prior: Belief, table_likelihood: np.ndarray, idx: np.ndarra
 
 
 def update(belief: Belief, table: TableLike, e, obs_or_features: Observation | ObsFeatures,
-           transition: bool = True) -> Belief:
+           transition: bool = True, params: LikelihoodParams = LIKELIHOOD) -> Belief:
     """SE(b, τ(e), o): the belief after τ(e) (the table's WRT run relative to estimate e)
-    produced observation o (an Observation, or one row of ObsFeatures)."""
+    produced observation o (an Observation, or one row of ObsFeatures); ``params``: the WRT's
+    likelihood parameters (obs_model.likelihood_params)."""
     e = np.asarray(e, dtype=float).reshape(3)
     if not np.all(np.isfinite(e)):
         raise ValueError(f"estimate e must be finite, got {e}")
     feats = _single_features(obs_or_features, e)
     prior = predict(belief, e, feats) if transition else belief
-    lik = likelihood_over_table(table, feats)[0]
+    lik = likelihood_over_table(table, feats, params)[0]
     posterior, _ = apply_likelihood(prior, lik, table_indices(belief.grid, e, table.grid))
     return posterior
 

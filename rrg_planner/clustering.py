@@ -14,7 +14,7 @@ import numpy as np
 
 from rrg_estimator.obs_model import features_from_table_rows, likelihood_over_table
 from rrg_estimator.obs_tables import ObservationTable
-from rrg_sim.config import SEARCH, UncertaintyLevel
+from rrg_sim.config import LIKELIHOOD, SEARCH, LikelihoodParams, UncertaintyLevel
 
 #: Signature bin widths (chosen: about two σ of the likelihood's progress and closure terms).
 PROGRESS_BIN = 0.02  # m
@@ -45,11 +45,12 @@ class ObservationClusters:
         return len(self.representatives)
 
 
-def signature_keys(table: ObservationTable) -> np.ndarray:
-    """(N,) int64 key of each entry's contact signature (equal keys = same cluster)."""
+def signature_keys(table: ObservationTable, closure: bool = True) -> np.ndarray:
+    """(N,) int64 key of each entry's contact signature (equal keys = same cluster);
+    closure False: the closure angles do not split clusters (the likelihood ignores them)."""
     bits = table.sensors.astype(np.int64) @ (1 << np.arange(table.sensors.shape[1], dtype=np.int64))
     prog = np.rint(table.progress / PROGRESS_BIN).astype(np.int64)
-    clos = np.rint(table.closure / CLOSURE_BIN).astype(np.int64)
+    clos = np.rint(table.closure / CLOSURE_BIN).astype(np.int64) if closure else np.zeros((len(table), 0), np.int64)
     cols = np.column_stack([table.contact.astype(np.int64), bits, prog, clos])
     _, inverse = np.unique(cols, axis=0, return_inverse=True)
     return inverse.ravel()
@@ -64,9 +65,10 @@ def offset_prior(table: ObservationTable, level: UncertaintyLevel) -> np.ndarray
 
 
 def cluster_table(table: ObservationTable, level: UncertaintyLevel,
-                  prune: float = SEARCH.offline_prune) -> ObservationClusters:
-    """Group a table's predicted observations and precompute their likelihood rows."""
-    keys = signature_keys(table)
+                  prune: float = SEARCH.offline_prune, params: LikelihoodParams = LIKELIHOOD) -> ObservationClusters:
+    """Group a table's predicted observations and precompute their likelihood rows
+    (``params``: the WRT's likelihood parameters, obs_model.likelihood_params)."""
+    keys = signature_keys(table, closure=bool(np.isfinite(params.sigma_closure)))
     prior = offset_prior(table, level)
     mass = np.bincount(keys, weights=prior)
     kept = np.flatnonzero(mass >= prune)
@@ -81,6 +83,6 @@ def cluster_table(table: ObservationTable, level: UncertaintyLevel,
     reps_by_cluster = {int(sorted_assign[i]): int(order[i]) for i in first if sorted_assign[i] >= 0}
     reps = np.array([reps_by_cluster[c] for c in range(len(kept))], dtype=np.int64)
     feats = features_from_table_rows(table, reps)
-    like = likelihood_over_table(table, feats).astype(np.float32)
+    like = likelihood_over_table(table, feats, params).astype(np.float32)
     return ObservationClusters(assign=assign, representatives=reps, prior=mass[kept],
                                likelihood=like, l_log_l=like * np.log(like), contact=table.contact[reps].astype(bool))

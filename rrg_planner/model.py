@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rrg_estimator.obs_model import likelihood_params
 from rrg_estimator.obs_tables import ObservationTable, load_or_build
 from rrg_sim.config import GOAL_AIM_FRACTION, LEVELS, SENSOR_NAMES, TRANSITION, UncertaintyLevel
 from rrg_sim.observation import holds_object
@@ -127,7 +128,7 @@ class PlanningModel:
             for name, level in self.levels.items():
                 table = load_or_build(self.obj, wrt, Grid.for_level(level), workers=workers, progress=progress)
                 act.tables[name] = table
-                act.clusters[name] = cluster_table(table, level)
+                act.clusters[name] = cluster_table(table, level, params=likelihood_params(wrt))
                 if wrt.kind == "goal":
                     act.goal[name] = goal_indicator(self.obj, table)
                     act.aim[name] = goal_aim(self.obj, table, act.goal[name])

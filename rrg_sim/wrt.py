@@ -27,6 +27,10 @@ class WRT:
     preclose: proximal angle [rad] the fingers hold while moving (preshape).
     reorient_angle: for kind "reorient", the commanded rotation of the object about its
     vertical axis after the grasp [rad].
+    closure_informative: False when the fingers drag the object as they close, so that the
+    closure angles physics reads are not the geometric (object stays put) prediction; the
+    belief update then ignores them (rrg_estimator.obs_model.likelihood_params). Set from
+    rrg_sim.physics.agreement's per-WRT closure differences.
     """
 
     name: str
@@ -36,6 +40,7 @@ class WRT:
     preclose: float = 0.0
     reorient_angle: float = 0.0
     description: str = ""
+    closure_informative: bool = True
     meta: dict = field(default_factory=dict)
 
     def world_poses(self, e) -> np.ndarray:

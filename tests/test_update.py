@@ -11,14 +11,15 @@ import pytest
 
 from rrg_estimator.belief import Belief
 from rrg_estimator.obs_tables import ObservationTable
-from rrg_estimator.obs_model import (features_from_observation, features_from_table_rows,
-                                     likelihood_over_table, log_likelihood_over_table, table_indices)
+from rrg_estimator.obs_model import (features_from_observation, features_from_table_rows, likelihood_over_table,
+                                     likelihood_params, log_likelihood_over_table, table_indices)
 from rrg_estimator.reference import table_index_reference, update_reference
 from rrg_estimator.update import apply_likelihood, goal_probability, update
 from rrg_sim.config import HIGH, LIKELIHOOD, LOW
 from rrg_sim.grid import Grid
 from rrg_sim.observation import Observation
 from rrg_sim.poses import compose_planar, planar_pose, relative_planar
+from rrg_sim.wrt import WRT
 
 E = np.array([0.62, 0.01, 0.3])
 
@@ -118,6 +119,27 @@ def test_likelihood_is_floored_batched_and_float32(high_table):
     for i, r in enumerate(rows):
         np.testing.assert_allclose(like[i], likelihood_over_table(high_table, feats.take(i))[0], rtol=1e-6)
         assert np.argmax(like[i]) == r
+
+
+def test_a_wrt_whose_closures_are_not_informative_is_updated_without_them(high_table):
+    """A firm goal grasp drags the object as it closes (WRT.closure_informative False): its
+    closure angles must not move the belief, while every other term still does."""
+    poses = np.tile(np.eye(4), (2, 1, 1))
+    assert likelihood_params(WRT("probe", "info", poses)) is LIKELIHOOD
+    params = likelihood_params(WRT("drag", "goal", poses, closure_informative=False))
+    row = high_table.grid.nearest_index(np.array([0.0, 0.02, 0.3]))
+    feats = features_from_table_rows(high_table, [row])
+    other = features_from_table_rows(high_table, [row])
+    other.closure[0] += np.float32(0.4)
+    prior = Belief.for_level(HIGH, E)
+    ignored = [update(prior, high_table, E, f, transition=False, params=params).weights for f in (feats, other)]
+    np.testing.assert_array_equal(ignored[0], ignored[1])
+    used = update(prior, high_table, E, other, transition=False).weights
+    assert np.abs(used - ignored[1]).max() > 1e-3 * ignored[1].max()
+    # the sensors still speak: sensor 1 fired (Δy > 1 cm), so the states at Δy < -1 cm lose
+    # most of their prior mass
+    far = relative_planar(E, prior.grid.points())[:, 1] < -0.01
+    assert ignored[0][far].sum() < 0.25 * prior.weights[far].sum()
 
 
 # ------------------------------------------------------------------------ update

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -21,7 +22,10 @@ from ..objects import OBJECT_NAMES, get_object
 from ..observation import Observation
 from ..poses import compose_planar
 from ..wrt import WRT
+from .trajectory import InfeasiblePath
 from .world import PhysicsWorld
+
+log = logging.getLogger(__name__)
 
 #: The object counts as still when the execution moved it less than this [m] (the geometric
 #: simulator's assumption; bumped objects are the transition model's business).
@@ -105,7 +109,8 @@ def agreement_stats(diffs: list[ObservationDiff]) -> dict:
 def measure(names=OBJECT_NAMES, kinds=("goal", "info"), offsets: int = 3, sigma=(0.015, 0.015, 0.1),
             seed: int = 0) -> list[ObservationDiff]:
     """Diffs for every (object, WRT of the given kinds) at Δ = 0 and offsets-1 seeded Gaussian
-    estimate errors Δ = e ⊖ w (σ in m, m, rad), the object at the nominal pose."""
+    estimate errors Δ = e ⊖ w (σ in m, m, rad), the object at the nominal pose; an execution
+    the arm cannot make (InfeasiblePath) is skipped."""
     rng = np.random.default_rng(seed)
     w = np.asarray(WORLD.nominal_pose, dtype=float)
     out = []
@@ -117,7 +122,10 @@ def measure(names=OBJECT_NAMES, kinds=("goal", "info"), offsets: int = 3, sigma=
             geo = GeometricSimulator(world.obj, wrt)
             for k in range(offsets):
                 error = np.zeros(3) if k == 0 else rng.normal(0.0, sigma)
-                out.append(compare(world, wrt, w, compose_planar(w, error), geo))
+                try:
+                    out.append(compare(world, wrt, w, compose_planar(w, error), geo))
+                except InfeasiblePath:  # the arm cannot run τ(e) there: nothing to compare
+                    log.info("%s/%s infeasible at Δ=%s", name, wrt.name, np.round(error, 3).tolist())
     return out
 
 
