@@ -13,10 +13,11 @@ The likelihood of one table entry is the product of
   * max(exp(-½((c_o - c_t)/σ_closure)²), κ_closure) per finger closure angle;
   * max(exp(-½(|x_o - x_t|/σ_tip)²), κ_tip) per fingertip contact point present on both
     sides (a point present on one side only is already judged by that tip's sensor term);
-(the closure term is left out for a WRT whose closures physics does not reproduce:
-``likelihood_params``); the κ are per-term outlier floors (LIKELIHOOD.outlier_*): a finger that pushes a light object
-on while closing disagrees with the geometric prediction in one term, which then costs a
-bounded factor instead of flooring every state and erasing what the other terms said;
+(the closure term is left out for a WRT whose closures physics does not reproduce, e.g.
+a firm goal grasp that pulls the object as it closes: ``likelihood_params``); the κ are
+per-term outlier floors (LIKELIHOOD.outlier_*): a finger that pushes a light object on while
+closing disagrees with the geometric prediction in one term, which then costs a bounded
+factor instead of flooring every state and erasing what the other terms said;
 and is then floored: L' = (1 - ε)·L + ε with ε = LIKELIHOOD.floor, so no single
 observation can rule out a state (the true state survives a surprising reading, e.g.
 from unmodelled dynamics, and later observations can bring it back).

@@ -9,6 +9,7 @@ import pytest
 
 from rrg_estimator.update import goal_probability, update
 from rrg_planner.agent import initial_belief
+from rrg_planner.clustering import PROGRESS_BIN
 from rrg_planner.model import PlanningModel
 from rrg_planner.reference_search import ReferenceSearch
 from rrg_planner import search as search_module
@@ -74,6 +75,21 @@ def test_clusters_prune_small_groups_and_keep_most_mass(model):
         rows = cl.likelihood[np.arange(cl.count), cl.representatives]
         assert np.allclose(rows, cl.likelihood.max(axis=1))
 
+
+
+def test_the_goal_grasps_clusters_are_not_split_by_the_closures_it_ignores(model):
+    """The goal WRT's closures are left out of its likelihood (WRT.closure_informative), so
+    two of its canonical observations never differ in closure alone; an info WRT's do."""
+    def signatures(act):
+        t, reps = act.tables["small"], act.clusters["small"].representatives
+        progress_bins = np.rint(t.progress[reps] / PROGRESS_BIN).astype(int)
+        return {(bool(t.contact[r]), t.sensors[r].tobytes(), b) for r, b in zip(reps, progress_bins)}, len(reps)
+
+    goal = model.actions[model.goal_actions[0]]
+    assert not goal.wrt.closure_informative
+    distinct, count = signatures(goal)
+    assert len(distinct) == count
+    assert any(len(signatures(a)[0]) < signatures(a)[1] for a in model.actions if a.wrt.closure_informative)
 
 def test_branches_are_normalized_and_informative(model, beliefs):
     search = ForwardSearch(model)
