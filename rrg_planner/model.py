@@ -7,7 +7,7 @@ offline (or loaded from the on-disk cache) once per object.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -115,13 +115,18 @@ class PlanningModel:
     """All offline models of one object for the given uncertainty levels."""
 
     def __init__(self, object_name: str, levels: tuple[str | UncertaintyLevel, ...] = ("high", "low"),
-                 workers: int = 2, progress: bool = True, wrt_names: tuple[str, ...] | None = None):
+                 workers: int = 2, progress: bool = True, wrt_names: tuple[str, ...] | None = None,
+                 closures_as_predicted: bool = False):
         """levels: level names from config.LEVELS, or UncertaintyLevel objects (e.g. small test grids).
-        wrt_names: restrict the actions to these WRTs (default: all of the object's WRTs)."""
+        wrt_names: restrict the actions to these WRTs (default: all of the object's WRTs).
+        closures_as_predicted: the world reads every WRT's closures exactly as the geometric
+        model predicts (the GeometricEnvironment, where nothing moves), so even the goal
+        grasp's are used (WRT.closure_informative); physics and the robot drag the object."""
         self.obj = get_object(object_name)
         resolved = [LEVELS[n] if isinstance(n, str) else n for n in levels]
         self.levels: dict[str, UncertaintyLevel] = {lv.name: lv for lv in resolved}
-        wrts = [w for w in self.obj.wrts() if wrt_names is None or w.name in wrt_names]
+        wrts = [replace(w, closure_informative=True) if closures_as_predicted else w
+                for w in self.obj.wrts() if wrt_names is None or w.name in wrt_names]
         self.actions: list[ActionModel] = []
         for wrt in wrts:
             act = ActionModel(wrt=wrt, feasibility=FeasibilityMap(wrt.poses))

@@ -56,7 +56,7 @@ def test_a_reorientation_that_stopped_early_turns_neither_the_object_nor_the_bel
     from rrg_sim.config import LOW
     from rrg_sim.grid import Grid
 
-    monkeypatch.setattr(tracker, "update", lambda belief, *_: belief)  # only the turn is under test
+    monkeypatch.setattr(tracker, "update", lambda belief, *_, **__: belief)  # only the turn is under test
 
     world = PhysicsWorld("giant_teacup", seed=1)
     wrt = world.obj.wrt("reorient_ccw")
