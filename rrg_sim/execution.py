@@ -96,6 +96,12 @@ class Execution:
     #: Rigid motion (4,4) the object was given (a reorientation), applied to the way back.
     moved: np.ndarray = field(default_factory=lambda: np.eye(4))
 
+    def turned_approach(self) -> np.ndarray:
+        """(P,4,4) the way back after the object was moved: the WRT poses the hand passed,
+        in reverse, moved with the object."""
+        passed = max(0, int(self.path.segment[-1]))  # WRT poses 0 … passed-1 were passed
+        return self.moved @ self.wrt.world_poses(self.e)[:passed][::-1]
+
 
 def rotation_about_z(centre_xy, angle: float) -> np.ndarray:
     """(4,4) world rotation by ``angle`` about the vertical axis through centre_xy."""
@@ -124,6 +130,15 @@ def transit_via(first: np.ndarray) -> np.ndarray | None:
     via = first.copy()
     via[2, 3] = PHYSICS.transit_height
     return via
+
+
+def wrt_path(wrt: WRT, e: np.ndarray, q_start: np.ndarray) -> DensePath:
+    """τ(e)'s dense joint path from the arm at q_start: through the transit above the object
+    when the WRT starts low (``transit_via``), and with an IK chain that can go on to the lift
+    or turn that follows its grasp (``lift_after``). Raises InfeasiblePath."""
+    poses = wrt.world_poses(e)
+    return plan_path(poses, q_start, rigid_from=1, reconfigure=True, via=transit_via(poses[0]),
+                     then=lift_after(wrt, poses[-1]))
 
 
 def lift_after(wrt: WRT, last: np.ndarray) -> np.ndarray | None:
@@ -181,9 +196,7 @@ class WrtExecutor:
             self.retreat(report)
         e = np.asarray(e, dtype=float)
         report("planning", PHASES["planning"])
-        poses = wrt.world_poses(e)
-        path = plan_path(poses, self.robot.arm_q(), rigid_from=1, reconfigure=True, via=transit_via(poses[0]),
-                         then=lift_after(wrt, poses[-1]))
+        path = wrt_path(wrt, e, self.robot.arm_q())
         if wrt.kind == "reorient":
             self._check_reorient(wrt, e, path)
         report("approach", PHASES["approach"])
@@ -282,8 +295,7 @@ class WrtExecutor:
             top = int(last.path.segment.max())  # segments 0 and the lead-ins are free space
             self._follow(path, speeds={top - k: FREE_SPEEDS for k in (0, -1, -2)})
         else:
-            passed = max(0, int(last.path.segment[-1]))  # WRT poses 0 … passed-1 were passed
-            back = last.moved @ last.wrt.world_poses(last.e)[:passed][::-1]
+            back = last.turned_approach()
             if len(back):
                 try:
                     self._move(back, rigid_from=len(back))

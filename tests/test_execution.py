@@ -115,15 +115,12 @@ def test_planned_paths_keep_clear_of_the_joint_limits_where_they_can():
     overshoot pressed the limit stop and the collision detection read a contact at progress 0.
     Paths now keep LIMIT_MARGIN inside the limits when some chain does, and still pass
     through the margin when none does (the cooler's grasp at x = 0.75 touches J6's limit)."""
-    from rrg_sim.execution import lift_after, transit_via
+    from rrg_sim.execution import wrt_path
     from rrg_sim.objects import get_object
-    from rrg_sim.physics.trajectory import LIMIT_MARGIN, plan_path
+    from rrg_sim.physics.trajectory import LIMIT_MARGIN
 
     def plan(name, e):
-        wrt = get_object(name).goal_wrt
-        poses = wrt.world_poses(np.array(e))
-        return plan_path(poses, wam.HOME_Q, rigid_from=1, reconfigure=True, via=transit_via(poses[0]),
-                         then=lift_after(wrt, poses[-1]))
+        return wrt_path(get_object(name).goal_wrt, np.array(e), wam.HOME_Q)
 
     def clearance(path):
         return float(np.minimum(path.q - wam.LOWER, wam.UPPER - path.q).min())
@@ -143,7 +140,7 @@ def test_a_retreat_whose_turned_approach_is_out_of_reach_rises_and_goes_home():
     world.execute_wrt(wrt, e)
     last = world.executor.last
     assert not np.allclose(last.moved, np.eye(4))  # the grasp held: the pitcher was turned
-    back = last.moved @ wrt.world_poses(e)[:max(0, int(last.path.segment[-1]))][::-1]
+    back = last.turned_approach()
     with pytest.raises(InfeasiblePath):
         plan_path(back, world.arm_q(), rigid_from=len(back))
     world.retreat()
