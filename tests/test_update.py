@@ -118,7 +118,7 @@ def test_likelihood_is_floored_batched_and_float32(high_table):
     assert like.min() >= np.float32(LIKELIHOOD.floor) and like.max() <= 1.0
     for i, r in enumerate(rows):
         np.testing.assert_allclose(like[i], likelihood_over_table(high_table, feats.take(i))[0], rtol=1e-6)
-        assert np.argmax(like[i]) == r
+        assert like[i, r] == like[i].max()  # its own offset explains it best (ties: the same reading)
 
 
 def test_a_wrt_whose_closures_are_not_informative_is_updated_without_them(high_table):
