@@ -54,6 +54,26 @@ def table_index_reference(w, e, table) -> int:
     return (idx[0] * table.grid.shape[1] + idx[1]) * table.grid.shape[2] + idx[2]
 
 
+def closure_sigma_reference(table: TableLike, j: int, f: int, sigma: float) -> float:
+    """σ of entry j's closure of finger f: √(σ² + Σ_axis g²/12), g the larger change of that
+    closure to the entry's neighbours along each grid axis (obs_model.closure_sigma)."""
+    if not math.isfinite(sigma) or len(table.closure) != table.grid.size:
+        return sigma
+    shape = table.grid.shape
+    index = list(np.unravel_index(j, shape))
+    var = 0.0
+    for axis in range(3):
+        g = 0.0
+        for step in (-1, 1):
+            other = list(index)
+            other[axis] += step
+            if 0 <= other[axis] < shape[axis]:
+                k = int(np.ravel_multi_index(other, shape))
+                g = max(g, abs(float(table.closure[k][f]) - float(table.closure[j][f])))
+        var += g * g / 12.0
+    return math.sqrt(sigma * sigma + var)
+
+
 def likelihood_reference(table: TableLike, j: int, obs: dict, params: LikelihoodParams = LIKELIHOOD) -> float:
     """Floored likelihood of one observation (dict of plain values) at table entry j, term by term."""
     like = 1.0
@@ -69,7 +89,7 @@ def likelihood_reference(table: TableLike, j: int, obs: dict, params: Likelihood
         else:
             like *= params.p_false_alarm if fired else 1.0 - params.p_false_alarm
     for f in range(3):
-        z = (obs["closure"][f] - float(table.closure[j][f])) / params.sigma_closure
+        z = (obs["closure"][f] - float(table.closure[j][f])) / closure_sigma_reference(table, j, f, params.sigma_closure)
         like *= max(math.exp(-0.5 * z * z), params.outlier_closure)
     for f in range(3):
         o, t = obs["tip_points"][f], table.tip_points[j][f]

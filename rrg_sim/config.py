@@ -187,7 +187,9 @@ class LikelihoodParams:
     sigma_progress: float = 0.012  # m, where along the path the hand stopped
     p_detect: float = 0.90  # P(sensor fires | predicted contact on it)
     p_false_alarm: float = 0.04  # P(sensor fires | no predicted contact on it)
-    sigma_closure: float = 0.15  # rad, per-finger proximal closure angle
+    #: rad, per-finger proximal closure angle at the entry's exact offset; each table entry adds
+    #: its nearest-entry discretization (obs_model.closure_sigma)
+    sigma_closure: float = 0.05
     sigma_tip: float = 0.012  # m, Nano17 contact point
     #: Per-term outlier floors on the Gaussian terms (likelihood ratio of an outlier): a finger
     #: that slides off or pushes a light object on, or a stop point shifted by a bump, costs

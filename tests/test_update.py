@@ -11,7 +11,7 @@ import pytest
 
 from rrg_estimator.belief import Belief
 from rrg_estimator.obs_tables import ObservationTable
-from rrg_estimator.obs_model import (features_from_observation, features_from_table_rows, likelihood_over_table,
+from rrg_estimator.obs_model import (closure_sigma, features_from_observation, features_from_table_rows, likelihood_over_table,
                                      likelihood_params, log_likelihood_over_table, table_indices)
 from rrg_estimator.reference import table_index_reference, update_reference
 from rrg_estimator.update import apply_likelihood, goal_probability, update
@@ -100,7 +100,9 @@ def test_likelihood_terms(high_table):
 
     lp = LIKELIHOOD
     assert change("progress", (), f.progress[0] + lp.sigma_progress) == pytest.approx(-0.5, abs=1e-4)
-    assert change("closure", 1, f.closure[0, 1] + lp.sigma_closure) == pytest.approx(-0.5, abs=1e-4)
+    sigma = float(closure_sigma(t, lp.sigma_closure)[1, row])  # the entry's own σ, ≥ the base σ
+    assert sigma >= lp.sigma_closure
+    assert change("closure", 1, f.closure[0, 1] + sigma) == pytest.approx(-0.5, abs=1e-4)
     assert change("tip_points", (2, 2), f.tip_points[0, 2, 2] + 2 * lp.sigma_tip) == pytest.approx(-2.0, abs=1e-3)
     # a tip point missing on one side adds no distance term (its sensor term judges it)
     assert change("tip_points", 2, np.nan) == pytest.approx(0.0, abs=1e-6)
@@ -109,6 +111,30 @@ def test_likelihood_terms(high_table):
     mismatch = math.log(lp.p_contact_mismatch / (1 - lp.p_contact_mismatch))
     assert change("contact", (), False) == pytest.approx(mismatch, abs=1e-5)
 
+
+
+def test_closure_sigma_adds_each_entrys_discretization():
+    """A closure that changes by 0.12 rad per cell along x (and not along y or θ) is known
+    only to ± half a cell at the nearest entry: σ² = σ₀² + 0.12²/12 there; where it is flat,
+    σ₀; a jump (a finger that misses) makes the closure uninformative around it; an ignored
+    closure (σ₀ = ∞) stays ignored. The per-state reference computes the same."""
+    from types import SimpleNamespace
+    from rrg_estimator.reference import closure_sigma_reference
+    grid = Grid((0.0, 0.0, 0.0), (0.01, 0.01, 0.1), (5, 3, 3))
+    ix = np.arange(grid.size) // 9  # x index of each flat entry
+    closure = np.zeros((grid.size, 3), np.float32)
+    closure[:, 0] = 0.12 * ix  # finger 1: a ramp along x
+    closure[:, 2] = np.where(ix >= 3, 2.4, 0.3)  # finger 3: a jump between x indices 2 and 3
+    table = SimpleNamespace(grid=grid, closure=closure)
+    sig = closure_sigma(table, 0.05)
+    assert sig.shape == (3, grid.size) and sig.dtype == np.float32
+    np.testing.assert_allclose(sig[0], math.sqrt(0.05 ** 2 + 0.12 ** 2 / 12), rtol=1e-5)
+    np.testing.assert_allclose(sig[1], 0.05, rtol=1e-6)
+    assert np.all(sig[2][(ix == 2) | (ix == 3)] > 0.6) and np.allclose(sig[2][ix == 0], 0.05)
+    for j in (0, 13, 22, 44):
+        for f in range(3):
+            assert closure_sigma_reference(table, j, f, 0.05) == pytest.approx(float(sig[f, j]), rel=1e-5)
+    assert np.all(np.isinf(closure_sigma(table, math.inf)))
 
 def test_likelihood_is_floored_batched_and_float32(high_table):
     rows = [0, 5000, 12012, 20000]
