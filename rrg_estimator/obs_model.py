@@ -10,7 +10,8 @@ The likelihood of one table entry is the product of
     report an early contact (when neither does, both stopped at the path's end: 1);
   * each of the 10 sensors: p_detect / 1 - p_detect when contact on it was predicted,
     p_false_alarm / 1 - p_false_alarm when it was not (fired / silent);
-  * max(exp(-½((c_o - c_t)/σ_closure)²), κ_closure) per finger closure angle;
+  * max(exp(-½((c_o - c_t)/σ_t)²), κ_closure) per finger closure angle, σ_t the entry's own
+    closure σ: σ_closure widened by its nearest-entry discretization (``closure_sigma``);
   * max(exp(-½(|x_o - x_t|/σ_tip)²), κ_tip) per fingertip contact point present on both
     sides (a point present on one side only is already judged by that tip's sensor term);
 (the closure term is left out for a WRT whose closures physics does not reproduce, e.g.

@@ -25,7 +25,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rrg_msgs.msg import BeliefGrid
 from rrg_msgs.srv import SelectAction
 
-GRID_SHAPE = (31, 31, 33)  # points along x, y, theta
+GRID_SHAPE = {"high": (31, 31, 33), "low": (31, 31, 25)}  # points along x, y, theta: ±3 sigma
 SPACING = {"high": (0.01, 0.01, 0.1), "low": (0.002, 0.002, 0.013)}  # [m, m, rad]
 SIGMA = {"high": (0.05, 0.05, math.radians(30.0)), "low": (0.01, 0.01, math.radians(3.0))}  # [m, m, rad]
 
@@ -33,14 +33,14 @@ SIGMA = {"high": (0.05, 0.05, math.radians(30.0)), "low": (0.01, 0.01, math.radi
 def gaussian_belief(mean: tuple[float, float, float], level: str) -> BeliefGrid:
     """N(mean, diag(sigma^2)) sampled on a grid centred at the mean, weights in C order (x, y, theta)."""
     spacing, sigma = np.array(SPACING[level]), np.array(SIGMA[level])
-    axes = [(np.arange(n) - (n - 1) / 2) * s for n, s in zip(GRID_SHAPE, spacing)]  # offsets from the mean
+    axes = [(np.arange(n) - (n - 1) / 2) * s for n, s in zip(GRID_SHAPE[level], spacing)]  # offsets from the mean
     dx, dy, dt = np.meshgrid(*axes, indexing="ij")
     w = np.exp(-0.5 * ((dx / sigma[0]) ** 2 + (dy / sigma[1]) ** 2 + (dt / sigma[2]) ** 2)).ravel()
     msg = BeliefGrid()
     msg.header.frame_id = "world"
     m = msg.metadata
     m.resolution_x, m.resolution_y, m.resolution_theta = (float(s) for s in spacing)
-    m.size_x, m.size_y, m.size_theta = GRID_SHAPE
+    m.size_x, m.size_y, m.size_theta = GRID_SHAPE[level]
     m.origin.x, m.origin.y, m.origin.theta = mean
     msg.weights = array.array("d", (w / w.sum()).tobytes())
     return msg
