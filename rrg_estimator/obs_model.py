@@ -134,32 +134,23 @@ def closure_sigma(table: TableLike, sigma: float) -> np.ndarray:
     larger change to a grid neighbour along each axis. An observation is compared with the
     entry nearest its offset, which lies anywhere within ± half a cell; where a finger's
     closure changes fast with the offset (the drill's info3 pinch: 0.14 rad per cm) that
-    discretization dominates, where it is flat σ does. Cached per table."""
+    discretization dominates, where it is flat σ does. Cached per table (weakly referenced)."""
     n = len(table.closure)
-    if not np.isfinite(sigma) or n != table.grid.size:
+    if not np.isfinite(sigma):
         return np.full((3, n), sigma, dtype=np.float32)
-    try:
-        cached = _CLOSURE_SIGMA.get(table)
-    except TypeError:  # a table type without weak references (a test's): not cached
-        cached = None
+    cached = _CLOSURE_SIGMA.get(table)
     if cached is not None and cached[0] == sigma:
         return cached[1]
     c = np.asarray(table.closure, dtype=np.float64).reshape(*table.grid.shape, 3)
     var = np.zeros_like(c)
     for axis in range(3):
         d = np.abs(np.diff(c, axis=axis))
-        lo = [slice(None)] * 4
-        hi = [slice(None)] * 4
-        lo[axis], hi[axis] = slice(1, None), slice(None, -1)
-        g = np.zeros_like(c)
-        g[tuple(lo)] = d  # change to the previous neighbour
-        g[tuple(hi)] = np.maximum(g[tuple(hi)], d)  # ... or to the next, the larger
+        before, after = [(0, 0)] * 4, [(0, 0)] * 4
+        before[axis], after[axis] = (1, 0), (0, 1)
+        g = np.maximum(np.pad(d, before), np.pad(d, after))  # the larger change to a neighbour
         var += g * g / 12.0
     out = np.ascontiguousarray(np.sqrt(sigma * sigma + var).reshape(n, 3).T.astype(np.float32))
-    try:
-        _CLOSURE_SIGMA[table] = (sigma, out)
-    except TypeError:
-        pass
+    _CLOSURE_SIGMA[table] = (sigma, out)
     return out
 
 

@@ -57,7 +57,7 @@ def table_index_reference(w, e, table) -> int:
 def closure_sigma_reference(table: TableLike, j: int, f: int, sigma: float) -> float:
     """σ of entry j's closure of finger f: √(σ² + Σ_axis g²/12), g the larger change of that
     closure to the entry's neighbours along each grid axis (obs_model.closure_sigma)."""
-    if not math.isfinite(sigma) or len(table.closure) != table.grid.size:
+    if not math.isfinite(sigma):
         return sigma
     shape = table.grid.shape
     index = list(np.unravel_index(j, shape))

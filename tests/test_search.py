@@ -76,7 +76,6 @@ def test_clusters_prune_small_groups_and_keep_most_mass(model):
         assert np.allclose(rows, cl.likelihood.max(axis=1))
 
 
-
 def test_the_goal_grasps_clusters_are_not_split_by_the_closures_it_ignores(model):
     """The goal WRT's closures are left out of its likelihood (WRT.closure_informative), so
     two of its canonical observations never differ in closure alone; an info WRT's do."""
@@ -90,6 +89,7 @@ def test_the_goal_grasps_clusters_are_not_split_by_the_closures_it_ignores(model
     distinct, count = signatures(goal)
     assert len(distinct) == count
     assert any(len(signatures(a)[0]) < signatures(a)[1] for a in model.actions if a.wrt.closure_informative)
+
 
 def test_branches_are_normalized_and_informative(model, beliefs):
     search = ForwardSearch(model)

@@ -118,14 +118,18 @@ def test_closure_sigma_adds_each_entrys_discretization():
     only to ± half a cell at the nearest entry: σ² = σ₀² + 0.12²/12 there; where it is flat,
     σ₀; a jump (a finger that misses) makes the closure uninformative around it; an ignored
     closure (σ₀ = ∞) stays ignored. The per-state reference computes the same."""
-    from types import SimpleNamespace
     from rrg_estimator.reference import closure_sigma_reference
+
+    class Table:  # the two fields closure_sigma reads
+        def __init__(self, grid: Grid, closure: np.ndarray):
+            self.grid, self.closure = grid, closure
+
     grid = Grid((0.0, 0.0, 0.0), (0.01, 0.01, 0.1), (5, 3, 3))
     ix = np.arange(grid.size) // 9  # x index of each flat entry
     closure = np.zeros((grid.size, 3), np.float32)
     closure[:, 0] = 0.12 * ix  # finger 1: a ramp along x
     closure[:, 2] = np.where(ix >= 3, 2.4, 0.3)  # finger 3: a jump between x indices 2 and 3
-    table = SimpleNamespace(grid=grid, closure=closure)
+    table = Table(grid, closure)
     sig = closure_sigma(table, 0.05)
     assert sig.shape == (3, grid.size) and sig.dtype == np.float32
     np.testing.assert_allclose(sig[0], math.sqrt(0.05 ** 2 + 0.12 ** 2 / 12), rtol=1e-5)
