@@ -13,6 +13,7 @@ import numpy as np
 
 from rrg_estimator.obs_model import likelihood_params
 from rrg_estimator.obs_tables import ObservationTable, load_or_build
+from rrg_sim.execution import executed_poses
 from rrg_sim.config import GOAL_AIM_FRACTION, LEVELS, SENSOR_NAMES, TRANSITION, UncertaintyLevel
 from rrg_sim.observation import holds_object
 from rrg_sim.grid import Grid
@@ -129,7 +130,7 @@ class PlanningModel:
                 for w in self.obj.wrts() if wrt_names is None or w.name in wrt_names]
         self.actions: list[ActionModel] = []
         for wrt in wrts:
-            act = ActionModel(wrt=wrt, feasibility=FeasibilityMap(wrt.poses))
+            act = ActionModel(wrt=wrt, feasibility=FeasibilityMap(executed_poses(wrt)))
             for name, level in self.levels.items():
                 table = load_or_build(self.obj, wrt, Grid.for_level(level), workers=workers, progress=progress)
                 act.tables[name] = table
@@ -172,5 +173,6 @@ class PlanningModel:
         raise ValueError(f"no tables for grid spacing {grid.spacing}; loaded levels: {list(self.levels)}")
 
     def feasible(self, action: int, e) -> bool:
-        """F_τ(e): IK within joint limits at every waypoint and the arm clear of the table."""
+        """F_τ(e): IK within joint limits and the arm clear of the table at every sample of the
+        path an executor follows (execution.executed_poses)."""
         return bool(self.actions[action].feasibility.lookup(np.asarray(e, dtype=float)))

@@ -373,6 +373,9 @@ class PhysicsParams:
     joint_speed: tuple[float, ...] = (1.5, 1.5, 1.5, 1.5, 3.0, 3.0, 3.0)
     #: Cartesian densification of a WRT's straight segments before IK [m] (brief: ~ 1 cm).
     path_step: float = 0.01
+    #: Spacing of the path samples a feasibility map checks [m] (execution.executed_poses;
+    #: chosen: reachability changes over centimetres, and a map costs ~ 0.08 s per sample).
+    feasibility_step: float = 0.02
     #: Reflected motor inertia of every hand joint [kg m²] (chosen: the BH8's worm-geared
     #: drives reflect a large rotor inertia; it also keeps MuJoCo's inertia-scaled soft
     #: equality constraints, the spread and distal couplings, within ~ 1 mrad at the stall torque).

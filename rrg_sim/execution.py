@@ -25,8 +25,8 @@ from . import wam
 from .config import GEOMSIM, N_SENSORS, PHYSICS, TRANSITION
 from .hand import hand_geoms_world
 from .observation import Observation, grasp_arrived, holds_object
-from .physics.trajectory import DensePath, InfeasiblePath, joint_path, plan_path, sample_times, solve_path
-from .poses import raised
+from .physics.trajectory import DensePath, InfeasiblePath, densify, joint_path, plan_path, sample_times, solve_path
+from .poses import planar_pose, raised
 from .wrt import WRT
 
 log = logging.getLogger(__name__)
@@ -139,6 +139,20 @@ def wrt_path(wrt: WRT, e: np.ndarray, q_start: np.ndarray) -> DensePath:
     poses = wrt.world_poses(e)
     return plan_path(poses, q_start, rigid_from=1, reconfigure=True, via=transit_via(poses[0]),
                      then=lift_after(wrt, poses[-1]))
+
+
+def executed_poses(wrt: WRT) -> np.ndarray:
+    """The hand poses (N,4,4) in the object's frame along the path ``wrt_path`` follows from
+    the transit on: the ``transit_via`` pose, τ's waypoints and the ``lift_after`` its grasp,
+    about PHYSICS.feasibility_step apart. A feasibility map over these checks the path an
+    executor must follow, not only τ's waypoints (a side grasp that starts near the WAM's
+    base is reachable at its waypoints but not on the descent to them)."""
+    origin = planar_pose(np.zeros(3))  # the object frame in world for e = 0
+    poses = wrt.world_poses(np.zeros(3))
+    via, lift = transit_via(poses[0]), lift_after(wrt, poses[-1])
+    path = np.concatenate([p for p in (None if via is None else via[None], poses, lift) if p is not None])
+    dense, _ = densify(path, PHYSICS.feasibility_step)
+    return np.linalg.inv(origin) @ dense
 
 
 def lift_after(wrt: WRT, last: np.ndarray) -> np.ndarray | None:

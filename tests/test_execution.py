@@ -158,3 +158,51 @@ def test_the_open_hand_at_home_is_clear_of_the_tallest_object_below_it():
         for wrt in world.obj.wrts():
             world.move_hand(wrt.spread, wrt.preclose)
             assert not world.reading().fired.any(), (theta, wrt.name)
+
+
+def test_a_feasibility_map_over_the_executed_path_agrees_with_the_executor():
+    """The pitcher's goal grasp starts 33 cm back from the handle, near the WAM's base: at
+    θ ≈ -0.4 its two waypoints are reachable but the descent from the transit to the first is
+    not, and a map over the waypoints alone said feasible where the executor found no IK
+    chain (23 of 200 poses drawn at high uncertainty; agents then replanned until they gave
+    up). The map over ``executed_poses`` checks that descent and the lift. Near that pose it
+    is wrong at least 4× less often (it does not check joint continuity: 11 → 2 of 40)."""
+    from rrg_sim.execution import executed_poses, wrt_path
+    from rrg_sim.objects import get_object
+    from rrg_sim.wam_feasibility import FeasibilityMap
+
+    wrt = get_object("brita_pitcher").goal_wrt
+    old, new = FeasibilityMap(wrt.poses), FeasibilityMap(executed_poses(wrt))
+    e = np.array([0.685, 0.047, -0.368])
+    assert old.lookup(e) and not new.lookup(e)
+    with pytest.raises(InfeasiblePath):
+        wrt_path(wrt, e, wam.HOME_Q)
+    rng = np.random.default_rng(3)
+    poses = np.array([0.62, 0.0, -0.4]) + rng.normal(size=(40, 3)) * [0.03, 0.03, 0.15]
+
+    def chain(e) -> bool:
+        try:
+            wrt_path(wrt, e, wam.HOME_Q)
+            return True
+        except InfeasiblePath:
+            return False
+
+    has_chain = np.array([chain(e) for e in poses])
+    wrong_old = int(np.sum(old.lookup(poses) & ~has_chain))
+    wrong_new = int(np.sum(new.lookup(poses) & ~has_chain))
+    print(f"feasible by the map but no chain, of {len(poses)}: waypoints {wrong_old}, executed path {wrong_new}")
+    assert wrong_old >= 10 and 4 * wrong_new <= wrong_old
+
+
+def test_a_path_starts_from_a_joint_pressed_just_past_its_limit():
+    """The bowl's grasp (campaign trial wooden_bowl/high/rrg-info#37 with the executed-path
+    maps) ended with J7 at -3.002 rad, 2 mrad past its limit, pressed there by the contact. No
+    IK solution, so no chain, started there, and the judge could not lift a good grasp. The
+    plan now starts from the nearest configuration within the limits."""
+    q = np.array([0.71, 1.567, -1.538, 2.237, -1.553, -1.544, -3.002])
+    assert q[6] < wam.LOWER[6]
+    up = wam.fk(q)
+    up[2, 3] += PHYSICS.lift_height
+    path = plan_path(up[None], q, rigid_from=1)
+    assert np.all(path.q >= wam.LOWER) and np.all(path.q <= wam.UPPER)
+    assert np.abs(wam.fk(path.q[-1])[:3, 3] - up[:3, 3]).max() < 1e-3

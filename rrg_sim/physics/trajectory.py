@@ -96,14 +96,14 @@ class DensePath:
         return DensePath(self.poses[::-1], self.q[::-1], seg.max() - seg)
 
 
-def densify(waypoints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Straight-line samples (M,4,4) between hand waypoints (K,4,4), about PHYSICS.path_step
-    apart (rotations counted at GEOMSIM.rotation_sample_radius), and their segment index (M,)."""
+def densify(waypoints: np.ndarray, step: float = PHYSICS.path_step) -> tuple[np.ndarray, np.ndarray]:
+    """Straight-line samples (M,4,4) between hand waypoints (K,4,4), about ``step`` [m] apart
+    (rotations counted at GEOMSIM.rotation_sample_radius), and their segment index (M,)."""
     poses, segment = [waypoints[:1]], [np.zeros(1, int)]
     for k, (T0, T1) in enumerate(zip(waypoints[:-1], waypoints[1:])):
         length = max(np.linalg.norm(T1[:3, 3] - T0[:3, 3]),
                      rotation_angles(T0, T1) * GEOMSIM.rotation_sample_radius)
-        n = max(1, int(np.ceil(length / PHYSICS.path_step)))
+        n = max(1, int(np.ceil(length / step)))
         poses.append(interpolate_poses(T0, T1, n + 1)[1:])
         segment.append(np.full(n, k))
     return np.concatenate(poses), np.concatenate(segment)
@@ -209,6 +209,9 @@ def plan_path(waypoints: np.ndarray, q_start: np.ndarray, rigid_from: int = 0,
     chain starts from the raised pose. Lead-in samples have segment index -1 (the rise: -2).
     """
     waypoints = np.asarray(waypoints, dtype=float)
+    # A contact can press a joint a few mrad past its limit (MuJoCo's limits are soft), where no
+    # IK solution, so no chain, starts: plan from the nearest configuration within the limits.
+    q_start = np.clip(q_start, wam.LOWER, wam.UPPER)
     K = len(waypoints)
     if then is not None:
         waypoints = np.concatenate([waypoints, np.asarray(then, dtype=float)])
