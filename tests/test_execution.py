@@ -206,3 +206,16 @@ def test_a_path_starts_from_a_joint_pressed_just_past_its_limit():
     path = plan_path(up[None], q, rigid_from=1)
     assert np.all(path.q >= wam.LOWER) and np.all(path.q <= wam.UPPER)
     assert np.abs(wam.fk(path.q[-1])[:3, 3] - up[:3, 3]).max() < 1e-3
+
+
+def test_a_lift_the_least_motion_chain_cannot_reach_starts_where_the_arm_is():
+    """The can's grasp near J2's limit (campaign trial can/high/rrg-info#37) ended at q below.
+    The least-motion chain up from there starts at another elbow swivel that no swivel in
+    place reaches, and the judge could not lift a good grasp. The plan now falls back to the
+    least-motion chain that starts at q itself."""
+    q = np.array([-1.127, 1.966, 1.36, 2.122, -2.16, 0.151, 1.709])
+    up = wam.fk(q)
+    up[2, 3] += PHYSICS.lift_height
+    path = plan_path(up[None], q, rigid_from=1)
+    assert np.allclose(path.q[0], q, atol=1e-6)
+    assert np.abs(wam.fk(path.q[-1])[:3, 3] - up[:3, 3]).max() < 1e-3

@@ -40,6 +40,8 @@ MAX_JOINT_STEP = 0.45
 #: Weight of the distance from the current configuration in the chain's cost (chosen: moving
 #: there costs as much as moving along the path).
 START_WEIGHT = 1.0
+#: A chain ``from_prev`` starts at the IK solution this close to q_prev [rad] (round-off).
+START_TOLERANCE = 1e-6
 #: Height the hand rises at home before changing IK branch by a joint-space move [m] (chosen:
 #: the fingertips then clear the tallest object, the 28 cm cooler, by ~ 10 cm).
 RECONFIGURE_LIFT = 0.15
@@ -109,11 +111,14 @@ def densify(waypoints: np.ndarray, step: float = PHYSICS.path_step) -> tuple[np.
     return np.concatenate(poses), np.concatenate(segment)
 
 
-def chain_ik(poses: np.ndarray, q_prev: np.ndarray, free: np.ndarray | None = None) -> np.ndarray:
+def chain_ik(poses: np.ndarray, q_prev: np.ndarray, free: np.ndarray | None = None,
+             from_prev: bool = False) -> np.ndarray:
     """Joint angles (M,7) for dense hand poses (M,4,4): the continuous IK chain (see the module
     doc) of least joint motion, counting START_WEIGHT × the distance of its start from q_prev
-    (7,). J3 is held except on the steps into samples where ``free`` (M,) is True, where it may
-    move to a neighbouring sample. Raises InfeasiblePath when no chain exists."""
+    (7,); with ``from_prev``, the least-motion chain that starts at q_prev itself (poses[0]
+    must be fk(q_prev)). J3 is held except on the steps into samples where ``free`` (M,) is
+    True, where it may move to a neighbouring sample. Raises InfeasiblePath when no chain
+    exists."""
     M = len(poses)
     free = np.zeros(M, bool) if free is None else np.asarray(free, bool)
     sol = wam.ik_solutions(poses, q_prev)
@@ -142,7 +147,12 @@ def chain_ik(poses: np.ndarray, q_prev: np.ndarray, free: np.ndarray | None = No
             steps[k, :, :, lo:hi, 1:] = np.where(d2 <= MAX_JOINT_STEP**2, np.maximum(d2, 0.0), np.inf)
     steps = steps.reshape(24, 8, S, M) + penalty[None]
     start = (q[..., 0] - q_prev[:, None, None]) * JOINT_METRIC[:, None, None]
-    cost = np.where(usable[..., 0], START_WEIGHT * np.sum(start**2, axis=0) + penalty[..., 0], np.inf)
+    start2 = np.sum(start**2, axis=0)
+    if from_prev:
+        usable_start = usable[..., 0] & (start2 <= START_TOLERANCE**2)
+    else:
+        usable_start = usable[..., 0]
+    cost = np.where(usable_start, START_WEIGHT * start2 + penalty[..., 0], np.inf)
     back = np.zeros((M, 8, S), dtype=int)  # (J3 shift + 1) * 8 + branch of the previous sample
     prev = np.full((3, 8, S), np.inf)
     for m in range(1, M):
@@ -216,9 +226,9 @@ def plan_path(waypoints: np.ndarray, q_start: np.ndarray, rigid_from: int = 0,
     if then is not None:
         waypoints = np.concatenate([waypoints, np.asarray(then, dtype=float)])
 
-    def chain(start: np.ndarray, q0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def chain(start: np.ndarray, q0: np.ndarray, from_prev: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         poses, segment = _densify_via(start, waypoints, via)
-        q = chain_ik(poses, q0, (segment < rigid_from) | (segment >= K))
+        q = chain_ik(poses, q0, (segment < rigid_from) | (segment >= K), from_prev)
         keep = segment < K
         return poses[keep], segment[keep], q[keep]
 
@@ -228,6 +238,13 @@ def plan_path(waypoints: np.ndarray, q_start: np.ndarray, rigid_from: int = 0,
         lead = self_motion(here, q_start, q[0])[:-1]
         return DensePath(np.concatenate([np.repeat(here[None], len(lead), axis=0), poses]),
                          np.vstack([lead, q]), np.r_[np.full(len(lead), -1), segment])
+    except InfeasiblePath:
+        pass
+    # No elbow swivel reaches the least-motion chain: take the least-motion one that starts
+    # where the arm is (a grasp near J2's limit lifts the can only from its own configuration).
+    try:
+        poses, segment, q = chain(here, q_start, from_prev=True)
+        return DensePath(poses, q, segment)
     except InfeasiblePath:
         if not reconfigure:
             raise
