@@ -50,7 +50,8 @@ def wrt_posterior(belief: Belief, table: TableLike, wrt: WRT, e, obs: Observatio
     grasp held the object (observation.holds_object; otherwise nothing was turned)."""
     post = update(belief, table, e, obs, params=likelihood_params(wrt))
     if wrt.kind == "reorient" and holds_object(obs.contact, obs.sensors, TRANSITION.reorient_min_fingers):
-        post = reorient(post, wrt.reorient_angle, center_xy=np.asarray(e, dtype=float)[:2])
+        e = np.asarray(e, dtype=float)
+        post = reorient(post, wrt.reorient_angle, center_xy=e[:2], outcome=wrt.reorient_outcome, e=e)
     return post
 
 

@@ -24,6 +24,7 @@ from rrg_sim.config import TRANSITION, TransitionParams
 from rrg_sim.grid import Grid
 from rrg_sim.objects.model import Settling
 from rrg_sim.poses import compose_planar, relative_planar, wrap_angle
+from rrg_sim.wrt import ReorientOutcome
 
 from .belief import Belief
 
@@ -95,14 +96,17 @@ def sample_density(belief: Belief, poses: np.ndarray) -> np.ndarray:
 
 
 def reorient(belief: Belief, angle: float, params: TransitionParams = TRANSITION,
-             center_xy=None) -> Belief:
+             center_xy=None, outcome: ReorientOutcome | None = None, e=None) -> Belief:
     """Reorientation transition: turned by ``angle`` [rad] with p_reorient_success, by angle/2
-    with p_reorient_partial, not at all otherwise.
+    with p_reorient_partial, not at all otherwise, each blurred by reorient_sigma_theta.
 
     The result lives on the belief's grid turned with the object (θ centre + angle, and the
     x, y centre rotated about center_xy if given), so the likely full turn stays on the grid;
     the parts of the partial and failed turns that fall off it are dropped (on a narrow grid,
     e.g. the low-uncertainty one, the failed turn is lost for angles beyond its θ range).
+    With the WRT's measured ``outcome`` and its estimate e, the full turn moves each state
+    whose offset Δ from e lies in the outcome's box to e' ⊕ (Δ + shift), e' = e turned by the
+    angle, blurred by its σ; the rest turn rigidly.
     """
     g = belief.grid
     cx, cy, ct = g.center
@@ -113,8 +117,23 @@ def reorient(belief: Belief, angle: float, params: TransitionParams = TRANSITION
     grid = Grid((float(cx), float(cy), float(wrap_angle(ct + angle))), g.spacing, g.shape)
     p_full, p_half = params.p_reorient_success, params.p_reorient_partial
     mix = [(p_full, angle), (p_half, angle / 2.0), (1.0 - p_full - p_half, 0.0)]
-    w = sum(p * rotated_density(belief, grid, a, center_xy) for p, a in mix if p > 0.0)
-    return Belief(grid, displace(w.reshape(grid.shape), grid, (0.0, 0.0, 0.0), (0.0, 0.0, params.reorient_sigma_theta)).ravel())
+    blur = (0.0, 0.0, params.reorient_sigma_theta)
+    if outcome is None or e is None:
+        w = sum(p * rotated_density(belief, grid, a, center_xy) for p, a in mix if p > 0.0)
+        return Belief(grid, displace(w.reshape(grid.shape), grid, (0.0, 0.0, 0.0), blur).ravel())
+    w = sum(p * rotated_density(belief, grid, a, center_xy) for p, a in mix[1:] if p > 0.0)
+    w = displace(w.reshape(grid.shape), grid, (0.0, 0.0, 0.0), blur)
+    e = np.asarray(e, dtype=float).reshape(3)
+    live = np.flatnonzero(belief.weights > 0.0)
+    delta = relative_planar(e, belief.grid.points()[live])
+    inside = outcome.inside(delta)
+    mass = belief.weights[live]
+    e_turned = e + np.array([0.0, 0.0, angle])
+    rigid = splat(grid, compose_planar(e_turned, delta[~inside]), mass[~inside])
+    moved = splat(grid, compose_planar(e_turned, outcome.mean(delta[inside])), mass[inside])
+    sigma = np.hypot(outcome.sigma, blur)  # the fit's residual, at least the transition's θ blur
+    full = displace(rigid, grid, (0.0, 0.0, 0.0), blur) + displace(moved, grid, (0.0, 0.0, 0.0), sigma)
+    return Belief(grid, (w + p_full * full).ravel())
 
 
 def splat(grid: Grid, poses: np.ndarray, mass: np.ndarray) -> np.ndarray:

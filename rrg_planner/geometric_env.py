@@ -2,7 +2,7 @@
 from the geometric simulator with seeded sensor noise (the pomdp_py 'environment').
 
 The object does not move when touched, except that a reorientation grasp that closes on
-it turns it about the hand's axis. Physics trials (rrg_sim.physics) are the honest test of
+it turns it about the hand's axis (fully, to where the WRT's measured outcome puts it). Physics trials (rrg_sim.physics) are the honest test of
 bumps; this environment tests the estimator and planner against their own geometry.
 """
 from __future__ import annotations
@@ -17,7 +17,7 @@ from rrg_sim.poses import relative_planar
 from rrg_sim.wrt import WRT
 
 from .model import goal_holds
-from .search import rotate_about
+from .search import reorient_mixture
 
 
 def add_sensor_noise(obs: Observation, rng: np.random.Generator, noise: SensingParams = SENSING) -> Observation:
@@ -54,7 +54,8 @@ class GeometricEnvironment:
     def execute(self, wrt: WRT, e: np.ndarray) -> Observation:
         obs = self._sim(wrt).simulate(self.true_pose, e)
         if wrt.kind == "reorient" and holds_object(obs.contact, obs.sensors, TRANSITION.reorient_min_fingers):
-            self.true_pose = rotate_about(self.true_pose[None], e[:2], wrt.reorient_angle)[0]
+            self.true_pose = reorient_mixture(self.true_pose[None], np.ones(1), e, wrt.reorient_angle,
+                                              outcome=wrt.reorient_outcome)[0][0]  # the full turn
         return add_sensor_noise(obs, self.rng, self.noise)
 
     def retreat(self) -> None:

@@ -11,6 +11,7 @@ import numpy as np
 
 from rrg_estimator.belief import Belief
 from rrg_sim.config import SEARCH, TRANSITION, SearchParams
+from rrg_sim.poses import compose_planar, relative_planar
 
 from .model import PlanningModel
 from .search import SearchResult, merge_branches
@@ -121,7 +122,8 @@ class ReferenceSearch:
         for k, p in merge_branches(np.array([pc[c] for c in cand]), np.array(ents), np.array(covs), self.params):
             child_pts, child_w = points, posts[k]
             if act.kind == "reorient" and act.turns[level][cand[k]]:
-                child_pts, child_w = self._reorient(child_pts, child_w, e, act.wrt.reorient_angle)
+                child_pts, child_w = self._reorient(child_pts, child_w, e, act.wrt.reorient_angle,
+                                                    act.wrt.reorient_outcome)
             branches.append((p, *self._compact(child_pts, child_w)))
         return branches
 
@@ -134,14 +136,19 @@ class ReferenceSearch:
         return pts, [v / z for v in w]
 
     @staticmethod
-    def _reorient(points: Points, weights: list[float], e, angle: float):
+    def _reorient(points: Points, weights: list[float], e, angle: float, outcome=None):
         outs_p, outs_w = [], []
         for frac, prob in ((1.0, TRANSITION.p_reorient_success), (0.5, TRANSITION.p_reorient_partial),
                            (0.0, 1.0 - TRANSITION.p_reorient_success - TRANSITION.p_reorient_partial)):
             c, s = math.cos(angle * frac), math.sin(angle * frac)
             for p, w in zip(points, weights):
-                dx, dy = p[0] - e[0], p[1] - e[1]
-                outs_p.append((e[0] + c * dx - s * dy, e[1] + s * dx + c * dy, _wrap(p[2] + angle * frac)))
+                delta = relative_planar(e, np.array(p))
+                if frac == 1.0 and outcome is not None and outcome.inside(delta):
+                    moved = compose_planar(np.array([e[0], e[1], e[2] + angle]), outcome.mean(delta))
+                    outs_p.append(tuple(float(v) for v in moved))
+                else:
+                    dx, dy = p[0] - e[0], p[1] - e[1]
+                    outs_p.append((e[0] + c * dx - s * dy, e[1] + s * dx + c * dy, _wrap(p[2] + angle * frac)))
                 outs_w.append(w * prob)
         return outs_p, outs_w
 

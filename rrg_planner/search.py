@@ -27,6 +27,7 @@ from threadpoolctl import ThreadpoolController
 from rrg_estimator.belief import Belief
 from rrg_sim.config import SEARCH, TRANSITION, SearchParams
 from rrg_sim.poses import compose_planar, relative_planar
+from rrg_sim.wrt import ReorientOutcome
 
 from .model import PlanningModel
 
@@ -170,9 +171,11 @@ def rotate_about(points: np.ndarray, center_xy: np.ndarray, angle: float) -> np.
     return out
 
 
-def reorient_mixture(points: np.ndarray, weights: np.ndarray, center_xy: np.ndarray,
-                     angle: float, support_rel: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Transition of a reorientation grasp: full rotation, half, or none (TRANSITION).
+def reorient_mixture(points: np.ndarray, weights: np.ndarray, e: np.ndarray, angle: float,
+                     support_rel: float = 0.0, outcome: ReorientOutcome | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Transition of a reorientation grasp run at e: full rotation, half, or none (TRANSITION),
+    about the vertical through e; with the WRT's measured ``outcome``, the full turn's states
+    in its box move to its mean (rrg_estimator.transition.reorient, without the blur).
 
     Returns the mixture's points and normalized weights, without the components' points below
     ``support_rel`` of the mixture's largest weight (as SparseBelief.compact would drop them,
@@ -184,7 +187,12 @@ def reorient_mixture(points: np.ndarray, weights: np.ndarray, center_xy: np.ndar
     pts, ws = [], []
     for a, q in parts:
         keep = np.flatnonzero(weights * q >= threshold) if threshold > 0 else slice(None)
-        pts.append(rotate_about(points[keep], center_xy, a) if a else points[keep])
+        turned = rotate_about(points[keep], e[:2], a) if a else points[keep]
+        if a == angle and outcome is not None:
+            delta = relative_planar(e, points[keep])
+            inside = outcome.inside(delta)
+            turned[inside] = compose_planar(e + np.array([0.0, 0.0, angle]), outcome.mean(delta[inside]))
+        pts.append(turned)
         ws.append(weights[keep] * q)
     w = np.concatenate(ws)
     return np.concatenate(pts), w / w.sum()
@@ -324,8 +332,8 @@ class ForwardSearch:
             w = clusters.likelihood[cand[k]][idx] * sb.weights
             w /= w.sum()
             if act.kind == "reorient" and act.turns[sb.level][cand[k]]:  # the mixture comes out compact
-                child = SparseBelief(*reorient_mixture(sb.points, w, e[:2], act.wrt.reorient_angle,
-                                                       self.params.support_rel), sb.level)
+                child = SparseBelief(*reorient_mixture(sb.points, w, e, act.wrt.reorient_angle,
+                                                       self.params.support_rel, act.wrt.reorient_outcome), sb.level)
             else:
                 child = SparseBelief.compact(sb.points, w, sb.level, self.params)
             branches.append((p, child))

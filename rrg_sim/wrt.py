@@ -17,6 +17,29 @@ class InfeasibleWRT(RuntimeError):
 
 
 @dataclass(frozen=True, eq=False)
+class ReorientOutcome:
+    """Where a reorientation's full turn leaves the object, measured in MuJoCo
+    (rrg_sim.physics.reorient_study): for a start offset Δ = relative_planar(e, w) inside
+    ``box`` (3,) half-widths, the offset from the turned estimate e' = (e_x, e_y, e_θ + angle)
+    after the turn is Δ' ~ N(Δ + shift, diag σ²) [m, m, rad] (a rigid turn: Δ' = Δ). Outside
+    the box the object is taken to turn rigidly (the study did not sample there)."""
+
+    box: np.ndarray
+    shift: np.ndarray
+    sigma: np.ndarray
+
+    def inside(self, delta: np.ndarray) -> np.ndarray:
+        """(…) bool: Δ (…,3) lies in the studied box."""
+        d = np.asarray(delta, dtype=float).copy()
+        d[..., 2] = (d[..., 2] + np.pi) % (2 * np.pi) - np.pi
+        return np.all(np.abs(d) <= self.box, axis=-1)
+
+    def mean(self, delta: np.ndarray) -> np.ndarray:
+        """(…,3) the mean Δ' for starts Δ (…,3)."""
+        return np.asarray(delta, dtype=float) + self.shift
+
+
+@dataclass(frozen=True, eq=False)
 class WRT:
     """A world-relative trajectory.
 
@@ -27,6 +50,8 @@ class WRT:
     preclose: proximal angle [rad] the fingers hold while moving (preshape).
     reorient_angle: for kind "reorient", the commanded rotation of the object about its
     vertical axis after the grasp [rad].
+    reorient_outcome: for kind "reorient", where a full turn measurably leaves the object
+    (``ReorientOutcome``, from rrg_sim.physics.reorient_study); None: turned rigidly.
     closure_informative: False when the fingers drag the object as they close, so that the
     closure angles physics reads are not the geometric (object stays put) prediction; the
     belief update then ignores them (rrg_estimator.obs_model.likelihood_params). Set from
@@ -39,6 +64,7 @@ class WRT:
     spread: float = 0.0
     preclose: float = 0.0
     reorient_angle: float = 0.0
+    reorient_outcome: "ReorientOutcome | None" = None
     description: str = ""
     closure_informative: bool = True
     meta: dict = field(default_factory=dict)

@@ -102,6 +102,38 @@ def test_reorient_spreads_the_turn_by_its_sigma():
     assert var == pytest.approx(TRANSITION.reorient_sigma_theta ** 2, rel=0.15)
 
 
+def test_a_measured_reorientation_moves_the_full_turn_to_its_fitted_offset():
+    """With a WRT's ReorientOutcome, a state at offset Δ from e inside the box ends, on the
+    full turn, at e' ⊕ (Δ + shift) (e' = e turned by the angle); one outside turns rigidly; the
+    planner's mixture (search.reorient_mixture) puts its full turn at the same poses."""
+    from rrg_planner.search import reorient_mixture
+    from rrg_sim.poses import compose_planar
+    from rrg_sim.wrt import ReorientOutcome
+
+    g = Grid.for_level(HIGH, center=(0.62, 0.0, 0.0))
+    e = np.array([0.62, 0.0, 0.0])
+    outcome = ReorientOutcome(np.array([0.02, 0.02, 0.2]), np.array([0.002, -0.004, 0.05]), np.zeros(3))
+    angle = 0.6
+    e_turned = e + [0.0, 0.0, angle]
+    for delta, expected in [((0.01, -0.01, 0.1), (0.01 + 0.002, -0.01 - 0.004, 0.1 + 0.05)),
+                            ((0.05, 0.0, 0.0), (0.05, 0.0, 0.0))]:  # the second lies outside the box
+        start = compose_planar(e, np.array(delta))
+        a = np.zeros(g.size)
+        a[g.nearest_index(start[None])[0]] = 1.0
+        on_grid = g.points()[np.argmax(a)]
+        after = reorient(Belief(g, a), angle, EXACT_TURNS, center_xy=e[:2], outcome=outcome, e=e)
+        d = relative_planar(e, on_grid[None])[0]
+        mean = outcome.mean(d) if outcome.inside(d) else d
+        target = compose_planar(e_turned, mean)
+        np.testing.assert_allclose(mean, expected, atol=0.011)  # Δ rounded to the grid
+        near = np.all(np.abs(relative_planar(target, after.grid.points())) <= np.array(after.grid.spacing) + 1e-9, axis=1)
+        w = after.weights[near]
+        assert w.sum() > 0.75  # the full turn, 0.8 (the sampled partial turns renormalize it)
+        np.testing.assert_allclose(w @ after.grid.points()[near] / w.sum(), target, atol=1e-3)
+        pts, _ = reorient_mixture(on_grid[None], np.ones(1), e, angle, outcome=outcome)
+        np.testing.assert_allclose(pts[0], target, atol=1e-12)
+
+
 def settling(b=(0.0, 0.0, 0.0), A=np.eye(3), sigma=(0.0, 0.0, 0.0), box=(0.03, 0.03, 0.3)) -> Settling:
     fit = AffineSettle(np.asarray(A, float), np.asarray(b, float), np.asarray(sigma, float))
     return Settling(np.asarray(box, float), fit, fit, source="test")
@@ -142,3 +174,25 @@ def test_settling_funnels_the_box_and_leaves_the_rest():
     near = np.all(np.abs(relative_planar(e, g.points())) <= (0.005, 0.005, 0.03), axis=1)
     assert after.probability(near) == pytest.approx(0.5, abs=0.02)  # the funnel's mass: at Δ = 0 ± 2.5σ
     assert after.probability(near) > after.weights[g.nearest_index(e)] * 2  # and is blurred by σ
+
+
+def test_the_reorientation_study_fits_the_full_turns_shift_and_the_catalogue_loads_it():
+    """reorient_study.fit: the mean and σ of Δ' - Δ over the full turns (a partial turn,
+    Δ'_θ half the angle away, is left to the mixture); the catalogue's reorientation WRTs
+    carry the committed fits."""
+    from rrg_sim.objects import get_object
+    from rrg_sim.physics.reorient_study import fit
+
+    rng = np.random.default_rng(0)
+    records = []
+    for name in ("reorient_ccw", "reorient_cw"):
+        for start in rng.normal(size=(12, 3)) * [0.01, 0.01, 0.1]:
+            records.append(dict(wrt=name, start=start.tolist(), after=(start + [0.003, -0.002, -0.05]).tolist()))
+        records.append(dict(wrt=name, start=[0.0, 0.0, 0.0], after=[0.0, 0.0, -0.3]))  # a half turn
+    fits = fit("giant_teacup", records)
+    assert fits["reorient_ccw"]["full"] == 12 and fits["reorient_ccw"]["held"] == 13
+    np.testing.assert_allclose(fits["reorient_cw"]["shift"], [0.003, -0.002, -0.05], atol=1e-5)
+    np.testing.assert_allclose(fits["reorient_cw"]["sigma"], 0.0, atol=1e-5)
+    for name in ("giant_teacup", "powerdrill", "brita_pitcher", "cup"):
+        for wrt in get_object(name).wrts():
+            assert (wrt.reorient_outcome is not None) == (wrt.kind == "reorient")

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -12,7 +12,7 @@ from scipy.special import ndtr
 
 from ..config import SENSOR_NAMES, SETTLING_KERNEL_BANDWIDTH
 from ..poses import wrap_angle
-from ..wrt import WRT
+from ..wrt import WRT, ReorientOutcome
 from .primitives import Primitive, union_bounds
 from . import wrt_generation
 from .composites import turn_about_z
@@ -20,6 +20,8 @@ from .composites import turn_about_z
 
 #: The measured grasp-settling fits (rrg_sim.physics.settle writes it; committed).
 SETTLING_FILE = Path(__file__).with_name("settling.json")
+#: The measured reorientation outcomes (rrg_sim.physics.reorient_study writes it; committed).
+REORIENTATION_FILE = Path(__file__).with_name("reorientation.json")
 #: Half-width [rad] of the θ range of start offsets the settling study samples, at most
 #: (chosen: the low level's 3σ of 9° and then some).
 SETTLING_THETA_BOX = 0.25
@@ -113,6 +115,14 @@ def load_settling(name: str, path: Path = SETTLING_FILE, bandwidth: np.ndarray |
     return Settling(np.array(f["box"]), AffineSettle.from_json(f["closed"]), AffineSettle.from_json(f["retreated"]),
                     start=start, samples=samples, bandwidth=np.full(3, np.inf) if bandwidth is None else bandwidth,
                     source=f"{fits.get('_source', path.name)}: {f['arrived']} of {f['grasps']} grasps arrived")
+
+
+def measured_reorientation(name: str, wrts: tuple[WRT, ...], path: Path = REORIENTATION_FILE) -> tuple[WRT, ...]:
+    """The object's reorientation WRTs with the outcomes the study measured for them
+    (WRT.reorient_outcome); unmeasured ones unchanged."""
+    fits = json.loads(path.read_text()).get(name, {}) if path.exists() else {}
+    return tuple(replace(w, reorient_outcome=ReorientOutcome(*(np.array(fits[w.name][k]) for k in ("box", "shift", "sigma"))))
+                 if w.name in fits else w for w in wrts)
 
 
 @dataclass(frozen=True)
@@ -231,7 +241,7 @@ class ObjectModel:
 
     @cached_property
     def _wrts(self) -> tuple[WRT, ...]:
-        wrts = (self.goal_wrt,) + self.info_wrts + self.reorient_wrts
+        wrts = (self.goal_wrt,) + self.info_wrts + measured_reorientation(self.name, self.reorient_wrts)
         names = [w.name for w in wrts]
         if len(set(names)) != len(names):
             raise ValueError(f"{self.name}: WRT names are not unique: {names}")
