@@ -216,7 +216,8 @@ class TransitionParams:
     p_reorient_partial: float = 0.1  # P(stops half way); the rest: no rotation
     #: rad, spread of the turn actually made about the commanded one (MuJoCo, 0.6 rad
     #: reorientations of the giant teacup from 8 seeded starts each: 0.8-1.06 of the angle,
-    #: σ ≈ 0.04 rad; the drill: σ ≈ 0.015 rad; the larger is used)
+    #: σ ≈ 0.04 rad; the drill: σ ≈ 0.015 rad; the larger is used). A full turn of a WRT with a
+    #: measured outcome (objects/reorientation.json, WRT.reorient_outcome) adds that one's σ.
     reorient_sigma_theta: float = 0.04
     #: A reorientation lifts and turns the object only when its grasp holds it: it arrived and
     #: at least this many fingers touch (MuJoCo: a reorientation stopped early on one fingertip

@@ -64,11 +64,11 @@ def test_retreat_is_dropped_when_the_arm_has_moved():
 
 
 def test_a_reorientation_the_arm_cannot_finish_is_refused_before_anything_moves():
-    """The giant teacup's ccw reorientation at θ = -0.9 rad: τ(e) itself is reachable, but the
-    lift-turn-put-down after the grasp has no continuous elbow swivel. It must be refused up
-    front (the agent is told nothing moved), not half way with the cup already turned."""
+    """The giant teacup's ccw reorientation at θ = 2.4 rad: τ(e) itself is reachable, but the
+    lift-turn-put-down after the grasp is not. It must be refused up front (the agent is told
+    nothing moved), not half way with the cup already turned."""
     world = PhysicsWorld("giant_teacup", sensor_noise=0.0)
-    e = np.array([0.54, -0.06, -0.9])
+    e = np.array([0.54, 0.0, 2.4])
     world.reset(e)
     wrt = world.obj.wrt("reorient_ccw")
     plan_path(wrt.world_poses(e), world.arm_q(), rigid_from=1, reconfigure=True)  # the approach alone is fine

@@ -180,10 +180,23 @@ def designed_pinch_wrt(parts: Sequence[Primitive], name: str, pinch: Pinch, what
                meta=_pinch_meta(pinch))
 
 
-def reorient_wrts(parts: Sequence[Primitive], angle: float = REORIENT_ANGLE) -> tuple[WRT, ...]:
+def reorient_wrts(parts: Sequence[Primitive], angle: float = REORIENT_ANGLE,
+                  away_from: np.ndarray | None = None) -> tuple[WRT, ...]:
     """Two reorientation WRTs ("reorient_ccw" +angle, "reorient_cw" -angle): the collision-free
-    top-down pinch nearest the object's centre, then a turn about the object's vertical axis."""
-    candidates = sorted(pinch_candidates(parts), key=lambda p: round(float(np.hypot(*p.centre[:2])), 4))
+    top-down pinch nearest the object's centre, then a turn about the object's vertical axis.
+    ``away_from``: a horizontal direction (x, y) in the object frame, e.g. towards a handle;
+    the pinch is then the one whose centre lies most opposite it, finger 3 on its inner side
+    (on a ring every wall pinch is equally central)."""
+    if away_from is None:
+        def key(p: Pinch) -> float:
+            return round(float(np.hypot(*p.centre[:2])), 4)
+    else:
+        away = np.asarray(away_from, dtype=float)[:2] / np.linalg.norm(away_from[:2])
+
+        def key(p: Pinch) -> float:
+            outward = p.axis[:2] @ p.centre[:2] > 0.0
+            return round(float(p.centre[:2] @ away / np.hypot(*p.centre[:2])), 4) + (0.0 if outward else 10.0)
+    candidates = sorted(pinch_candidates(parts), key=key)
     for pinch in candidates:
         poses = top_down_poses(parts, pinch)
         if poses is not None:
