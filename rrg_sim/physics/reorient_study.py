@@ -21,21 +21,14 @@ its reorientation WRTs).
 """
 from __future__ import annotations
 
-import argparse
-import json
-import multiprocessing as mp
-import time
-from pathlib import Path
-
 import numpy as np
-from tqdm import tqdm
 
 from ..config import TRANSITION, WORLD
 from ..objects import OBJECT_NAMES, get_object
 from ..objects.model import REORIENTATION_FILE
 from ..observation import holds_object
 from ..poses import compose_planar, relative_planar, wrap_angle
-from .settle import _dumps
+from .settle import run_study, study_args
 from .trajectory import InfeasiblePath
 from .world import PhysicsWorld
 
@@ -97,28 +90,17 @@ def _measure_job(args: tuple[str, int, int]) -> tuple[str, list[dict]]:
     return name, measure(name, runs, seed)
 
 
+def _report(name: str, fits: dict, records: list[dict]) -> str:
+    return "\n".join(f"{name}/{w}: {f['full']}/{f['held']} full turns; shift {f['shift']} σ {f['sigma']}"
+                     for w, f in fits.items())
+
+
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    with_reorient = [n for n in OBJECT_NAMES if get_object(n).reorient_wrts]
-    parser.add_argument("objects", nargs="*", default=with_reorient, help="objects (default: all that reorient)")
-    parser.add_argument("--runs", type=int, default=24, help="runs per reorientation WRT")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--out", type=Path, default=REORIENTATION_FILE, help="JSON to update with the fits")
-    args = parser.parse_args(argv)
-    fits = json.loads(args.out.read_text()) if args.out.exists() else {}
-    t0 = time.perf_counter()
-    jobs = [(name, args.runs, args.seed) for name in args.objects]
-    with mp.get_context("fork").Pool(args.workers) as pool:
-        for name, records in tqdm(pool.imap_unordered(_measure_job, jobs), total=len(jobs), desc="reorientation"):
-            fits[name] = fit(name, records)
-            for wrt_name, f in fits[name].items():
-                print(f"{name}/{wrt_name}: {f['full']}/{f['held']} full turns; shift {f['shift']} σ {f['sigma']}", flush=True)
-    fits = {k: fits[k] for k in sorted(fits)}
-    fits["_source"] = (f"python -m rrg_sim.physics.reorient_study --runs {args.runs} --seed {args.seed} "
-                       "(MuJoCo, reorientation WRTs at the nominal pose)")
-    args.out.write_text(_dumps(fits) + "\n")
-    print(f"wrote {args.out} in {time.perf_counter() - t0:.0f} s")
+    args = study_args(argv, __doc__, [n for n in OBJECT_NAMES if get_object(n).reorient_wrts], "runs", 40,
+                      "runs per reorientation WRT", REORIENTATION_FILE)
+    run_study(args.objects, args.runs, args.seed, args.workers, args.out, _measure_job, fit, _report, "reorientation",
+              f"python -m rrg_sim.physics.reorient_study --runs {args.runs} --seed {args.seed} "
+              "(MuJoCo, reorientation WRTs at the nominal pose)")
 
 
 if __name__ == "__main__":

@@ -118,28 +118,47 @@ def _measure_job(args: tuple[str, int, int]) -> tuple[str, list[dict]]:
     return name, measure(name, grasps, seed)
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("objects", nargs="*", default=list(OBJECT_NAMES), help="objects (default: all)")
-    parser.add_argument("--grasps", type=int, default=60, help="goal grasps per object")
+def run_study(objects: list[str], count: int, seed: int, workers: int, out: Path, measure_job, fit_fn,
+              report, desc: str, source: str) -> None:
+    """Measure ``objects`` in parallel (measure_job((name, count, seed)) → (name, records)), fit
+    each (fit_fn(name, records)), print report(name, fit, records), and update the JSON ``out``
+    (sorted, with its ``_source``). Shared by this study and physics.reorient_study."""
+    fits = json.loads(out.read_text()) if out.exists() else {}
+    t0 = time.perf_counter()
+    jobs = [(name, count, seed) for name in objects]
+    with mp.get_context("fork").Pool(workers) as pool:
+        for name, records in tqdm(pool.imap_unordered(measure_job, jobs), total=len(jobs), desc=desc):
+            fits[name] = fit_fn(name, records)
+            print(report(name, fits[name], records), flush=True)
+    fits = {k: fits[k] for k in sorted(fits)}
+    fits["_source"] = source
+    out.write_text(_dumps(fits) + "\n")
+    print(f"wrote {out} in {time.perf_counter() - t0:.0f} s")
+
+
+def _report(name: str, f: dict, records: list[dict]) -> str:
+    c = f["closed"]
+    return (f"{name}: {f['arrived']}/{len(records)} arrived; closed b={np.round(c['b'], 3).tolist()} "
+            f"σ={np.round(c['sigma'], 3).tolist()} diag(A)={np.round(np.diag(c['A']), 2).tolist()}")
+
+
+def study_args(argv: list[str] | None, doc: str, objects: list[str], count: str, count_default: int,
+               count_help: str, out: Path) -> argparse.Namespace:
+    """The command line of a study: objects, --<count>, --seed, --workers, --out."""
+    parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    parser.add_argument("objects", nargs="*", default=objects, help="objects (default: %(default)s)")
+    parser.add_argument(f"--{count}", type=int, default=count_default, help=count_help)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--out", type=Path, default=SETTLING_FILE, help="JSON to update with the fits")
-    args = parser.parse_args(argv)
-    fits = json.loads(args.out.read_text()) if args.out.exists() else {}
-    t0 = time.perf_counter()
-    jobs = [(name, args.grasps, args.seed) for name in args.objects]
-    with mp.get_context("fork").Pool(args.workers) as pool:
-        for name, records in tqdm(pool.imap_unordered(_measure_job, jobs), total=len(jobs), desc="settling"):
-            fits[name] = fit(name, records)
-            c = fits[name]["closed"]
-            print(f"{name}: {fits[name]['arrived']}/{len(records)} arrived; closed b={np.round(c['b'], 3).tolist()} "
-                  f"σ={np.round(c['sigma'], 3).tolist()} diag(A)={np.round(np.diag(c['A']), 2).tolist()}", flush=True)
-    fits = {k: fits[k] for k in sorted(fits)}
-    fits["_source"] = (f"python -m rrg_sim.physics.settle --grasps {args.grasps} --seed {args.seed} "
-                       "(MuJoCo, goal WRT at the nominal pose)")
-    args.out.write_text(_dumps(fits) + "\n")
-    print(f"wrote {args.out} in {time.perf_counter() - t0:.0f} s")
+    parser.add_argument("--out", type=Path, default=out, help="JSON to update with the fits")
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = study_args(argv, __doc__, list(OBJECT_NAMES), "grasps", 60, "goal grasps per object", SETTLING_FILE)
+    run_study(args.objects, args.grasps, args.seed, args.workers, args.out, _measure_job, fit, _report, "settling",
+              f"python -m rrg_sim.physics.settle --grasps {args.grasps} --seed {args.seed} "
+              "(MuJoCo, goal WRT at the nominal pose)")
 
 
 if __name__ == "__main__":
