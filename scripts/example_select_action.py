@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Ask RRG's planner for the next action, as other robot software would.
 
-Builds a Gaussian belief over the object's pose (x, y, theta) on a 31 x 31 x 25 grid itself,
+Builds a Gaussian belief over the object's pose (x, y, theta) on the level's grid itself
+(31 x 31 x 33 at high uncertainty, 31 x 31 x 25 at low),
 sends it to the ``/rrg/select_action`` service (rrg_msgs/SelectAction), and prints the answer.
 It needs only rclpy, numpy and the rrg_msgs interfaces, not RRG's Python packages.
 
