@@ -131,7 +131,7 @@ def reorient(belief: Belief, angle: float, params: TransitionParams = TRANSITION
     e_turned = e + np.array([0.0, 0.0, angle])
     rigid = splat(grid, compose_planar(e_turned, delta[~inside]), mass[~inside])
     moved = splat(grid, compose_planar(e_turned, outcome.mean(delta[inside])), mass[inside])
-    sigma = np.hypot(outcome.sigma, blur)  # the fit's residual, at least the transition's θ blur
+    sigma = np.hypot(outcome.sigma, blur)  # the measured spread and the transition's θ blur
     full = displace(rigid, grid, (0.0, 0.0, 0.0), blur) + displace(moved, grid, (0.0, 0.0, 0.0), sigma)
     return Belief(grid, (w + p_full * full).ravel())
 

@@ -2,8 +2,9 @@
 from the geometric simulator with seeded sensor noise (the pomdp_py 'environment').
 
 The object does not move when touched, except that a reorientation grasp that closes on
-it turns it about the hand's axis (fully, to where the WRT's measured outcome puts it). Physics trials (rrg_sim.physics) are the honest test of
-bumps; this environment tests the estimator and planner against their own geometry.
+it turns it about the hand's axis (fully, to where the WRT's measured outcome puts it).
+Physics trials (rrg_sim.physics) are the honest test of bumps; this environment tests the
+estimator and planner against their own geometry.
 """
 from __future__ import annotations
 

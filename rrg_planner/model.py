@@ -13,8 +13,8 @@ import numpy as np
 
 from rrg_estimator.obs_model import likelihood_params
 from rrg_estimator.obs_tables import ObservationTable, load_or_build
-from rrg_sim.execution import executed_poses
 from rrg_sim.config import GOAL_AIM_FRACTION, LEVELS, SENSOR_NAMES, TRANSITION, UncertaintyLevel
+from rrg_sim.execution import executed_poses
 from rrg_sim.observation import holds_object
 from rrg_sim.grid import Grid
 from rrg_sim.objects import ObjectModel, get_object

@@ -6,7 +6,7 @@ from typing import Literal
 
 import numpy as np
 
-from .poses import home_pose, planar_pose
+from .poses import home_pose, planar_pose, wrap_angle
 
 WrtKind = Literal["goal", "info", "reorient"]
 
@@ -31,7 +31,7 @@ class ReorientOutcome:
     def inside(self, delta: np.ndarray) -> np.ndarray:
         """(…) bool: Δ (…,3) lies in the studied box."""
         d = np.asarray(delta, dtype=float).copy()
-        d[..., 2] = (d[..., 2] + np.pi) % (2 * np.pi) - np.pi
+        d[..., 2] = wrap_angle(d[..., 2])
         return np.all(np.abs(d) <= self.box, axis=-1)
 
     def mean(self, delta: np.ndarray) -> np.ndarray:
