@@ -18,7 +18,7 @@ from rrg_sim.poses import relative_planar
 from rrg_sim.wrt import WRT
 
 from .model import goal_holds
-from .search import reorient_mixture
+from .search import full_turn
 
 
 def add_sensor_noise(obs: Observation, rng: np.random.Generator, noise: SensingParams = SENSING) -> Observation:
@@ -55,8 +55,7 @@ class GeometricEnvironment:
     def execute(self, wrt: WRT, e: np.ndarray) -> Observation:
         obs = self._sim(wrt).simulate(self.true_pose, e)
         if wrt.kind == "reorient" and holds_object(obs.contact, obs.sensors, TRANSITION.reorient_min_fingers):
-            self.true_pose = reorient_mixture(self.true_pose[None], np.ones(1), e, wrt.reorient_angle,
-                                              outcome=wrt.reorient_outcome)[0][0]  # the full turn
+            self.true_pose = full_turn(self.true_pose[None], e, wrt.reorient_angle, wrt.reorient_outcome)[0]
         return add_sensor_noise(obs, self.rng, self.noise)
 
     def retreat(self) -> None:

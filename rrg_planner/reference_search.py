@@ -142,8 +142,8 @@ class ReferenceSearch:
                            (0.0, 1.0 - TRANSITION.p_reorient_success - TRANSITION.p_reorient_partial)):
             c, s = math.cos(angle * frac), math.sin(angle * frac)
             for p, w in zip(points, weights):
-                delta = relative_planar(e, np.array(p))
-                if frac == 1.0 and outcome is not None and outcome.inside(delta):
+                delta = relative_planar(e, np.array(p)) if frac == 1.0 and outcome is not None else None
+                if delta is not None and outcome.inside(delta):
                     moved = compose_planar(np.array([e[0], e[1], e[2] + angle]), outcome.mean(delta))
                     outs_p.append(tuple(float(v) for v in moved))
                 else:

@@ -171,11 +171,23 @@ def rotate_about(points: np.ndarray, center_xy: np.ndarray, angle: float) -> np.
     return out
 
 
+def full_turn(points: np.ndarray, e: np.ndarray, angle: float, outcome: ReorientOutcome | None = None) -> np.ndarray:
+    """Poses (K,3) of objects at points (K,3) after a reorientation's full turn by ``angle``
+    [rad] about the vertical through e: rigid, except that the states inside the WRT's
+    measured ``outcome`` box move to its mean (rrg_estimator.transition.reorient, without the
+    blur)."""
+    turned = rotate_about(points, e[:2], angle)
+    if outcome is not None:
+        delta = relative_planar(e, points)
+        inside = outcome.inside(delta)
+        turned[inside] = compose_planar(e + np.array([0.0, 0.0, angle]), outcome.mean(delta[inside]))
+    return turned
+
+
 def reorient_mixture(points: np.ndarray, weights: np.ndarray, e: np.ndarray, angle: float,
                      support_rel: float = 0.0, outcome: ReorientOutcome | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Transition of a reorientation grasp run at e: full rotation, half, or none (TRANSITION),
-    about the vertical through e; with the WRT's measured ``outcome``, the full turn's states
-    in its box move to its mean (rrg_estimator.transition.reorient, without the blur).
+    """Transition of a reorientation grasp run at e: full rotation (``full_turn``, with the
+    WRT's measured ``outcome``), half, or none (TRANSITION), about the vertical through e.
 
     Returns the mixture's points and normalized weights, without the components' points below
     ``support_rel`` of the mixture's largest weight (as SparseBelief.compact would drop them,
@@ -187,12 +199,10 @@ def reorient_mixture(points: np.ndarray, weights: np.ndarray, e: np.ndarray, ang
     pts, ws = [], []
     for a, q in parts:
         keep = np.flatnonzero(weights * q >= threshold) if threshold > 0 else slice(None)
-        turned = rotate_about(points[keep], e[:2], a) if a else points[keep]
-        if a == angle and outcome is not None:
-            delta = relative_planar(e, points[keep])
-            inside = outcome.inside(delta)
-            turned[inside] = compose_planar(e + np.array([0.0, 0.0, angle]), outcome.mean(delta[inside]))
-        pts.append(turned)
+        if a == angle:
+            pts.append(full_turn(points[keep], e, a, outcome))
+        else:
+            pts.append(rotate_about(points[keep], e[:2], a) if a else points[keep])
         ws.append(weights[keep] * q)
     w = np.concatenate(ws)
     return np.concatenate(pts), w / w.sum()

@@ -11,8 +11,9 @@ import pytest
 
 from rrg_estimator.belief import Belief
 from rrg_estimator.obs_tables import ObservationTable
-from rrg_estimator.obs_model import (closure_sigma, features_from_observation, features_from_table_rows, likelihood_over_table,
-                                     likelihood_params, log_likelihood_over_table, table_indices)
+from rrg_estimator.obs_model import (closure_sigma, features_from_observation, features_from_table_rows,
+                                     likelihood_over_table, likelihood_params, log_likelihood_over_table,
+                                     table_indices)
 from rrg_estimator.reference import table_index_reference, update_reference
 from rrg_estimator.update import apply_likelihood, goal_probability, update
 from rrg_sim.config import HIGH, LIKELIHOOD, LOW
@@ -112,7 +113,6 @@ def test_likelihood_terms(high_table):
     assert change("contact", (), False) == pytest.approx(mismatch, abs=1e-5)
 
 
-
 def test_closure_sigma_adds_each_entrys_discretization():
     """A closure that changes by 0.12 rad per cell along x (and not along y or θ) is known
     only to ± half a cell at the nearest entry: σ² = σ₀² + 0.12²/12 there; where it is flat,
@@ -139,6 +139,7 @@ def test_closure_sigma_adds_each_entrys_discretization():
         for f in range(3):
             assert closure_sigma_reference(table, j, f, 0.05) == pytest.approx(float(sig[f, j]), rel=1e-5)
     assert np.all(np.isinf(closure_sigma(table, math.inf)))
+
 
 def test_likelihood_is_floored_batched_and_float32(high_table):
     rows = [0, 5000, 12012, 20000]
