@@ -43,20 +43,35 @@ def goal_holds(obj: ObjectModel, delta: np.ndarray, contact: np.ndarray, sensors
     return obj.goal.contains(delta) & _grasp_made(obj, contact, sensors)
 
 
-def goal_weights(obj: ObjectModel, delta: np.ndarray, contact: np.ndarray, sensors: np.ndarray) -> np.ndarray:
+def goal_weights(obj: ObjectModel, delta: np.ndarray, contact: np.ndarray, sensors: np.ndarray,
+                 cell=None) -> np.ndarray:
     """P(G | Δ) (N,) for a goal grasp executed relative to an estimate, the object really at
     offset delta (N,3): the grasp made (as in goal_holds), and the object, moved by the
     closing as the settling study measured it (Settling.outcome: Δ_closed ~ N(μ(Δ),
     σ(Δ)²) inside the study's box), inside the goal region. Outside the box, or for an object
-    without a study, the object is taken not to move (goal_holds)."""
+    without a study, the object is taken not to move (goal_holds).
+
+    cell: (3,) [m, m, rad] grid spacing when delta are grid points that each stand for their
+    cell (a belief grid's weight is the mass of the cell around its point): the region is
+    then met on average over a uniform offset within the cell, taken as a Gaussian of
+    variance g²/12 per axis added to the closing's spread. Without it, Δ is exact. On the
+    high-uncertainty grid (1 cm, 0.1 rad against a 1 cm, 0.14 rad region) point values
+    claim a grasp holds for the whole cell where only its centre does."""
     delta = np.asarray(delta, dtype=float)
     made = _grasp_made(obj, contact, sensors)
-    p = (obj.goal.contains(delta) & made).astype(np.float64)
+    if cell is None:
+        p = (obj.goal.contains(delta) & made).astype(np.float64)
+        spread2 = np.zeros(3)
+    else:
+        spread2 = np.asarray(cell, dtype=float) ** 2 / 12.0
+        p = made * obj.goal.probability(delta, np.sqrt(spread2))
     settling = obj.grasp_settling
     if settling is None:
         return p
     near = np.flatnonzero(settling.inside(delta))
     mean, sigma = settling.outcome(delta[near], "closed")
+    # a uniform offset u in the cell moves the closed Δ by A u: variance Σ_j A_kj² g_j²/12
+    sigma = np.sqrt(sigma ** 2 + (settling.closed.A ** 2) @ spread2)
     p[near] = made[near] * obj.goal.probability(mean, sigma)
     return p
 
@@ -65,7 +80,7 @@ def goal_indicator(obj: ObjectModel, table: ObservationTable) -> np.ndarray:
     """P(G | Δ) over the goal WRT's table offsets (the static evaluation's precomputed weights).
     The table's outermost entries stand for every offset beyond them (indices are clamped), so
     they get 0, except along a θ the goal ignores."""
-    p = goal_weights(obj, table.grid.points(), table.contact, table.sensors)
+    p = goal_weights(obj, table.grid.points(), table.contact, table.sensors, cell=table.grid.spacing)
     shape = table.grid.shape
     edge = np.zeros(shape, dtype=bool)
     edge[[0, -1], :, :] = edge[:, [0, -1], :] = True

@@ -108,3 +108,22 @@ def test_the_goal_weights_follow_the_drill_grasps_measured_turn():
     assert goal_holds(obj, delta[:2], contact[:2], sensors[:2]).all()
     assert p[0] > 0.9 and p[1] < 0.6 and p[2] > 0.9 and p[3] == 0.0
     assert goal_weights(obj, delta, ~contact, sensors).max() == 0.0  # an early contact never grasps
+
+
+def test_a_coarse_grid_points_goal_weight_is_the_regions_average_over_its_cell():
+    """On the high-uncertainty grid a point stands for its cell: the teacup's point -0.1 rad
+    off the estimate (where its closing leaves it best placed, but the cell reaches 0.15 rad
+    off, outside the 8° region) and the centre count less, and no cell reaches 0.9."""
+    from rrg_planner.model import goal_weights
+
+    obj = get_object("giant_teacup")
+    delta = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, -0.1], [0.02, 0.0, 0.0]])
+    contact = np.zeros(3, dtype=bool)
+    sensors = np.zeros((3, 10), dtype=bool)
+    sensors[:, 4:7] = True  # the three fingertips
+    point = goal_weights(obj, delta, contact, sensors)
+    cell = goal_weights(obj, delta, contact, sensors, cell=(0.01, 0.01, 0.1))
+    fine = goal_weights(obj, delta, contact, sensors, cell=(0.002, 0.002, 0.013))
+    assert point[1] > 0.9 and cell[0] < point[0] and cell[1] < point[1] and cell.max() < 0.9
+    assert np.allclose(fine, point, atol=0.05)  # the low grid's cells are small
+    assert cell[2] < 0.05 and point[2] < 0.05  # 2 cm off: out, cell or not
