@@ -249,6 +249,8 @@ class ForwardSearch:
         self.params = params
         #: (action, estimate) pairs an executor found infeasible during the current run.
         self.blocked: set[tuple[int, bytes]] = set()
+        #: (action, estimate) pairs whose reading the belief already holds (``spend``).
+        self.spent: set[tuple[int, bytes]] = set()
 
     @staticmethod
     def _key(action: int, e) -> tuple[int, bytes]:
@@ -258,9 +260,22 @@ class ForwardSearch:
         """Rule an action out at estimate e (its execution was found infeasible there)."""
         self.blocked.add(self._key(action, e))
 
+    def spend(self, action: int, e) -> None:
+        """Rule an action out at estimate e because it ran there and left the object where it
+        was: run again, the same trajectory against the same object reads the same, which the
+        belief update would count as a second, independent reading."""
+        self.spent.add(self._key(action, e))
+
+    def clear(self) -> None:
+        """Forget the blocked and spent pairs (a new run)."""
+        self.blocked.clear()
+        self.spent.clear()
+
     def feasible(self, action: int, e) -> bool:
-        """F_τ(e) from the model's feasibility map, unless execution found it infeasible at e."""
-        return self.model.feasible(action, e) and self._key(action, e) not in self.blocked
+        """F_τ(e) from the model's feasibility map, unless execution found it infeasible at e
+        or its reading there is already spent."""
+        key = self._key(action, e)
+        return self.model.feasible(action, e) and key not in self.blocked and key not in self.spent
 
     # ---------------------------------------------------------------- helpers
     def _table_index(self, sb: SparseBelief) -> np.ndarray:
