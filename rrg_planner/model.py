@@ -13,7 +13,7 @@ import numpy as np
 
 from rrg_estimator.obs_model import likelihood_params
 from rrg_estimator.obs_tables import ObservationTable, load_or_build
-from rrg_sim.config import GOAL_AIM_FRACTION, LEVELS, SENSOR_NAMES, TRANSITION, UncertaintyLevel
+from rrg_sim.config import GOAL_AIM_FRACTION, GOAL_MIN_PROBABILITY, LEVELS, SENSOR_NAMES, TRANSITION, UncertaintyLevel
 from rrg_sim.execution import executed_poses
 from rrg_sim.observation import holds_object
 from rrg_sim.grid import Grid
@@ -66,13 +66,13 @@ def goal_weights(obj: ObjectModel, delta: np.ndarray, contact: np.ndarray, senso
         spread2 = np.asarray(cell, dtype=float) ** 2 / 12.0
         p = made * obj.goal.probability(delta, np.sqrt(spread2))
     settling = obj.grasp_settling
-    if settling is None:
-        return p
-    near = np.flatnonzero(settling.inside(delta))
-    mean, sigma = settling.outcome(delta[near], "closed")
-    # a uniform offset u in the cell moves the closed Δ by A u: variance Σ_j A_kj² g_j²/12
-    sigma = np.sqrt(sigma ** 2 + (settling.closed.A ** 2) @ spread2)
-    p[near] = made[near] * obj.goal.probability(mean, sigma)
+    if settling is not None:
+        near = np.flatnonzero(settling.inside(delta))
+        mean, sigma = settling.outcome(delta[near], "closed")
+        # a uniform offset u in the cell moves the closed Δ by A u: variance Σ_j A_kj² g_j²/12
+        sigma = np.sqrt(sigma ** 2 + (settling.closed.A ** 2) @ spread2)
+        p[near] = made[near] * obj.goal.probability(mean, sigma)
+    p[p < GOAL_MIN_PROBABILITY] = 0.0
     return p
 
 
@@ -112,7 +112,9 @@ class ActionModel:
     clusters: dict[str, ObservationClusters] = field(default_factory=dict)
     #: P(G | Δ) over the table offsets, per level (goal WRTs only)
     goal: dict[str, np.ndarray] = field(default_factory=dict)
-    #: per level, the offset Δ_aim the grasp best meets (goal WRTs only; goal_aim)
+    #: per level, the offset Δ_aim the grasp best meets (goal WRTs only; goal_aim on the finest
+    #: level's table for all: on the 0.1 rad grid the teacup's fell on a half step, -0.05 rad,
+    #: where the table index of every offset from it is a tie)
     aim: dict[str, np.ndarray] = field(default_factory=dict)
     #: per level, (C,) whether each observation cluster's grasp holds the object, so that
     #: the reorientation turns it (reorient WRTs only; observation.holds_object)
@@ -152,10 +154,13 @@ class PlanningModel:
                 act.clusters[name] = cluster_table(table, level, params=likelihood_params(wrt))
                 if wrt.kind == "goal":
                     act.goal[name] = goal_indicator(self.obj, table)
-                    act.aim[name] = goal_aim(self.obj, table, act.goal[name])
                 if wrt.kind == "reorient":
                     rep = act.clusters[name].representatives
                     act.turns[name] = holds_object(table.contact[rep], table.sensors[rep], TRANSITION.reorient_min_fingers)
+            if wrt.kind == "goal":  # a physical offset: from the finest table, for every level
+                finest = min(self.levels, key=lambda n: np.prod(act.tables[n].grid.spacing))
+                aim = goal_aim(self.obj, act.tables[finest], act.goal[finest])
+                act.aim = {name: aim for name in self.levels}
             self.actions.append(act)
             log.info("%s/%s: %s clusters", object_name, wrt.name,
                      {n: c.count for n, c in act.clusters.items()})

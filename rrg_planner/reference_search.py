@@ -14,7 +14,7 @@ from rrg_sim.config import SEARCH, TRANSITION, SearchParams
 from rrg_sim.poses import compose_planar, relative_planar
 
 from .model import PlanningModel
-from .search import SearchResult, merge_branches
+from .search import BLUR_NODES, SearchResult, merge_branches
 
 Points = list[tuple[float, float, float]]
 
@@ -138,6 +138,7 @@ class ReferenceSearch:
     @staticmethod
     def _reorient(points: Points, weights: list[float], e, angle: float, outcome=None):
         outs_p, outs_w = [], []
+        blur = TRANSITION.reorient_sigma_theta
         for frac, prob in ((1.0, TRANSITION.p_reorient_success), (0.5, TRANSITION.p_reorient_partial),
                            (0.0, 1.0 - TRANSITION.p_reorient_success - TRANSITION.p_reorient_partial)):
             c, s = math.cos(angle * frac), math.sin(angle * frac)
@@ -145,11 +146,15 @@ class ReferenceSearch:
                 delta = relative_planar(e, np.array(p)) if frac == 1.0 and outcome is not None else None
                 if delta is not None and outcome.inside(delta):
                     moved = compose_planar(np.array([e[0], e[1], e[2] + angle]), outcome.mean(delta))
-                    outs_p.append(tuple(float(v) for v in moved))
+                    turned = tuple(float(v) for v in moved)
+                    sigma = math.hypot(float(outcome.sigma[2]), blur)
                 else:
                     dx, dy = p[0] - e[0], p[1] - e[1]
-                    outs_p.append((e[0] + c * dx - s * dy, e[1] + s * dx + c * dy, _wrap(p[2] + angle * frac)))
-                outs_w.append(w * prob)
+                    turned = (e[0] + c * dx - s * dy, e[1] + s * dx + c * dy, _wrap(p[2] + angle * frac))
+                    sigma = blur
+                for z, q in BLUR_NODES:  # the turn's spread in θ
+                    outs_p.append((turned[0], turned[1], _wrap(turned[2] + z * sigma)))
+                    outs_w.append(w * prob * q)
         return outs_p, outs_w
 
     def action_values(self, points: Points, weights: list[float], level: str, horizon: int) -> np.ndarray:

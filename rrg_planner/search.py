@@ -14,7 +14,8 @@ cover ``online_keep_mass`` of the mass (paper: 50 %).
 
 The bump transition is left out of the search's posteriors (it blurs each contact branch
 by a few mm and costs a convolution per branch); the estimator applies it to the real
-belief. Reorientation's rotation is kept, because feasibility depends on it.
+belief. Reorientation's rotation is kept, because feasibility depends on it, and so is its
+spread in θ (three nodes per state), because it is what a turn costs in localization.
 """
 from __future__ import annotations
 
@@ -184,26 +185,54 @@ def full_turn(points: np.ndarray, e: np.ndarray, angle: float, outcome: Reorient
     return turned
 
 
-def reorient_mixture(points: np.ndarray, weights: np.ndarray, e: np.ndarray, angle: float,
-                     support_rel: float = 0.0, outcome: ReorientOutcome | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Transition of a reorientation grasp run at e: full rotation (``full_turn``, with the
-    WRT's measured ``outcome``), half, or none (TRANSITION), about the vertical through e.
+#: Three-point Gauss–Hermite rule, centre first: offsets [σ] and weights that give a Gaussian
+#: blur's mean and variance exactly.
+BLUR_NODES = ((0.0, 2.0 / 3.0), (-np.sqrt(3.0), 1.0 / 6.0), (np.sqrt(3.0), 1.0 / 6.0))
 
-    Returns the mixture's points and normalized weights, without the components' points below
+
+def turn_sigma(points: np.ndarray, e: np.ndarray, full: bool, outcome: ReorientOutcome | None,
+               blur: float) -> np.ndarray:
+    """(K,) σ_θ [rad] of where a turn leaves objects at points (K,3): the transition's blur,
+    and on the full turn inside the measured ``outcome`` box its σ_θ as well (as
+    rrg_estimator.transition.reorient)."""
+    sigma = np.full(len(points), blur)
+    if full and outcome is not None:
+        sigma[outcome.inside(relative_planar(e, points))] = np.hypot(outcome.sigma[2], blur)
+    return sigma
+
+
+def reorient_mixture(points: np.ndarray, weights: np.ndarray, e: np.ndarray, angle: float,
+                     support_rel: float = 0.0, outcome: ReorientOutcome | None = None,
+                     blur: float = TRANSITION.reorient_sigma_theta) -> tuple[np.ndarray, np.ndarray]:
+    """Transition of a reorientation grasp run at e: full rotation (``full_turn``, with the
+    WRT's measured ``outcome``), half, or none (TRANSITION), about the vertical through e,
+    each spread in θ by its σ (``turn_sigma``) on the three BLUR_NODES. Without the spread
+    the search took a turn to keep the belief as sharp as before it, and chose
+    reorientations to localize the objects whose turns scatter them most (the teacup's, σ_θ
+    0.08 rad, which the estimator then applies).
+
+    Returns the mixture's points and normalized weights, without the points below
     ``support_rel`` of the mixture's largest weight (as SparseBelief.compact would drop them,
     but before rotating, which is the cost).
     """
     p_full, p_half = TRANSITION.p_reorient_success, TRANSITION.p_reorient_partial
     parts = ((angle, p_full), (angle / 2, p_half), (0.0, 1.0 - p_full - p_half))
-    threshold = support_rel * float(weights.max()) * max(q for _, q in parts)
+    nodes = BLUR_NODES if blur > 0 else ((0.0, 1.0),)
+    threshold = support_rel * float(weights.max()) * max(q for _, q in parts) * nodes[0][1]
     pts, ws = [], []
     for a, q in parts:
-        keep = np.flatnonzero(weights * q >= threshold) if threshold > 0 else slice(None)
-        if a == angle:
-            pts.append(full_turn(points[keep], e, a, outcome))
-        else:
-            pts.append(rotate_about(points[keep], e[:2], a) if a else points[keep])
-        ws.append(weights[keep] * q)
+        keep = np.flatnonzero(weights * q * nodes[0][1] >= threshold) if threshold > 0 else slice(None)
+        turned = full_turn(points[keep], e, a, outcome) if a == angle else (
+            rotate_about(points[keep], e[:2], a) if a else points[keep])
+        sigma = turn_sigma(points[keep], e, a == angle, outcome, blur)
+        for z, qz in nodes:
+            w = weights[keep] * (q * qz)
+            on = w >= threshold
+            moved = turned[on]
+            if z:
+                moved[:, 2] = _wrap(moved[:, 2] + z * sigma[on])
+            pts.append(moved)
+            ws.append(w[on])
     w = np.concatenate(ws)
     return np.concatenate(pts), w / w.sum()
 
@@ -261,9 +290,9 @@ class ForwardSearch:
         self.blocked.add(self._key(action, e))
 
     def spend(self, action: int, e) -> None:
-        """Rule an action out at estimate e because it ran there and left the object where it
-        was: run again, the same trajectory against the same object reads the same, which the
-        belief update would count as a second, independent reading."""
+        """Rule an action out at estimate e because it ran there and its reading is in the
+        belief: run again against an object it did not move, the same trajectory reads the
+        same, which the update would count as a second, independent reading."""
         self.spent.add(self._key(action, e))
 
     def clear(self) -> None:

@@ -240,6 +240,10 @@ SETTLING_KERNEL_BANDWIDTH = 0.5
 #: fraction of the best (rrg_planner.model.goal_aim; chosen: the flat top of the measured
 #: map, not one noisy peak).
 GOAL_AIM_FRACTION = 0.98
+#: P(G | Δ) below this counts as 0 (rrg_planner.model.goal_weights; chosen: the Gaussian tails
+#: of a grid cell's spread are never exactly 0, and keeping them made the search evaluate the
+#: goal over 5-9× as many table entries at high uncertainty, for nothing a δ of 0.1 can see).
+GOAL_MIN_PROBABILITY = 1e-4
 
 
 # ------------------------------------------------------------------ search

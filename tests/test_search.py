@@ -130,3 +130,33 @@ def test_scatter_moments_sums_states_per_table_entry(duplicates):
     np.add.at(expected, idx - idx.min(), w[:, None] * f)
     assert lo == idx.min() and tab.dtype == np.float32
     np.testing.assert_allclose(tab, expected, rtol=1e-6)
+
+
+#: θ steps of 0.08 rad: the teacup's aim is a whole step (on SMALL's 0.1 rad it is a half step,
+#: where the fast search's float32 table index and the reference's float64 one may tie-break apart)
+TURNS = UncertaintyLevel("turns", sigma=(0.02, 0.02, 0.2), spacing=(0.01, 0.01, 0.08), shape=(9, 9, 7))
+
+
+@pytest.fixture(scope="module")
+def teacup_model() -> PlanningModel:
+    return PlanningModel("giant_teacup", levels=(TURNS,), progress=False,
+                         wrt_names=("goal", "info_handle", "reorient_ccw", "reorient_cw"))
+
+
+@pytest.mark.parametrize("horizon", [1, 2])
+def test_fast_search_matches_reference_through_reorientations(teacup_model, horizon):
+    """The teacup's reorientations, with their measured outcomes and their spread in θ, are
+    valued alike by both searches, and a turn costs localization: the spread child is wider."""
+    fast, ref = ForwardSearch(teacup_model, EXACT), ReferenceSearch(teacup_model, EXACT)
+    b0 = initial_belief(TURNS, np.asarray(WORLD.nominal_pose))
+    f, r = fast.select(b0, horizon), ref.select(b0, horizon)
+    turns = [i for i, a in enumerate(teacup_model.actions) if a.kind == "reorient"]
+    assert np.isfinite(f.action_values[turns]).all()
+    np.testing.assert_allclose(f.action_values, r.action_values, rtol=1e-4, atol=1e-6)
+    e = b0.w_star()
+    point = np.array([e])
+    sharp, _ = search_module.reorient_mixture(point, np.ones(1), e, 0.6, blur=0.0)
+    spread, w = search_module.reorient_mixture(point, np.ones(1), e, 0.6, blur=0.04)
+    assert len(spread) == 3 * len(sharp) and w.sum() == pytest.approx(1.0)
+    full = np.abs(spread[:, 2] - sharp[0, 2]) < 0.1  # the full turn's three nodes
+    assert np.sqrt(w[full] @ (spread[full, 2] - sharp[0, 2]) ** 2 / w[full].sum()) == pytest.approx(0.04)
