@@ -191,7 +191,7 @@ class RobustGraspAgent:
         """Whether a run stops after this action: a goal grasp believed to hold, or the last one."""
         return self.model.actions[action].kind == "goal" and (p_exec > 1.0 - self.delta or last)
 
-    def executed(self, action: int, e: np.ndarray, contact: bool) -> None:
+    def executed(self, action: int, e: np.ndarray) -> None:
         """Note that ``action`` ran at e: an information-gathering WRT's reading at e is spent
         (ForwardSearch.spend). It left the object in place, or (an early contact) nudged it
         a few mm where it stopped; run again, it reads the same or nearly. In MuJoCo, counting
@@ -241,7 +241,7 @@ class RobustGraspAgent:
                     return TrialResult(False, False, steps, p_goal, total_plan, belief,
                                        error=f"{len(self.search.blocked)} infeasible executions")
                 continue
-            self.executed(action, e, bool(obs.contact))
+            self.executed(action, e)
             belief, p_exec = self.observe(belief, action, e, obs)
             p_goal = p_exec if act.kind == "goal" else (res.p_goal if res else float("nan"))
             step = Step(wrt=act.name, kind=act.kind, estimate=e, contact=bool(obs.contact),

@@ -280,6 +280,10 @@ class ForwardSearch:
         self.blocked: set[tuple[int, bytes]] = set()
         #: (action, estimate) pairs whose reading the belief already holds (``spend``).
         self.spent: set[tuple[int, bytes]] = set()
+        #: the feasibility maps' answers by (action, the estimate's exact bytes): a search
+        #: asks about the same estimates over and over (the drill at H = 3: 6,674 asks, 1,838
+        #: distinct)
+        self._feasible_memo: dict[tuple[int, bytes], bool] = {}
 
     @staticmethod
     def _key(action: int, e) -> tuple[int, bytes]:
@@ -296,15 +300,23 @@ class ForwardSearch:
         self.spent.add(self._key(action, e))
 
     def clear(self) -> None:
-        """Forget the blocked and spent pairs (a new run)."""
+        """Forget the blocked and spent pairs (a new run) and the remembered feasibility."""
         self.blocked.clear()
         self.spent.clear()
+        self._feasible_memo.clear()
 
     def feasible(self, action: int, e) -> bool:
         """F_τ(e) from the model's feasibility map, unless execution found it infeasible at e
         or its reading there is already spent."""
+        e = np.asarray(e, dtype=float)
+        exact = (action, e.tobytes())
+        ok = self._feasible_memo.get(exact)
+        if ok is None:
+            ok = self._feasible_memo[exact] = self.model.feasible(action, e)
+        if not ok or not (self.blocked or self.spent):
+            return ok
         key = self._key(action, e)
-        return self.model.feasible(action, e) and key not in self.blocked and key not in self.spent
+        return key not in self.blocked and key not in self.spent
 
     # ---------------------------------------------------------------- helpers
     def _table_index(self, sb: SparseBelief) -> np.ndarray:

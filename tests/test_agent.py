@@ -61,9 +61,9 @@ def test_an_info_reading_is_spent_at_its_estimate(model):
     goal = model.goal_actions[0]
     e0, e1 = np.asarray(WORLD.nominal_pose), np.asarray(WORLD.nominal_pose) + [0.01, 0.0, 0.0]
     assert agent.search.feasible(info, e0)
-    agent.executed(goal, e0, contact=False)  # a closing grasp moves the object
+    agent.executed(goal, e0)  # a closing grasp moves the object
     assert agent.search.feasible(info, e0) and agent.search.feasible(goal, e0)
-    agent.executed(info, e0, contact=True)
+    agent.executed(info, e0)
     assert not agent.search.feasible(info, e0) and agent.search.feasible(info, e1)
     assert agent.search.blocked == set()  # not counted as an infeasible execution
     agent.search.clear()

@@ -319,7 +319,7 @@ class PlannerNode(Node):
                         from exc
                 continue
             result.actions_taken.append(name)
-            agent.executed(action, e, bool(obs.contact))
+            agent.executed(action, e)
             belief_msg = self.wait_for_belief(obs.header.stamp, self.get_parameter("belief_timeout").value,
                                               interrupted)
             belief = belief_from_msg(belief_msg)
