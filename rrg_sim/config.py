@@ -242,7 +242,7 @@ SETTLING_KERNEL_BANDWIDTH = 0.5
 GOAL_AIM_FRACTION = 0.98
 #: P(G | Δ) below this counts as 0 (rrg_planner.model.goal_weights; chosen: the Gaussian tails
 #: of a grid cell's spread are never exactly 0, and keeping them made the search evaluate the
-#: goal over 5-9× as many table entries at high uncertainty, for nothing a δ of 0.1 can see).
+#: goal over 4-8× as many table entries at high uncertainty, for nothing a δ of 0.1 can see).
 GOAL_MIN_PROBABILITY = 1e-4
 
 
