@@ -196,8 +196,8 @@ class RobustGraspAgent:
         (ForwardSearch.spend). It left the object in place, or (an early contact) nudged it
         a few mm where it stopped; run again, it reads the same or nearly. In MuJoCo, counting
         a repeat as a second reading made the drill's belief certain of a θ 0.12 rad off
-        (campaign trial powerdrill/high/rrg-info#28), and a teacup was swept three times
-        with the same reading (#10)."""
+        (probe trial powerdrill/high/rrg-info#28), and a teacup was swept three times with
+        one reading, twice at the same estimate (campaign cc990d4, giant_teacup#10)."""
         if self.model.actions[action].kind == "info":
             self.search.spend(action, e)
 

@@ -44,7 +44,7 @@ def goal_holds(obj: ObjectModel, delta: np.ndarray, contact: np.ndarray, sensors
 
 
 def goal_weights(obj: ObjectModel, delta: np.ndarray, contact: np.ndarray, sensors: np.ndarray,
-                 cell=None) -> np.ndarray:
+                 cell: tuple[float, float, float] | np.ndarray | None = None) -> np.ndarray:
     """P(G | Δ) (N,) for a goal grasp executed relative to an estimate, the object really at
     offset delta (N,3): the grasp made (as in goal_holds), and the object, moved by the
     closing as the settling study measured it (Settling.outcome: Δ_closed ~ N(μ(Δ),
