@@ -172,17 +172,24 @@ def rotate_about(points: np.ndarray, center_xy: np.ndarray, angle: float) -> np.
     return out
 
 
+def _full_turn(points: np.ndarray, e: np.ndarray, angle: float,
+               outcome: ReorientOutcome | None) -> tuple[np.ndarray, np.ndarray]:
+    """``full_turn`` and (K,) bool: which states the outcome moved (inside its box)."""
+    turned = rotate_about(points, e[:2], angle)
+    inside = np.zeros(len(points), dtype=bool)
+    if outcome is not None:
+        delta = relative_planar(e, points)
+        inside = outcome.inside(delta)
+        turned[inside] = compose_planar(e + np.array([0.0, 0.0, angle]), outcome.mean(delta[inside]))
+    return turned, inside
+
+
 def full_turn(points: np.ndarray, e: np.ndarray, angle: float, outcome: ReorientOutcome | None = None) -> np.ndarray:
     """Poses (K,3) of objects at points (K,3) after a reorientation's full turn by ``angle``
     [rad] about the vertical through e: rigid, except that the states inside the WRT's
     measured ``outcome`` box move to its mean (rrg_estimator.transition.reorient, without the
     blur)."""
-    turned = rotate_about(points, e[:2], angle)
-    if outcome is not None:
-        delta = relative_planar(e, points)
-        inside = outcome.inside(delta)
-        turned[inside] = compose_planar(e + np.array([0.0, 0.0, angle]), outcome.mean(delta[inside]))
-    return turned
+    return _full_turn(points, e, angle, outcome)[0]
 
 
 #: Three-point Gauss–Hermite rule, centre first: offsets [σ] and weights that give a Gaussian
@@ -190,23 +197,12 @@ def full_turn(points: np.ndarray, e: np.ndarray, angle: float, outcome: Reorient
 BLUR_NODES = ((0.0, 2.0 / 3.0), (-np.sqrt(3.0), 1.0 / 6.0), (np.sqrt(3.0), 1.0 / 6.0))
 
 
-def turn_sigma(points: np.ndarray, e: np.ndarray, full: bool, outcome: ReorientOutcome | None,
-               blur: float) -> np.ndarray:
-    """(K,) σ_θ [rad] of where a turn leaves objects at points (K,3): the transition's blur,
-    and on the full turn inside the measured ``outcome`` box its σ_θ as well (as
-    rrg_estimator.transition.reorient)."""
-    sigma = np.full(len(points), blur)
-    if full and outcome is not None:
-        sigma[outcome.inside(relative_planar(e, points))] = np.hypot(outcome.sigma[2], blur)
-    return sigma
-
-
 def reorient_mixture(points: np.ndarray, weights: np.ndarray, e: np.ndarray, angle: float,
                      support_rel: float = 0.0, outcome: ReorientOutcome | None = None,
                      blur: float = TRANSITION.reorient_sigma_theta) -> tuple[np.ndarray, np.ndarray]:
     """Transition of a reorientation grasp run at e: full rotation (``full_turn``, with the
     WRT's measured ``outcome``), half, or none (TRANSITION), about the vertical through e,
-    each spread in θ by its σ (``turn_sigma``) on the three BLUR_NODES. Without the spread
+    each spread in θ by its σ on the three BLUR_NODES. Without the spread
     the search took a turn to keep the belief as sharp as before it, and chose
     reorientations to localize the objects whose turns scatter them most (the teacup's, σ_θ
     0.08 rad, which the estimator then applies).
@@ -222,9 +218,16 @@ def reorient_mixture(points: np.ndarray, weights: np.ndarray, e: np.ndarray, ang
     pts, ws = [], []
     for a, q in parts:
         keep = np.flatnonzero(weights * q * nodes[0][1] >= threshold) if threshold > 0 else slice(None)
-        turned = full_turn(points[keep], e, a, outcome) if a == angle else (
-            rotate_about(points[keep], e[:2], a) if a else points[keep])
-        sigma = turn_sigma(points[keep], e, a == angle, outcome, blur)
+        if a == angle:
+            turned, moved_by_outcome = _full_turn(points[keep], e, a, outcome)
+        else:
+            turned = rotate_about(points[keep], e[:2], a) if a else points[keep]
+            moved_by_outcome = np.zeros(len(turned), dtype=bool)
+        # σ_θ of each state's turn: the blur, and the outcome's σ as well where it moved it
+        # (as rrg_estimator.transition.reorient)
+        sigma = np.full(len(turned), blur)
+        if moved_by_outcome.any():
+            sigma[moved_by_outcome] = np.hypot(outcome.sigma[2], blur)
         for z, qz in nodes:
             w = weights[keep] * (q * qz)
             on = w >= threshold
