@@ -8,8 +8,9 @@ The likelihood of one table entry is the product of
   * contact agreement: 1 - p_contact_mismatch, or p_contact_mismatch;
   * where the hand stopped: max(exp(-½((p_o - p_t)/σ_progress)²), κ_progress) when both
     report an early contact (when neither does, both stopped at the path's end: 1);
-  * each of the 10 sensors: p_detect / 1 - p_detect when contact on it was predicted,
-    p_false_alarm / 1 - p_false_alarm when it was not (fired / silent);
+  * each of the 10 sensors: P(fired) = q·p_detect + (1 - q)·p_false_alarm (silent: 1 minus
+    that), q the probability that contact on it is predicted anywhere in the entry's cell
+    (``sensor_prediction``: 1 or 0 where the neighbours agree);
   * max(exp(-½((c_o - c_t)/σ_t)²), κ_closure) per finger closure angle, σ_t the entry's own
     closure σ: σ_closure widened by its nearest-entry discretization (``closure_sigma``);
   * max(exp(-½(|x_o - x_t|/σ_tip)²), κ_tip) per fingertip contact point present on both
@@ -30,6 +31,7 @@ from dataclasses import dataclass, replace
 from typing import Protocol
 
 import numpy as np
+from scipy.ndimage import convolve1d
 
 from rrg_sim.config import LIKELIHOOD, N_SENSORS, LikelihoodParams
 from rrg_sim.grid import Grid
@@ -111,12 +113,43 @@ def features_from_table_rows(table: TableLike, rows) -> ObsFeatures:
                      table.closure[rows], table.tip_points[rows], table.motion_dir[rows])
 
 
-def _sensor_log_tables(params: LikelihoodParams) -> tuple[np.ndarray, np.ndarray]:
-    """log P(reading | predicted): (silent, fired) rows for predicted = False / True."""
-    pd, pfa = params.p_detect, params.p_false_alarm
-    not_predicted = np.log([1.0 - pfa, pfa])  # [silent, fired]
-    predicted = np.log([1.0 - pd, pd])
-    return not_predicted, predicted
+#: Weights of an entry and its two neighbours along one grid axis in the probability that a
+#: sensor's predicted contact holds somewhere in the entry's cell: where the prediction
+#: differs from a neighbour's, the switch lies anywhere between the two grid points, so on
+#: average 1/8 of the cell (±½ cell about its point) is on the neighbour's side.
+CELL_WEIGHTS = np.array([0.125, 0.75, 0.125])
+
+_SENSOR_LOG: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def sensor_prediction(table: TableLike) -> np.ndarray:
+    """(N, 10) float: the probability q that contact on each sensor is predicted within each
+    table entry's cell (the entry's flags averaged with its neighbours' by CELL_WEIGHTS along
+    each axis; the table's edges count their own flag). A flag that flickers between
+    neighbouring entries (a finger grazing one facet of a polygonal rim every 0.31 rad of
+    θ) is about 0.4 instead of a certain 1 or 0, so it no longer makes the likelihood spike
+    on the grid points that happen to sample it."""
+    q = np.asarray(table.sensors, dtype=np.float64).reshape(*table.grid.shape, -1)
+    for axis in range(3):
+        q = convolve1d(q, CELL_WEIGHTS, axis=axis, mode="nearest")
+    return q.reshape(len(table.sensors), -1)
+
+
+def sensor_log_likelihood(table: TableLike, params: LikelihoodParams) -> tuple[np.ndarray, np.ndarray]:
+    """(silent (N,), gain (10, N)) float32: every sensor silent, Σ_s log P(silent | q_s), per
+    entry, and log P(fired | q) - log P(silent | q) per sensor (``sensor_prediction``); a
+    reading's sensor term is silent + o @ gain. Cached per table (weakly referenced)."""
+    key = (params.p_detect, params.p_false_alarm)
+    cached = _SENSOR_LOG.get(table)
+    if cached is not None and cached[0] == key:
+        return cached[1]
+    q = sensor_prediction(table)
+    fired = q * params.p_detect + (1.0 - q) * params.p_false_alarm
+    silent = np.log1p(-fired)
+    out = (silent.sum(axis=1).astype(np.float32),
+           np.ascontiguousarray((np.log(fired) - silent).T.astype(np.float32)))
+    _SENSOR_LOG[table] = (key, out)
+    return out
 
 
 def likelihood_params(wrt: WRT, params: LikelihoodParams = LIKELIHOOD) -> LikelihoodParams:
@@ -168,11 +201,10 @@ def log_likelihood_over_table(table: TableLike, feats: ObsFeatures,
         zp = (feats.progress[:, None] - np.asarray(table.progress, dtype=f32)[None, :]) / f32(params.sigma_progress)
         cost = np.minimum(f32(0.5) * zp * zp, f32(-np.log(params.outlier_progress)))
         logl -= np.where(feats.contact[:, None] & t_contact[None, :], cost, f32(0.0))
-    # sensors: Σ_s log P(o_s | t_s) = Σ_s log P(o_s | 0) + Σ_s t_s (log P(o_s | 1) - log P(o_s | 0))
-    not_pred, pred = _sensor_log_tables(params)
-    o = feats.sensors.astype(np.int64)
-    logl += not_pred[o].sum(axis=1).astype(f32)[:, None]
-    logl += (pred[o] - not_pred[o]).astype(f32) @ np.asarray(table.sensors, dtype=f32).T
+    # sensors: Σ_s log P(o_s | q_s) = Σ_s log P(silent | q_s) + Σ_s o_s (log P(fired | q_s) - log P(silent | q_s))
+    silent, gain = sensor_log_likelihood(table, params)
+    logl += silent[None, :]
+    logl += feats.sensors.astype(f32) @ gain
     # closure angles (component rows made contiguous once)
     closure = np.ascontiguousarray(np.asarray(table.closure, dtype=f32).T)  # (3, N)
     sig = closure_sigma(table, params.sigma_closure)

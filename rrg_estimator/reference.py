@@ -74,6 +74,25 @@ def closure_sigma_reference(table: TableLike, j: int, f: int, sigma: float) -> f
     return math.sqrt(sigma * sigma + var)
 
 
+def sensor_prediction_reference(table: TableLike, j: int, s: int) -> float:
+    """Probability that contact on sensor s is predicted within entry j's cell: the flags of
+    the entry and its neighbours weighted ⅛, ¾, ⅛ along each axis, an index past the table's
+    edge clamped to it (obs_model.sensor_prediction)."""
+    shape = table.grid.shape
+    centre = np.unravel_index(j, shape)
+    q = 0.0
+    for di in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            for dk in (-1, 0, 1):
+                weight = 1.0
+                index = []
+                for axis, d in enumerate((di, dj, dk)):
+                    weight *= 0.75 if d == 0 else 0.125
+                    index.append(min(max(int(centre[axis]) + d, 0), shape[axis] - 1))
+                q += weight * float(bool(table.sensors[int(np.ravel_multi_index(index, shape))][s]))
+    return q
+
+
 def likelihood_reference(table: TableLike, j: int, obs: dict, params: LikelihoodParams = LIKELIHOOD) -> float:
     """Floored likelihood of one observation (dict of plain values) at table entry j, term by term."""
     like = 1.0
@@ -83,11 +102,9 @@ def likelihood_reference(table: TableLike, j: int, obs: dict, params: Likelihood
         z = (obs["progress"] - float(table.progress[j])) / params.sigma_progress
         like *= max(math.exp(-0.5 * z * z), params.outlier_progress)
     for s in range(len(obs["sensors"])):
-        fired, predicted = obs["sensors"][s], bool(table.sensors[j][s])
-        if predicted:
-            like *= params.p_detect if fired else 1.0 - params.p_detect
-        else:
-            like *= params.p_false_alarm if fired else 1.0 - params.p_false_alarm
+        q = sensor_prediction_reference(table, j, s)
+        p_fired = q * params.p_detect + (1.0 - q) * params.p_false_alarm
+        like *= p_fired if obs["sensors"][s] else 1.0 - p_fired
     for f in range(3):
         z = (obs["closure"][f] - float(table.closure[j][f])) / closure_sigma_reference(table, j, f, params.sigma_closure)
         like *= max(math.exp(-0.5 * z * z), params.outlier_closure)

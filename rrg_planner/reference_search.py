@@ -14,7 +14,7 @@ from rrg_sim.config import SEARCH, TRANSITION, SearchParams
 from rrg_sim.poses import compose_planar, relative_planar
 
 from .model import PlanningModel
-from .search import BLUR_NODES, SearchResult, merge_branches
+from .search import BLUR_NODES, TIE_DECIMALS, TIE_RTOL, SearchResult, merge_branches
 
 Points = list[tuple[float, float, float]]
 
@@ -46,11 +46,11 @@ class ReferenceSearch:
 
     @staticmethod
     def _argmax(points: Points, weights: list[float]):
-        best = 0
+        """The first point whose weight is within TIE_RTOL of the largest."""
+        top = max(weights)
         for j in range(len(weights)):
-            if weights[j] > weights[best]:
-                best = j
-        return points[best]
+            if weights[j] >= top * (1.0 - TIE_RTOL):
+                return points[j]
 
     def static_value(self, points: Points, weights: list[float], level: str) -> float:
         w_star = self._argmax(points, weights)
@@ -98,7 +98,7 @@ class ReferenceSearch:
         if total <= 0:
             return []
         pc = [p / total for p in pc]
-        order = sorted(range(len(pc)), key=lambda c: -pc[c])
+        order = sorted(range(len(pc)), key=lambda c: -round(pc[c], TIE_DECIMALS))
         cand, acc = [], 0.0
         for c in order:
             if pc[c] <= 0:

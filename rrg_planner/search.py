@@ -44,6 +44,12 @@ def _wrap(a: np.ndarray) -> np.ndarray:
 #: one gathers its likelihood rows per point instead (measured cross-over ≈ 0.4 on this machine).
 DENSE_FRACTION = 0.4
 
+#: Ties, which a symmetric object's mirror-image states and branches make exact, are broken
+#: by index, not by rounding: weights this close (relative) to the maximum tie for w*(b), and
+#: branch probabilities are ordered rounded to TIE_DECIMALS (ReferenceSearch does the same).
+TIE_RTOL = 1e-9
+TIE_DECIMALS = 12
+
 #: The search's matrices are small (K×S by S×11): multi-threaded BLAS only spins and roughly
 #: doubles the time on 2 cores, so planning runs with one BLAS thread.
 _BLAS = ThreadpoolController()
@@ -77,7 +83,9 @@ class SparseBelief:
 
     @property
     def w_star(self) -> np.ndarray:
-        return self.points[int(np.argmax(self.weights))]
+        """The most likely point; of points tied within TIE_RTOL, the first."""
+        w = self.weights
+        return self.points[int(np.argmax(w >= w.max() * (1.0 - TIE_RTOL)))]
 
 
 def moment_features(points: np.ndarray, weights: np.ndarray, ref: np.ndarray, sigma: np.ndarray) -> np.ndarray:
@@ -141,7 +149,7 @@ def merge_branches(probs: np.ndarray, entropies: np.ndarray, covs: np.ndarray,
                   < params.merge_cov_tol))
     reps: list[int] = []
     mass: list[float] = []
-    for k in np.argsort(-probs, kind="stable"):
+    for k in np.argsort(-np.round(probs, TIE_DECIMALS), kind="stable"):
         for r_i, r in enumerate(reps):
             if similar[k, r]:
                 mass[r_i] += float(probs[k])
@@ -149,7 +157,7 @@ def merge_branches(probs: np.ndarray, entropies: np.ndarray, covs: np.ndarray,
         else:
             reps.append(int(k))
             mass.append(float(probs[k]))
-    order = np.argsort(-np.asarray(mass), kind="stable")
+    order = np.argsort(-np.round(mass, TIE_DECIMALS), kind="stable")
     total = float(np.sum(mass))
     kept, acc = [], 0.0
     for i in order:
@@ -391,7 +399,7 @@ class ForwardSearch:
         if total <= 0:
             return []
         pc /= total
-        order = np.argsort(-pc, kind="stable")
+        order = np.argsort(-np.round(pc, TIE_DECIMALS), kind="stable")
         cum = np.cumsum(pc[order])
         n_cand = int(np.searchsorted(cum, 0.95) + 1)
         cand = order[:n_cand][pc[order[:n_cand]] > 0]

@@ -11,7 +11,7 @@ import pytest
 
 from rrg_estimator.belief import Belief
 from rrg_estimator.obs_tables import ObservationTable
-from rrg_estimator.obs_model import (closure_sigma, features_from_observation, features_from_table_rows,
+from rrg_estimator.obs_model import (closure_sigma, features_from_observation, features_from_table_rows, sensor_prediction,
                                      likelihood_over_table, likelihood_params, log_likelihood_over_table,
                                      table_indices)
 from rrg_estimator.reference import table_index_reference, update_reference
@@ -88,8 +88,11 @@ def test_likelihood_terms(high_table):
     row = int(np.flatnonzero(t.contact & t.sensors[:, 7] & t.sensors[:, 9])[0])
     f = features_from_table_rows(t, [row])
     base = log_likelihood_over_table(t, f)[0]
-    expected = (math.log(1 - LIKELIHOOD.p_contact_mismatch)
-                + sum(math.log(LIKELIHOOD.p_detect if s else 1 - LIKELIHOOD.p_false_alarm) for s in t.sensors[row]))
+    lp = LIKELIHOOD
+    q = sensor_prediction(t)[row]  # each sensor's predicted contact within the row's cell
+    p_fired = q * lp.p_detect + (1 - q) * lp.p_false_alarm
+    expected = (math.log(1 - lp.p_contact_mismatch)
+                + sum(math.log(p if s else 1 - p) for s, p in zip(t.sensors[row], p_fired)))
     assert base[row] == pytest.approx(expected, abs=1e-5)
     assert np.argmax(base) == row
 
@@ -99,7 +102,6 @@ def test_likelihood_terms(high_table):
         getattr(g, field)[(0, *np.atleast_1d(index))] = value
         return float(log_likelihood_over_table(t, g)[0, row] - base[row])
 
-    lp = LIKELIHOOD
     assert change("progress", (), f.progress[0] + lp.sigma_progress) == pytest.approx(-0.5, abs=1e-4)
     sigma = float(closure_sigma(t, lp.sigma_closure)[1, row])  # the entry's own σ, ≥ the base σ
     assert sigma >= lp.sigma_closure
@@ -107,8 +109,9 @@ def test_likelihood_terms(high_table):
     assert change("tip_points", (2, 2), f.tip_points[0, 2, 2] + 2 * lp.sigma_tip) == pytest.approx(-2.0, abs=1e-3)
     # a tip point missing on one side adds no distance term (its sensor term judges it)
     assert change("tip_points", 2, np.nan) == pytest.approx(0.0, abs=1e-6)
-    assert change("sensors", 5, True) == pytest.approx(math.log(lp.p_false_alarm / (1 - lp.p_false_alarm)), abs=1e-5)
-    assert change("sensors", 7, False) == pytest.approx(math.log((1 - lp.p_detect) / lp.p_detect), abs=1e-5)
+    assert not t.sensors[row, 5] and t.sensors[row, 7]
+    assert change("sensors", 5, True) == pytest.approx(math.log(p_fired[5] / (1 - p_fired[5])), abs=1e-5)
+    assert change("sensors", 7, False) == pytest.approx(math.log((1 - p_fired[7]) / p_fired[7]), abs=1e-5)
     mismatch = math.log(lp.p_contact_mismatch / (1 - lp.p_contact_mismatch))
     assert change("contact", (), False) == pytest.approx(mismatch, abs=1e-5)
 
@@ -139,6 +142,33 @@ def test_closure_sigma_adds_each_entrys_discretization():
         for f in range(3):
             assert closure_sigma_reference(table, j, f, 0.05) == pytest.approx(float(sig[f, j]), rel=1e-5)
     assert np.all(np.isinf(closure_sigma(table, math.inf)))
+
+
+def test_a_sensors_predicted_contact_stands_for_the_entrys_cell():
+    """A sensor predicted from x index 3 on (not along y or θ) is predicted in 1/8 of the cells
+    of index 2 and 7/8 of those of index 3 (its switch lies anywhere between the two points),
+    certainly elsewhere; a flag on one grid point alone (a finger grazing one facet) counts
+    (3/4)³ there. The per-state reference computes the same; the edges count their own flag."""
+    from rrg_estimator.reference import sensor_prediction_reference
+
+    class Table:  # the two fields sensor_prediction reads
+        def __init__(self, grid: Grid, sensors: np.ndarray):
+            self.grid, self.sensors = grid, sensors
+
+    grid = Grid((0.0, 0.0, 0.0), (0.01, 0.01, 0.1), (5, 3, 3))
+    ix = np.arange(grid.size) // 9
+    sensors = np.zeros((grid.size, 10), bool)
+    sensors[:, 0] = ix >= 3
+    sensors[13, 4] = True  # the centre entry (2, 1, 1) alone
+    table = Table(grid, sensors)
+    q = sensor_prediction(table)
+    expected = np.array([0.0, 0.0, 0.125, 0.875, 1.0])[ix]
+    np.testing.assert_allclose(q[:, 0], expected, atol=1e-12)
+    assert q[13, 4] == pytest.approx(0.75 ** 3) and q[:, 4].sum() == pytest.approx(1.0)
+    np.testing.assert_array_equal(q[:, 1], 0.0)
+    for j in (0, 13, 22, 44):
+        for s in (0, 4):
+            assert sensor_prediction_reference(table, j, s) == pytest.approx(float(q[j, s]), abs=1e-12)
 
 
 def test_likelihood_is_floored_batched_and_float32(high_table):
