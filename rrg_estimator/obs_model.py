@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import weakref
 from dataclasses import dataclass, replace
-from typing import Protocol
+from typing import Callable, Protocol, TypeVar
 
 import numpy as np
 from scipy.ndimage import convolve1d
@@ -38,6 +38,8 @@ from rrg_sim.grid import Grid
 from rrg_sim.observation import Observation
 from rrg_sim.poses import wrap_angle
 from rrg_sim.wrt import WRT
+
+T = TypeVar("T")
 
 
 class TableLike(Protocol):
@@ -122,6 +124,15 @@ CELL_WEIGHTS = np.array([0.125, 0.75, 0.125])
 _SENSOR_LOG: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
+def _per_table(cache: "weakref.WeakKeyDictionary", table: TableLike, key, build: Callable[[], T]) -> T:
+    """``build()`` for ``table``, remembered in ``cache`` (weakly referenced) while ``key``
+    (the parameters it depends on) stays the same."""
+    cached = cache.get(table)
+    if cached is None or cached[0] != key:
+        cached = cache[table] = (key, build())
+    return cached[1]
+
+
 def sensor_prediction(table: TableLike) -> np.ndarray:
     """(N, 10) float: the probability q that contact on each sensor is predicted within each
     table entry's cell (the entry's flags averaged with its neighbours' by CELL_WEIGHTS along
@@ -139,17 +150,14 @@ def sensor_log_likelihood(table: TableLike, params: LikelihoodParams) -> tuple[n
     """(silent (N,), gain (10, N)) float32: every sensor silent, Σ_s log P(silent | q_s), per
     entry, and log P(fired | q) - log P(silent | q) per sensor (``sensor_prediction``); a
     reading's sensor term is silent + o @ gain. Cached per table (weakly referenced)."""
-    key = (params.p_detect, params.p_false_alarm)
-    cached = _SENSOR_LOG.get(table)
-    if cached is not None and cached[0] == key:
-        return cached[1]
-    q = sensor_prediction(table)
-    fired = q * params.p_detect + (1.0 - q) * params.p_false_alarm
-    silent = np.log1p(-fired)
-    out = (silent.sum(axis=1).astype(np.float32),
-           np.ascontiguousarray((np.log(fired) - silent).T.astype(np.float32)))
-    _SENSOR_LOG[table] = (key, out)
-    return out
+    def build() -> tuple[np.ndarray, np.ndarray]:
+        q = sensor_prediction(table)
+        fired = q * params.p_detect + (1.0 - q) * params.p_false_alarm
+        silent = np.log1p(-fired)
+        return (silent.sum(axis=1).astype(np.float32),
+                np.ascontiguousarray((np.log(fired) - silent).T.astype(np.float32)))
+
+    return _per_table(_SENSOR_LOG, table, (params.p_detect, params.p_false_alarm), build)
 
 
 def likelihood_params(wrt: WRT, params: LikelihoodParams = LIKELIHOOD) -> LikelihoodParams:
@@ -171,20 +179,19 @@ def closure_sigma(table: TableLike, sigma: float) -> np.ndarray:
     n = len(table.closure)
     if not np.isfinite(sigma):
         return np.full((3, n), sigma, dtype=np.float32)
-    cached = _CLOSURE_SIGMA.get(table)
-    if cached is not None and cached[0] == sigma:
-        return cached[1]
-    c = np.asarray(table.closure, dtype=np.float64).reshape(*table.grid.shape, 3)
-    var = np.zeros_like(c)
-    for axis in range(3):
-        d = np.abs(np.diff(c, axis=axis))
-        before, after = [(0, 0)] * 4, [(0, 0)] * 4
-        before[axis], after[axis] = (1, 0), (0, 1)
-        g = np.maximum(np.pad(d, before), np.pad(d, after))  # the larger change to a neighbour
-        var += g * g / 12.0
-    out = np.ascontiguousarray(np.sqrt(sigma * sigma + var).reshape(n, 3).T.astype(np.float32))
-    _CLOSURE_SIGMA[table] = (sigma, out)
-    return out
+
+    def build() -> np.ndarray:
+        c = np.asarray(table.closure, dtype=np.float64).reshape(*table.grid.shape, 3)
+        var = np.zeros_like(c)
+        for axis in range(3):
+            d = np.abs(np.diff(c, axis=axis))
+            before, after = [(0, 0)] * 4, [(0, 0)] * 4
+            before[axis], after[axis] = (1, 0), (0, 1)
+            g = np.maximum(np.pad(d, before), np.pad(d, after))  # the larger change to a neighbour
+            var += g * g / 12.0
+        return np.ascontiguousarray(np.sqrt(sigma * sigma + var).reshape(n, 3).T.astype(np.float32))
+
+    return _per_table(_CLOSURE_SIGMA, table, sigma, build)
 
 
 def log_likelihood_over_table(table: TableLike, feats: ObsFeatures,

@@ -50,6 +50,11 @@ DENSE_FRACTION = 0.4
 TIE_RTOL = 1e-9
 TIE_DECIMALS = 12
 
+
+def _most_probable_first(probs) -> np.ndarray:
+    """Indices ordering probabilities (…,) from the largest, ties (to TIE_DECIMALS) by index."""
+    return np.argsort(-np.round(probs, TIE_DECIMALS), kind="stable")
+
 #: The search's matrices are small (K×S by S×11): multi-threaded BLAS only spins and roughly
 #: doubles the time on 2 cores, so planning runs with one BLAS thread.
 _BLAS = ThreadpoolController()
@@ -149,7 +154,7 @@ def merge_branches(probs: np.ndarray, entropies: np.ndarray, covs: np.ndarray,
                   < params.merge_cov_tol))
     reps: list[int] = []
     mass: list[float] = []
-    for k in np.argsort(-np.round(probs, TIE_DECIMALS), kind="stable"):
+    for k in _most_probable_first(probs):
         for r_i, r in enumerate(reps):
             if similar[k, r]:
                 mass[r_i] += float(probs[k])
@@ -157,7 +162,7 @@ def merge_branches(probs: np.ndarray, entropies: np.ndarray, covs: np.ndarray,
         else:
             reps.append(int(k))
             mass.append(float(probs[k]))
-    order = np.argsort(-np.round(mass, TIE_DECIMALS), kind="stable")
+    order = _most_probable_first(mass)
     total = float(np.sum(mass))
     kept, acc = [], 0.0
     for i in order:
@@ -399,7 +404,7 @@ class ForwardSearch:
         if total <= 0:
             return []
         pc /= total
-        order = np.argsort(-np.round(pc, TIE_DECIMALS), kind="stable")
+        order = _most_probable_first(pc)
         cum = np.cumsum(pc[order])
         n_cand = int(np.searchsorted(cum, 0.95) + 1)
         cand = order[:n_cand][pc[order[:n_cand]] > 0]
