@@ -373,6 +373,10 @@ class PhysicsParams:
     #: home to a side grasp's approach pose hit the pitcher and the drill with a finger for
     #: about 3 in 10 poses drawn at high uncertainty (MuJoCo; the tables assume it is free).
     transit_height: float = 0.40
+    #: [m] how far the open hand backs out along its approach axis after a reorientation
+    #: whose retrace is infeasible, before rising (chosen: the open fingers' reach past the
+    #: knuckles, proximal 0.07 m + distal 0.057 m + the fingertip, notes/mujoco-world.md)
+    back_out_distance: float = 0.15
     #: Joint speed limits of every move [rad/s] (chosen: about half the WAM's top speeds; its
     #: wrist joints, with lower transmission ratios, run about twice as fast as J1-J4).
     joint_speed: tuple[float, ...] = (1.5, 1.5, 1.5, 1.5, 3.0, 3.0, 3.0)

@@ -103,6 +103,13 @@ class Execution:
         return self.moved @ self.wrt.world_poses(self.e)[:passed][::-1]
 
 
+def _translation_z(dz: float) -> np.ndarray:
+    """(4,4) a translation by dz [m] along z."""
+    T = np.eye(4)
+    T[2, 3] = dz
+    return T
+
+
 def rotation_about_z(centre_xy, angle: float) -> np.ndarray:
     """(4,4) world rotation by ``angle`` about the vertical axis through centre_xy."""
     T = np.eye(4)
@@ -184,15 +191,26 @@ class WrtExecutor:
 
     def _rise(self) -> None:
         """Raise the open hand straight up to PHYSICS.transit_height, clear of the object, or as
-        far as the arm can (halving the rise until it is feasible; none below 1 cm)."""
+        far as the arm can."""
         here = self.robot.hand_pose()
-        rise = PHYSICS.transit_height - here[2, 3]
-        while rise >= 0.01:
+        self._move_as_far_as_feasible(lambda d: raised(here, d), PHYSICS.transit_height - here[2, 3])
+
+    def _back_out(self) -> None:
+        """Withdraw the open hand along its approach axis (hand −z) by PHYSICS.back_out_distance,
+        or as far as the arm can: the way out of a grasp whose fingers wrap a part (rising
+        with them around the pitcher's handle dragged it 8 cm and turned it 1.3 rad)."""
+        here = self.robot.hand_pose()
+        self._move_as_far_as_feasible(lambda d: here @ _translation_z(-d), PHYSICS.back_out_distance)
+
+    def _move_as_far_as_feasible(self, pose_at: Callable[[float], np.ndarray], distance: float) -> None:
+        """Move straight to pose_at(distance) [m], halving the distance until the move is
+        feasible; none below 1 cm."""
+        while distance >= 0.01:
             try:
-                self._move(raised(here, rise)[None], rigid_from=1)
+                self._move(pose_at(distance)[None], rigid_from=1)
                 return
             except InfeasiblePath:
-                rise /= 2
+                distance /= 2
 
     def _open(self, proximal: float) -> None:
         spread, _ = self.robot.hand_angles()
@@ -314,8 +332,10 @@ class WrtExecutor:
                 try:
                     self._move(back, rigid_from=len(back))
                 except InfeasiblePath as exc:  # the turned approach leaves the arm's reach
-                    log.warning("retreat from %s: the turned approach is infeasible (%s); rising instead",
-                                last.wrt.name, exc)
+                    log.warning("retreat from %s: the turned approach is infeasible (%s); opening the "
+                                "hand and backing out along its approach axis instead", last.wrt.name, exc)
+                    self._open(0.0)
+                    self._back_out()
                     self._rise()
             self._follow(joint_path(self.robot.arm_q(), last.path.q[0]), speeds={0: FREE_SPEEDS})
         self._open(0.0)

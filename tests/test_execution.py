@@ -129,10 +129,13 @@ def test_planned_paths_keep_clear_of_the_joint_limits_where_they_can():
     assert 0.0 <= clearance(plan("cooler", [0.752, 0.063, 0.388])) < LIMIT_MARGIN
 
 
-def test_a_retreat_whose_turned_approach_is_out_of_reach_rises_and_goes_home():
+def test_a_retreat_whose_turned_approach_is_out_of_reach_backs_out_and_goes_home():
     """After the pitcher's reorient_cw at (0.77, 0.01, 0.8) the approach turned with the object
     has no continuous IK chain from where the arm put it down (this ended two campaign
-    trials with an InfeasiblePath). The open hand rises instead, and the arm goes home."""
+    trials with an InfeasiblePath). The hand opens, backs out along its approach axis and
+    rises instead, and the arm goes home, leaving the pitcher where it was put down (rising
+    with the fingers around its handle dragged it 8 cm and turned it 1.3 rad: campaign
+    8f408b3, brita_pitcher/high/rrg-info#92)."""
     world = PhysicsWorld("brita_pitcher", seed=1)
     e = np.array([0.77, 0.01, 0.8])
     world.reset(np.array([0.787, 0.0007, 0.702]))
@@ -143,8 +146,11 @@ def test_a_retreat_whose_turned_approach_is_out_of_reach_rises_and_goes_home():
     back = last.turned_approach()
     with pytest.raises(InfeasiblePath):
         plan_path(back, world.arm_q(), rigid_from=len(back))
+    put_down = world.true_object_pose()
     world.retreat()
     np.testing.assert_allclose(world.arm_q(), wam.HOME_Q, atol=0.05)  # servo lag [rad]
+    moved = world.true_object_pose() - put_down
+    assert np.abs(moved[:2]).max() < 0.005 and abs(moved[2]) < 0.02, moved  # [m], [rad]
 
 
 def test_the_open_hand_at_home_is_clear_of_the_tallest_object_below_it():
