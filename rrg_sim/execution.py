@@ -307,8 +307,9 @@ class WrtExecutor:
 
     def retreat(self, progress: Callable[[str, float], None] | None = None) -> None:
         """Open the hand and retrace the executed path back to home. After a reorientation the
-        WRT's part of the path is retraced turned with the object, then the arm moves home in
-        joint space. If the arm is no longer where the WRT left it (e.g. the simulator was
+        WRT's part of the path is retraced turned with the object (where that is out of reach,
+        the open hand backs out along its approach axis and rises instead), then the arm moves
+        home in joint space. If the arm is no longer where the WRT left it (e.g. the simulator was
         reset), the retreat is dropped."""
         if self.last is None:
             return
