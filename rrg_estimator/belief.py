@@ -37,7 +37,8 @@ class Belief:
         total = w.sum()
         if not total > 0.0:
             raise ValueError("belief weights sum to zero: no state is possible")
-        w /= total
+        if abs(total - 1.0) > 1e-12:  # weights already normalized stay bit-exact (a message round trip)
+            w /= total
         w.flags.writeable = False
         object.__setattr__(self, "weights", w)
 

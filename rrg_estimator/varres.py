@@ -1,6 +1,11 @@
 """Variable-resolution grid (DESIGN §3; beyond the paper, which names it as the fix for its
 cup and teabox failures at high uncertainty): once a coarse belief has concentrated, re-grid
-it at the fine level's spacing over a box the size of the fine grid.
+it at a finer level's spacing over a box the size of that level's grid (HIGH → MID → LOW,
+straight to LOW when it already fits).
+
+Each coarse point stands for its cell, so the box must hold the cells, not only the points:
+the run of coarse points is sought in a box half a coarse spacing smaller on every side
+(otherwise a truth in the outer half of an end cell lies beyond the fine grid).
 
 The box centre is the belief's mean when the box there already holds 1 - ε of the mass.
 Otherwise (a skewed belief) it is found by searching all axis-aligned runs of coarse grid
@@ -9,9 +14,11 @@ to the mean as it can be while still containing that run.
 """
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import numpy as np
 
-from rrg_sim.config import LOW, VARRES_EPS, VARRES_RECENTER, UncertaintyLevel
+from rrg_sim.config import LEVELS, VARRES_EPS, VARRES_RECENTER, UncertaintyLevel
 from rrg_sim.grid import Grid
 from rrg_sim.poses import wrap_angle
 
@@ -51,31 +58,49 @@ def refinement_center(belief: Belief, half_extent: np.ndarray, eps: float) -> np
     return centers[np.argmin(np.sum(((centers - mean) / spacing) ** 2, axis=1))]
 
 
-def _off_centre(belief: Belief, fine_level: UncertaintyLevel, half: np.ndarray) -> bool:
+def _off_centre(belief: Belief, half: np.ndarray) -> bool:
     """A fine belief whose mean has left the middle of its grid (the object moved: a bump, a
     firm grasp): more than VARRES_RECENTER of the half extent off the centre on some axis."""
     off = belief.mean() - np.asarray(belief.grid.center)
     off[2] = wrap_angle(off[2])
-    return bool(np.allclose(belief.grid.shape, fine_level.shape) and np.any(np.abs(off) > VARRES_RECENTER * half))
+    return bool(np.any(np.abs(off) > VARRES_RECENTER * half))
 
 
-def maybe_refine(belief: Belief, fine_level: UncertaintyLevel = LOW, eps: float = VARRES_EPS) -> Belief | None:
-    """The belief re-gridded at fine_level's spacing and shape if its grid is coarser and at
-    least 1 - eps of its mass fits in a box the size of the fine grid; None otherwise.
-    A belief already on a fine grid is re-centred on its mean once the mean is more than
-    VARRES_RECENTER of the grid's half extent off its centre on some axis (the fixed grid
-    of the paper cannot follow an object that moves further than that), the same way.
+def _half_extent(level: UncertaintyLevel) -> np.ndarray:
+    return (np.asarray(level.shape) - 1) / 2 * np.asarray(level.spacing)
+
+
+def _regrid(belief: Belief, level: UncertaintyLevel, center: np.ndarray) -> Belief:
+    center[2] = wrap_angle(center[2])
+    fine = Grid(tuple(float(c) for c in center), tuple(level.spacing), tuple(level.shape))
+    return Belief(fine, sample_density(belief, fine.points()))
+
+
+def maybe_refine(belief: Belief, levels: Iterable[UncertaintyLevel] = LEVELS.values(),
+                 eps: float = VARRES_EPS) -> Belief | None:
+    """The belief re-gridded at the finest of ``levels`` finer than its grid whose box holds
+    at least 1 - eps of its mass with half a cell of margin (see the module); None when none
+    does. A belief already on one of ``levels``' refined grids and on no finer one is
+    re-centred on its mean once the mean is more than VARRES_RECENTER of the grid's half
+    extent off its centre on some axis (the fixed grid of the paper cannot follow an object
+    that moves further than that), even when that drops more than eps: mass piling up on
+    one border says the object lies beyond it (MuJoCo, powerdrill/high#0 in session 15: a
+    sweep-pushed drill 0.2 rad off a MID grid whose tail kept every eps-box where it was,
+    until the belief collapsed on the border and the goal grasp was made 0.2 rad off).
 
     Weights on the fine grid are the coarse density interpolated trilinearly, renormalized
     (the ≤ eps of mass outside the box is dropped).
     """
-    half = (np.asarray(fine_level.shape) - 1) / 2 * np.asarray(fine_level.spacing)
-    fine_already = not np.any(np.asarray(belief.grid.spacing) > np.asarray(fine_level.spacing) * (1 + 1e-9))
-    if fine_already and not _off_centre(belief, fine_level, half):
+    spacing = np.asarray(belief.grid.spacing)
+    finer = sorted((lv for lv in levels if np.all(np.asarray(lv.spacing) < spacing * (1 - 1e-9))),
+                   key=lambda lv: float(np.prod(lv.spacing)))
+    for level in finer:
+        center = refinement_center(belief, _half_extent(level) - spacing / 2, eps)
+        if center is not None:
+            return _regrid(belief, level, center)
+    coarsest = max(LEVELS.values(), key=lambda lv: float(np.prod(lv.spacing)))
+    own = [lv for lv in levels if np.allclose(lv.spacing, spacing) and tuple(lv.shape) == belief.grid.shape
+           and not np.allclose(lv.spacing, coarsest.spacing)]  # HIGH's grid spans the prior: it stays
+    if not own or not _off_centre(belief, _half_extent(own[0])):
         return None
-    center = refinement_center(belief, half, eps)
-    if center is None:
-        return None
-    center[2] = wrap_angle(center[2])
-    fine = Grid(tuple(float(c) for c in center), tuple(fine_level.spacing), tuple(fine_level.shape))
-    return Belief(fine, sample_density(belief, fine.points()))
+    return _regrid(belief, own[0], belief.mean())

@@ -260,5 +260,5 @@ class RobustGraspAgent:
                                    total_plan, belief)
             env.retreat()
             if self.variable_resolution:  # as the estimator node does, before the settling
-                belief = maybe_refine(belief) or belief
+                belief = maybe_refine(belief, self.model.levels.values()) or belief
             belief = self.after_retreat(belief, action, e, bool(obs.contact))

@@ -294,6 +294,8 @@ class ForwardSearch:
         self.params = params
         #: (action, estimate) pairs an executor found infeasible during the current run.
         self.blocked: set[tuple[int, bytes]] = set()
+        #: per action, the (K,3) estimates it was found infeasible at (``block``)
+        self._blocked_at: dict[int, np.ndarray] = {}
         #: (action, estimate) pairs whose reading the belief already holds (``spend``).
         self.spent: set[tuple[int, bytes]] = set()
         #: the feasibility maps' answers by (action, the estimate's exact bytes): a search
@@ -306,8 +308,19 @@ class ForwardSearch:
         return action, np.round(np.asarray(e, dtype=float), 6).tobytes()
 
     def block(self, action: int, e) -> None:
-        """Rule an action out at estimate e (its execution was found infeasible there)."""
+        """Rule an action out within params.block_box of estimate e (its execution was found
+        infeasible there)."""
         self.blocked.add(self._key(action, e))
+        e = np.asarray(e, dtype=float).reshape(1, 3)
+        self._blocked_at[action] = np.concatenate([self._blocked_at.get(action, np.empty((0, 3))), e])
+
+    def _near_blocked(self, action: int, e: np.ndarray) -> bool:
+        at = self._blocked_at.get(action)
+        if at is None:
+            return False
+        d = np.abs(at - e)
+        d[:, 2] = np.abs(_wrap(at[:, 2] - e[2]))
+        return bool(np.any(np.all(d <= np.asarray(self.params.block_box), axis=1)))
 
     def spend(self, action: int, e) -> None:
         """Rule an action out at estimate e because it ran there and its reading is in the
@@ -318,11 +331,12 @@ class ForwardSearch:
     def clear(self) -> None:
         """Forget the blocked and spent pairs (a new run) and the remembered feasibility."""
         self.blocked.clear()
+        self._blocked_at.clear()
         self.spent.clear()
         self._feasible_memo.clear()
 
     def feasible(self, action: int, e) -> bool:
-        """F_τ(e) from the model's feasibility map, unless execution found it infeasible at e
+        """F_τ(e) from the model's feasibility map, unless execution found it infeasible near e
         or its reading there is already spent."""
         e = np.asarray(e, dtype=float)
         exact = (action, e.tobytes())
@@ -331,8 +345,7 @@ class ForwardSearch:
             ok = self._feasible_memo[exact] = self.model.feasible(action, e)
         if not ok or not (self.blocked or self.spent):
             return ok
-        key = self._key(action, e)
-        return key not in self.blocked and key not in self.spent
+        return self._key(action, e) not in self.spent and not self._near_blocked(action, e)
 
     # ---------------------------------------------------------------- helpers
     def _table_index(self, sb: SparseBelief) -> np.ndarray:

@@ -161,14 +161,25 @@ class UncertaintyLevel:
 #: Paper: σ = 5 cm, 5 cm, 30°, grid 1 cm and 0.1 rad. The paper's 25 θ points span only
 #: ±1.2 rad = ±2.3σ, so about 2 % of true poses drawn from the prior lie off the grid and can
 #: never be found (campaign 4282222: 26 of 1,000 high-uncertainty RRG-Info trials, 12 of them
-#: failures); 33 span ±1.6 rad = ±3σ, like x and y here and all three axes of LOW.
-HIGH = UncertaintyLevel("high", (0.05, 0.05, math.radians(30.0)), (0.01, 0.01, 0.1), (31, 31, 33))
+#: failures); 33 span ±1.6 rad = ±3σ. x and y span ±20 cm = ±4σ (41 points; the paper's
+#: 31 span ±3σ): with ±3σ, 0.54 % of drawn poses lie off the grid in x or y, and 5 of the
+#: 6 such poses in the 1,000 high RRG-Info trials of campaign efece7d failed (teacup #3,
+#: #65, #86, cup #33, drill #80); ±4σ leaves 0.013 %.
+HIGH = UncertaintyLevel("high", (0.05, 0.05, math.radians(30.0)), (0.01, 0.01, 0.1), (41, 41, 33))
 #: Paper: σ = 1 cm, 1 cm, 3°; DESIGN §3: about 2 mm and 0.013 rad.
 LOW = UncertaintyLevel("low", (0.01, 0.01, math.radians(3.0)), (0.002, 0.002, 0.013))
-LEVELS = {"high": HIGH, "low": LOW}
+#: Chosen: the variable-resolution grid's middle step, ±3σ like LOW (±7.5 cm, ±0.6 rad at
+#: 5 mm and 0.05 rad). With HIGH and LOW alone a belief stayed on HIGH's 0.1 rad until 99 %
+#: of it fit LOW's ±0.156 rad, which is finer than the goal tolerances it must resolve
+#: (the teacup's ±0.14 rad): in campaign efece7d 41 of 100 pitcher and half the teacup
+#: trials at high uncertainty used all 10 actions, and in a session 15 replay of pitcher#38
+#: HIGH's belief settled 0.15 rad off the truth, then refined to a LOW grid the truth lay
+#: 0.065 rad beyond.
+MID = UncertaintyLevel("mid", (0.025, 0.025, 0.2), (0.005, 0.005, 0.05))
+LEVELS = {"high": HIGH, "mid": MID, "low": LOW}
 
-#: Variable-resolution grid (DESIGN §3): re-grid to LOW's spacing once at least
-#: 1 - VARRES_EPS of the mass lies inside a LOW-sized box.
+#: Variable-resolution grid (DESIGN §3): re-grid to the finest of the finer levels (MID, LOW)
+#: whose box holds at least 1 - VARRES_EPS of the mass.
 VARRES_EPS = 0.01
 #: A fine belief is re-centred on its mean once the mean is off the grid centre by more
 #: than this fraction of the half extent on some axis (chosen: a firm grasp turns the
@@ -262,6 +273,14 @@ class SearchParams:
     #: drop belief points below this fraction of the max in search (chosen: the likelihood floor
     #: ε = 1e-3, so states an observation has ruled out down to the floor leave the search).
     support_rel: float = 1e-3
+    #: An execution found infeasible at e rules its WRT out within this box around e (x [m],
+    #: y [m], θ [rad]) for the rest of the run: the feasibility maps check IK at every path
+    #: sample, the executor also needs a continuous IK chain, and where that breaks it breaks
+    #: for a region, not a point (chosen: in a session 15 replay of pitcher#28, 12 goal grasps
+    #: in a row found no chain, all within 0.5 cm, 1 cm and 0.013 rad of the first, and the
+    #: run ended with no feasible action instead of reorienting; the box also holds HIGH's
+    #: neighbouring grid points).
+    block_box: tuple[float, float, float] = (0.015, 0.015, 0.06)
 
 
 SEARCH = SearchParams()

@@ -26,7 +26,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rrg_msgs.msg import BeliefGrid
 from rrg_msgs.srv import SelectAction
 
-GRID_SHAPE = {"high": (31, 31, 33), "low": (31, 31, 25)}  # points along x, y, theta: ±3 sigma
+GRID_SHAPE = {"high": (41, 41, 33), "low": (31, 31, 25)}  # points along x, y, theta (rrg_sim.config)
 SPACING = {"high": (0.01, 0.01, 0.1), "low": (0.002, 0.002, 0.013)}  # [m, m, rad]
 SIGMA = {"high": (0.05, 0.05, math.radians(30.0)), "low": (0.01, 0.01, math.radians(3.0))}  # [m, m, rad]
 

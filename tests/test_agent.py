@@ -85,11 +85,31 @@ def test_goal_grasp_falls_back_to_the_most_likely_state_where_it_is_feasible(mod
     belief = initial_belief(SMALL, WORLD.nominal_pose)
     e = belief.w_star()
     assert np.array_equal(agent.most_likely_feasible(belief, agent.goal), e)  # feasible at w*
-    agent.search.block(agent.goal, e)  # now it is not: the next most likely state is used
+    agent.search.block(agent.goal, e)  # now it is not, nor near it: the most likely state beyond is used
     alt = agent.most_likely_feasible(belief, agent.goal)
     points = belief.grid.points()
+    beyond = ~np.all(np.abs(points - e) <= np.asarray(agent.search.params.block_box) + 1e-9, axis=1)
+    feasible = np.array([model.feasible(agent.goal, p) for p in points])
     i = int(np.flatnonzero(np.all(points == alt, axis=1))[0])
-    assert not np.array_equal(alt, e) and belief.weights[i] == np.sort(belief.weights)[-2]
+    assert beyond[i] and belief.weights[i] == belief.weights[beyond & feasible].max(), (alt, e)
+
+
+def test_an_infeasible_execution_rules_the_action_out_around_its_estimate(model):
+    """Where the executor finds no continuous IK chain, nearby estimates have none either
+    (SearchParams.block_box); beyond the box the feasibility map answers again."""
+    agent = RobustGraspAgent(model, strategy="rrg-info")
+    e = np.asarray(WORLD.nominal_pose)
+    box = np.asarray(agent.search.params.block_box)
+    assert agent.search.feasible(agent.goal, e + box) and agent.search.feasible(agent.goal, e + 2 * box)
+    agent.search.block(agent.goal, e)
+    assert not agent.search.feasible(agent.goal, e + 0.9 * box)
+    assert not agent.search.feasible(agent.goal, e - 0.9 * box)
+    assert agent.search.feasible(agent.goal, e + [2 * box[0], 0.0, 0.0])
+    assert agent.search.feasible(agent.goal, e + [0.0, 0.0, 2 * box[2]])
+    assert all(agent.search.feasible(i, e) for i in range(len(model.actions)) if i != agent.goal
+               and model.feasible(i, e))
+    agent.search.clear()
+    assert agent.search.feasible(agent.goal, e)
 
 
 def test_the_goal_grasp_runs_where_the_measured_closing_leaves_the_drill_best_placed():

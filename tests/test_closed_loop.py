@@ -37,7 +37,7 @@ def success_rate(model: PlanningModel, strategy: str, poses: np.ndarray, seed: i
 
 @pytest.mark.parametrize("object_name", ["box", "powerdrill"])
 def test_rrg_info_beats_open_loop_at_high_uncertainty(object_name):
-    model = PlanningModel(object_name, levels=("high", "low"), progress=False, closures_as_predicted=True)
+    model = PlanningModel(object_name, levels=("high", "mid", "low"), progress=False, closures_as_predicted=True)
     poses = true_poses(seed=7, n=N_TRIALS)
     info, info_runs = success_rate(model, "rrg-info", poses, seed=100)
     open_loop, _ = success_rate(model, "open-loop", poses, seed=100)

@@ -83,7 +83,8 @@ def test_reorient_rotates_the_mass_by_the_angle():
 def test_reorient_about_a_centre_moves_off_centre_states():
     g = Grid.for_level(HIGH, center=(0.62, 0.0, 0.0))
     a = np.zeros(g.shape)
-    a[20, 15, g.shape[2] // 2] = 1.0  # object 5 cm in +x from the hand's axis at the grid centre, θ = 0
+    cx, cy, ct = (n // 2 for n in g.shape)
+    a[cx + 5, cy, ct] = 1.0  # object 5 cm in +x from the hand's axis at the grid centre, θ = 0
     after = reorient(Belief(g, a), np.pi / 2, center_xy=(0.62, 0.0))
     np.testing.assert_allclose(after.w_star(), [0.62, 0.05, np.pi / 2], atol=1e-9)
 

@@ -1,7 +1,7 @@
 """The planner node (DESIGN §7): the select-action service that other robot software calls, and
 the robust-grasp action that runs the whole loop.
 
-    python -m rrg_planner.ros.planner_node [--ros-args -p preload:="['powerdrill']" -p levels:="['high','low']"]
+    python -m rrg_planner.ros.planner_node [--ros-args -p preload:="['powerdrill']" -p levels:="['high','mid','low']"]
 
 Services and actions:
 * ``/rrg/select_action`` (rrg_msgs/SelectAction): the next WRT for a given belief (or the
@@ -80,7 +80,7 @@ class PlannerNode(Node):
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME, namespace=NAMESPACE)
-        self.declare_parameter("levels", ["high", "low"], ParameterDescriptor(
+        self.declare_parameter("levels", ["high", "mid", "low"], ParameterDescriptor(
             description="Uncertainty levels whose tables are loaded (beliefs must use one of their grids)",
             read_only=True))
         self.declare_parameter("preload", Parameter.Type.STRING_ARRAY, ParameterDescriptor(
