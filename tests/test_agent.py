@@ -3,13 +3,16 @@ execution found infeasible (nothing moved) rules that action out at that estimat
 counting as an action."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from rrg_planner.agent import RobustGraspAgent, initial_belief
 from rrg_planner.geometric_env import GeometricEnvironment
 from rrg_planner.model import PlanningModel
-from rrg_sim.config import WORLD, UncertaintyLevel
+from rrg_planner.search import ForwardSearch
+from rrg_sim.config import SEARCH, WORLD, UncertaintyLevel
 from rrg_sim.poses import compose_planar, relative_planar
 from rrg_sim.wrt import WRT, InfeasibleWRT
 
@@ -92,6 +95,28 @@ def test_goal_grasp_falls_back_to_the_most_likely_state_where_it_is_feasible(mod
     feasible = np.array([model.feasible(agent.goal, p) for p in points])
     i = int(np.flatnonzero(np.all(points == alt, axis=1))[0])
     assert beyond[i] and belief.weights[i] == belief.weights[beyond & feasible].max(), (alt, e)
+
+
+@pytest.mark.parametrize("sigma, grasps", [((0.003, 0.003, 0.03), True), ((0.02, 0.02, 0.2), False)])
+def test_a_goal_grasp_that_cannot_run_at_w_star_runs_beside_it_when_that_is_worth_more(model, sigma, grasps):
+    """The goal grasp ruled out around w*(b) and its aim: the search alone values no grasp and
+    would gather information. A concentrated belief is better served by the grasp one cell
+    away (P_b(G) > 1 - δ there); a broad one still gathers information."""
+    agent = RobustGraspAgent(model, strategy="rrg-info", horizon=1)
+    agent.search = ForwardSearch(model, replace(SEARCH, block_box=(0.009, 0.009, 0.09)))  # within a cell
+    belief = initial_belief(replace(SMALL, name="b", sigma=sigma), WORLD.nominal_pose)
+    e = belief.w_star()
+    agent.search.block(agent.goal, e)
+    res = agent.search.select(belief, agent.horizon)
+    assert res.goal_action == -1 and res.action not in (-1, agent.goal)
+    alt = agent.most_likely_feasible(belief, agent.goal)
+    p_alt = agent.grasp_probability(belief, agent.goal, alt)
+    action, e_run, _, _ = agent.plan_step(belief, step=1)
+    if grasps:
+        assert p_alt > 1.0 - agent.delta and not np.allclose(alt, e)
+        assert action == agent.goal and np.array_equal(e_run, alt)
+    else:
+        assert p_alt < res.value and action == res.action and np.array_equal(e_run, e)
 
 
 def test_an_infeasible_execution_rules_the_action_out_around_its_estimate(model):
