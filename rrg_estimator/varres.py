@@ -58,21 +58,17 @@ def refinement_center(belief: Belief, half_extent: np.ndarray, eps: float) -> np
     return centers[np.argmin(np.sum(((centers - mean) / spacing) ** 2, axis=1))]
 
 
-def _off_centre(belief: Belief, half: np.ndarray) -> bool:
+def _off_centre(belief: Belief) -> bool:
     """A fine belief whose mean has left the middle of its grid (the object moved: a bump, a
     firm grasp): more than VARRES_RECENTER of the half extent off the centre on some axis."""
     off = belief.mean() - np.asarray(belief.grid.center)
     off[2] = wrap_angle(off[2])
-    return bool(np.any(np.abs(off) > VARRES_RECENTER * half))
-
-
-def _half_extent(level: UncertaintyLevel) -> np.ndarray:
-    return (np.asarray(level.shape) - 1) / 2 * np.asarray(level.spacing)
+    return bool(np.any(np.abs(off) > VARRES_RECENTER * belief.grid.half_extent))
 
 
 def _regrid(belief: Belief, level: UncertaintyLevel, center: np.ndarray) -> Belief:
     center[2] = wrap_angle(center[2])
-    fine = Grid(tuple(float(c) for c in center), tuple(level.spacing), tuple(level.shape))
+    fine = Grid.for_level(level, center)
     return Belief(fine, sample_density(belief, fine.points()))
 
 
@@ -95,12 +91,12 @@ def maybe_refine(belief: Belief, levels: Iterable[UncertaintyLevel] = LEVELS.val
     finer = sorted((lv for lv in levels if np.all(np.asarray(lv.spacing) < spacing * (1 - 1e-9))),
                    key=lambda lv: float(np.prod(lv.spacing)))
     for level in finer:
-        center = refinement_center(belief, _half_extent(level) - spacing / 2, eps)
+        center = refinement_center(belief, Grid.for_level(level).half_extent - spacing / 2, eps)
         if center is not None:
             return _regrid(belief, level, center)
     coarsest = max(LEVELS.values(), key=lambda lv: float(np.prod(lv.spacing)))
     own = [lv for lv in levels if np.allclose(lv.spacing, spacing) and tuple(lv.shape) == belief.grid.shape
            and not np.allclose(lv.spacing, coarsest.spacing)]  # HIGH's grid spans the prior: it stays
-    if not own or not _off_centre(belief, _half_extent(own[0])):
+    if not own or not _off_centre(belief):
         return None
     return _regrid(belief, own[0], belief.mean())

@@ -131,6 +131,8 @@ class RobustGraspAgent:
         res = self.search.select(belief, self.horizon)
         if res.p_goal >= 1.0 - self.delta and res.goal_action >= 0:
             return res.goal_action, res
+        # goal_action < 0: no goal grasp can run at w*(b) or its aim, or where one can, its
+        # P_b(G) is 0 (then the most likely feasible state may be w*(b) itself)
         if res.goal_action < 0 and self.goal_beyond_w_star(belief) >= min(1.0 - self.delta, res.value):
             return self.goal, res  # plan_step runs it at the most likely state where it can run
         return res.action, res

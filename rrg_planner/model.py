@@ -132,7 +132,7 @@ class ActionModel:
 class PlanningModel:
     """All offline models of one object for the given uncertainty levels."""
 
-    def __init__(self, object_name: str, levels: tuple[str | UncertaintyLevel, ...] = ("high", "mid", "low"),
+    def __init__(self, object_name: str, levels: tuple[str | UncertaintyLevel, ...] = tuple(LEVELS),
                  workers: int = 2, progress: bool = True, wrt_names: tuple[str, ...] | None = None,
                  closures_as_predicted: bool = False):
         """levels: level names from config.LEVELS, or UncertaintyLevel objects (e.g. small test grids).

@@ -68,8 +68,8 @@ class TrialSpec:
 
 
 def model_levels(level: str) -> tuple[str, ...]:
-    """Tables a level needs: high also loads the finer mid and low, for the variable-resolution grid."""
-    return ("high", "mid", "low") if level == "high" else (level,)
+    """Tables a level needs: high also loads every finer level, for the variable-resolution grid."""
+    return tuple(LEVELS) if level == "high" else (level,)
 
 
 # ------------------------------------------------------------ worker process

@@ -29,7 +29,7 @@ import numpy as np
 from rrg_sim.config import LEVELS, WORLD
 
 SELECT_TARGET_MS = 5.0  # the target for the median select-action overhead
-LEVEL_NAMES = ["high", "mid", "low"]  # the planner loads all, as rrg-launch does (variable resolution)
+LEVEL_NAMES = list(LEVELS)  # the planner loads all, as rrg-launch does (variable resolution)
 
 
 def select_overhead(graph, object_name: str, level: str, horizon: int, calls: int) -> dict:

@@ -350,7 +350,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--true-pose", type=float, nargs=3, metavar=("X", "Y", "THETA"),
                    help="the object's true pose [m, m, rad] (default: drawn from the level's Gaussian)")
     p.add_argument("--seed", type=int, default=0, help="seeds the true-pose draw and the sensor noise")
-    p.add_argument("--levels", default="high,mid,low",
+    p.add_argument("--levels", default=",".join(LEVELS),
                    help="uncertainty levels the planner loads (variable resolution from high needs all three)")
     p.add_argument("--real-time-factor", type=float, default=0.0,
                    help="simulator pacing: 1 = real time, 0 = as fast as it steps")

@@ -80,7 +80,7 @@ class PlannerNode(Node):
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME, namespace=NAMESPACE)
-        self.declare_parameter("levels", ["high", "mid", "low"], ParameterDescriptor(
+        self.declare_parameter("levels", list(LEVELS), ParameterDescriptor(
             description="Uncertainty levels whose tables are loaded (beliefs must use one of their grids)",
             read_only=True))
         self.declare_parameter("preload", Parameter.Type.STRING_ARRAY, ParameterDescriptor(
