@@ -121,7 +121,7 @@ def reorient(belief: Belief, angle: float, params: TransitionParams = TRANSITION
     if outcome is None or e is None:
         w = sum(p * rotated_density(belief, grid, a, center_xy) for p, a in mix if p > 0.0)
         return Belief(grid, displace(w.reshape(grid.shape), grid, (0.0, 0.0, 0.0), blur).ravel())
-    w = sum(p * rotated_density(belief, grid, a, center_xy) for p, a in mix[1:] if p > 0.0)
+    w = sum((p * rotated_density(belief, grid, a, center_xy) for p, a in mix[1:] if p > 0.0), np.zeros(grid.size))
     w = displace(w.reshape(grid.shape), grid, (0.0, 0.0, 0.0), blur)
     e = np.asarray(e, dtype=float).reshape(3)
     live = np.flatnonzero(belief.weights > 0.0)

@@ -163,6 +163,11 @@ class ReferenceSearch:
         for a in range(len(self.model.actions)):
             if not self.model.feasible(a, e):
                 continue
+            outcome = self.model.actions[a].wrt.reorient_outcome
+            if outcome is not None:  # a turn only where it is measured (SearchParams.reorient_min_in_box)
+                inside = sum(w for p, w in zip(points, weights) if outcome.inside(relative_planar(e, np.array(p))))
+                if inside < self.params.reorient_min_in_box:
+                    continue
             branches = self.expand(points, weights, level, a)
             if branches:
                 q[a] = sum(p * self.value(pts, w, level, horizon - 1) for p, pts, w in branches) \

@@ -347,6 +347,15 @@ class ForwardSearch:
             return ok
         return self._key(action, e) not in self.spent and not self._near_blocked(action, e)
 
+    def turn_is_measured(self, sb: SparseBelief, action: int) -> bool:
+        """False for a reorientation with less than ``reorient_min_in_box`` of the belief inside
+        its measured outcome's box about w*(b); True for any other action."""
+        outcome = self.model.actions[action].wrt.reorient_outcome
+        if outcome is None:
+            return True
+        inside = outcome.inside(relative_planar(sb.w_star, sb.points))
+        return float(sb.weights[inside].sum()) >= self.params.reorient_min_in_box
+
     # ---------------------------------------------------------------- helpers
     def _table_index(self, sb: SparseBelief) -> np.ndarray:
         """Table entry of every support point's offset from w*(b) (cached on the belief)."""
@@ -459,7 +468,7 @@ class ForwardSearch:
         e = sb.w_star
         q = np.full(len(self.model.actions), -np.inf)
         for a in range(len(self.model.actions)):
-            if not self.feasible(a, e):
+            if not self.feasible(a, e) or not self.turn_is_measured(sb, a):
                 continue
             branches = self.expand(sb, a)
             if branches:

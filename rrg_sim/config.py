@@ -281,6 +281,11 @@ class SearchParams:
     #: run ended with no feasible action instead of reorienting; the box also holds HIGH's
     #: neighbouring grid points).
     block_box: tuple[float, float, float] = (0.015, 0.015, 0.06)
+    #: A reorientation runs only when at least this much of the belief lies where its turn is
+    #: measured (WRT.reorient_outcome's box about w*): a grasp that holds the object from
+    #: further off drags and turns it unpredictably (MuJoCo, session 17: of 37 pitcher
+    #: reorientations held from within ±6 cm, ±0.6 rad but outside the box, 4 turned rigidly).
+    reorient_min_in_box: float = 0.5
 
 
 SEARCH = SearchParams()

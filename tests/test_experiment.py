@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from rrg_planner.experiment.cli import QUICK, main
-from rrg_planner.experiment.report import fig9, summarize, wilson
+from rrg_planner.experiment.report import fig9, fig9_frontier, fig9_table, summarize, wilson
 from rrg_planner.experiment.trials import Cell, TrialSpec, load_records
 from rrg_sim.config import LEVELS, WORLD
 from rrg_sim.poses import relative_planar
@@ -70,3 +70,20 @@ def test_wilson_interval_and_fig9(tmp_path):
                for s in summary.values())
     fig9(summary, tmp_path / "fig9.png")
     assert (tmp_path / "fig9.png").stat().st_size > 0
+
+
+def test_fig9_frontier_is_each_curves_fewest_actions_at_90_percent():
+    """A curve's frontier point is its cheapest δ that still succeeds ≥ 90 %; a curve whose
+    points all fall short has none."""
+    cells = {(1, 0.5): (8, 3.0), (1, 0.3): (9, 4.0), (1, 0.1): (10, 5.0),  # (successes of 10, actions)
+             (2, 0.5): (9, 3.5), (2, 0.3): (10, 4.5), (3, 0.3): (8, 4.0)}
+    records = [dict(cell=f"powerdrill/high/rrg-info/H{h}/d{d}", object="powerdrill", level="high",
+                    strategy="rrg-info", horizon=h, delta=d, success=i < k, n_actions=n,
+                    planning_time_s=0.1, error="", declared=False, judge={})
+               for (h, d), (k, n) in cells.items() for i in range(10)]
+    front = fig9_frontier(summarize(records))
+    assert front["RRG-Info H=1"]["delta"] == 0.3 and front["RRG-Info H=1"]["mean_actions"] == 4.0
+    assert front["RRG-Info H=2"]["delta"] == 0.5 and front["RRG-Info H=2"]["mean_actions"] == 3.5
+    assert front["RRG-Info H=3"] is None
+    table = fig9_table(summarize(records))
+    assert "| RRG-Info H=2 | 90% (9/10) | 3.50 | 0.5 |" in table and "none reaches 90%" in table

@@ -149,7 +149,8 @@ def teacup_model() -> PlanningModel:
 def test_fast_search_matches_reference_through_reorientations(teacup_model, horizon):
     """The teacup's reorientations, with their measured outcomes and their spread in θ, are
     valued alike by both searches, and a turn costs localization: the spread child is wider."""
-    fast, ref = ForwardSearch(teacup_model, EXACT), ReferenceSearch(teacup_model, EXACT)
+    anywhere = dataclasses.replace(EXACT, reorient_min_in_box=0.0)
+    fast, ref = ForwardSearch(teacup_model, anywhere), ReferenceSearch(teacup_model, anywhere)
     b0 = initial_belief(TURNS, np.asarray(WORLD.nominal_pose))
     f, r = fast.select(b0, horizon), ref.select(b0, horizon)
     turns = [i for i, a in enumerate(teacup_model.actions) if a.kind == "reorient"]
@@ -162,3 +163,18 @@ def test_fast_search_matches_reference_through_reorientations(teacup_model, hori
     assert len(spread) == 3 * len(sharp) and w.sum() == pytest.approx(1.0)
     full = np.abs(spread[:, 2] - sharp[0, 2]) < 0.1  # the full turn's three nodes
     assert np.sqrt(w[full] @ (spread[full, 2] - sharp[0, 2]) ** 2 / w[full].sum()) == pytest.approx(0.04)
+
+
+@pytest.mark.parametrize("search_cls", [ForwardSearch, ReferenceSearch])
+def test_a_reorientation_runs_only_where_its_turn_is_measured(teacup_model, search_cls):
+    """SearchParams.reorient_min_in_box: the reorientations are ruled out while less of the
+    belief than that lies in their measured outcome's box about w*, and valued once enough does."""
+    b0 = initial_belief(TURNS, np.asarray(WORLD.nominal_pose))
+    turns = [i for i, a in enumerate(teacup_model.actions) if a.kind == "reorient"]
+    box = teacup_model.actions[turns[0]].wrt.reorient_outcome.box
+    inside = np.all(np.abs(b0.grid.points() - b0.w_star()) <= box, axis=1)
+    p_inside = float(b0.weights[inside].sum())
+    for threshold, allowed in ((p_inside + 0.01, False), (p_inside - 0.01, True)):
+        q = search_cls(teacup_model, dataclasses.replace(EXACT, reorient_min_in_box=threshold)).select(b0, 1).action_values
+        assert np.isfinite(q[turns]).all() == allowed
+        assert np.isfinite(q[[i for i in range(len(q)) if i not in turns]]).any()

@@ -23,7 +23,7 @@ from .report import write_outputs
 from .trials import Cell, TrialSpec, load_records, run_campaign, run_trial
 
 QUICK = dict(objects=["box"], levels=["low", "high"], trials=2, fig9_trials=0)
-FIG9_DELTAS = (0.3, 0.1, 0.03)
+FIG9_DELTAS = (0.5, 0.3, 0.1, 0.03)
 
 
 def campaign_specs(objects, levels, strategies, trials, fig9_trials, seed) -> list[TrialSpec]:
