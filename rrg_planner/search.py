@@ -16,6 +16,9 @@ The bump transition is left out of the search's posteriors (it blurs each contac
 by a few mm and costs a convolution per branch); the estimator applies it to the real
 belief. Reorientation's rotation is kept, because feasibility depends on it, and so is its
 spread in θ (three nodes per state), because it is what a turn costs in localization.
+A reorientation is valued only where half the belief (SearchParams.reorient_min_in_box)
+lies in its measured outcome's box about w*(b) (``turn_is_measured``): held from further
+off, the object turns unpredictably.
 """
 from __future__ import annotations
 
