@@ -87,3 +87,26 @@ def test_fig9_frontier_is_each_curves_fewest_actions_at_90_percent():
     assert front["RRG-Info H=3"] is None
     table = fig9_table(summarize(records))
     assert "| RRG-Info H=2 | 90% (9/10) | 3.50 | 0.5 |" in table and "none reaches 90%" in table
+
+
+def test_a_cell_key_names_its_cell_and_nothing_else():
+    """Cell.from_key inverts Cell.key for every campaign cell (so a trial replays from its id
+    alone); malformed or non-canonical keys are refused."""
+    from rrg_planner.experiment.cli import campaign_specs
+
+    specs = campaign_specs(["powerdrill", "cup"], ["low", "high"], ["open-loop", "rrg-goal", "rrg-info"], 1, 1, 0)
+    cells = {s.cell for s in specs}
+    assert len(cells) > 12 and any(c.horizon != 2 for c in cells) and any(c.delta != 0.1 for c in cells)
+    for cell in cells:
+        assert Cell.from_key(cell.key) == cell
+    for bad in ("powerdrill/high", "powerdrill/high/rrg-info/dx", "powerdrill/high/rrg-info/d0.3/H1",
+                "powerdrill/high/rrg-info/H2", "powerdrill/high/rrg-info/Q1"):
+        with pytest.raises(ValueError):
+            Cell.from_key(bad)
+
+
+@pytest.mark.parametrize("trial_id", ["powerdrill/high#3", "chair/high/rrg-info#3", "box/high/rrg-info#x",
+                                      "box/medium/rrg-info#1"])
+def test_replay_refuses_a_bad_trial_id(trial_id, capsys):
+    assert main(["--replay", trial_id]) == 2
+    assert "bad trial id" in capsys.readouterr().err

@@ -4,7 +4,8 @@
     rrg-experiment --quick --out /tmp/quick
     rrg-experiment --replay 'powerdrill/high/rrg-info#17'   # one trial again, verbosely
 
-A stopped run resumes: trials already in <out>/trials.jsonl are not run again.
+A stopped run resumes: trials already in <out>/trials.jsonl are not run again. A replay needs
+only the trial's id (and --seed, if the campaign had another).
 """
 from __future__ import annotations
 
@@ -15,12 +16,12 @@ import sys
 import time
 from pathlib import Path
 
-from rrg_sim.config import SEARCH
+from rrg_sim.config import LEVELS, SEARCH
 from rrg_sim.objects import OBJECT_NAMES
 
 from ..agent import STRATEGIES
 from .report import write_outputs
-from .trials import Cell, TrialSpec, load_records, run_campaign, run_trial
+from .trials import Cell, TrialSpec, run_campaign, run_trial
 
 QUICK = dict(objects=["box"], levels=["low", "high"], trials=2, fig9_trials=0)
 FIG9_DELTAS = (0.5, 0.3, 0.1, 0.03)
@@ -50,18 +51,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=Path("results/paper"))
-    ap.add_argument("--replay", metavar="TRIAL_ID", help="run one trial alone (id as in trials.jsonl)")
+    ap.add_argument("--replay", metavar="TRIAL_ID", help="run one trial alone (id as in trials.jsonl: cell key#index)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.replay else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     if args.replay:
-        cell_key, idx = args.replay.rsplit("#", 1)
-        rec = next((r for r in load_records(args.out / "trials.jsonl") if r["id"] == args.replay), None)
-        if rec is None:
-            print(f"no trial {args.replay!r} in {args.out / 'trials.jsonl'}", file=sys.stderr)
+        cell_key, _, idx = args.replay.rpartition("#")
+        try:
+            cell = Cell.from_key(cell_key)
+            index = int(idx)
+        except ValueError as exc:
+            print(f"bad trial id {args.replay!r} (e.g. 'box/high/rrg-info#3'): {exc}", file=sys.stderr)
             return 2
-        cell = Cell(rec["object"], rec["level"], rec["strategy"], rec["horizon"], rec["delta"])
-        print(json.dumps(run_trial(TrialSpec(cell, int(idx), args.seed)), indent=1))
+        bad = [v for v, known in ((cell.object, OBJECT_NAMES), (cell.strategy, STRATEGIES)) if v not in known]
+        if bad or cell.level not in LEVELS:
+            print(f"bad trial id {args.replay!r}: unknown {bad or [cell.level]}", file=sys.stderr)
+            return 2
+        print(json.dumps(run_trial(TrialSpec(cell, index, args.seed)), indent=1))
         return 0
 
     objects = QUICK["objects"] if args.quick else args.objects.split(",")

@@ -3,7 +3,7 @@
 Each trial's true pose is drawn from the initial belief's Gaussian (the paper: "placed at
 random positions drawn from the same distribution as the initial uncertainty"), seeded by
 (base seed, object, level, trial index) only, so every strategy faces the same poses. Any
-trial replays alone from its record's seed. Results append to a JSONL file, one line per
+trial replays alone from its id (cell key and index) and the base seed. Results append to a JSONL file, one line per
 trial, so a stopped campaign resumes where it left off.
 """
 from __future__ import annotations
@@ -45,6 +45,25 @@ class Cell:
         if self.delta != SEARCH.delta:
             k += f"/d{self.delta:g}"
         return k
+
+    @classmethod
+    def from_key(cls, key: str) -> "Cell":
+        """The cell a ``key`` names (its inverse); ValueError for anything else."""
+        parts = key.split("/")
+        if len(parts) < 3:
+            raise ValueError(f"cell key {key!r} is not object/level/strategy[/H<h>][/d<δ>]")
+        kw = {}
+        for part in parts[3:]:
+            if part[:1] == "H" and part[1:].isdigit():
+                kw["horizon"] = int(part[1:])
+            elif part[:1] == "d":
+                kw["delta"] = float(part[1:])  # ValueError if it is no number
+            else:
+                raise ValueError(f"cell key {key!r}: unexpected {part!r}")
+        cell = cls(*parts[:3], **kw)
+        if cell.key != key:  # repeated or reordered parts, or default H/δ written out
+            raise ValueError(f"cell key {key!r} is not canonical (expected {cell.key!r})")
+        return cell
 
 
 @dataclass(frozen=True)
