@@ -27,6 +27,12 @@ QUICK = dict(objects=["box"], levels=["low", "high"], trials=2, fig9_trials=0)
 FIG9_DELTAS = (0.5, 0.3, 0.1, 0.03)
 
 
+def unknown_names(objects, levels, strategies) -> list[str]:
+    """The objects, levels and strategies that the runner does not know."""
+    return ([o for o in objects if o not in OBJECT_NAMES] + [lv for lv in levels if lv not in LEVELS]
+            + [s for s in strategies if s not in STRATEGIES])
+
+
 def campaign_specs(objects, levels, strategies, trials, fig9_trials, seed) -> list[TrialSpec]:
     specs = [TrialSpec(Cell(o, lv, s), i, seed)
              for o in objects for lv in levels for s in strategies for i in range(trials)]
@@ -63,9 +69,9 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError as exc:
             print(f"bad trial id {args.replay!r} (e.g. 'box/high/rrg-info#3'): {exc}", file=sys.stderr)
             return 2
-        bad = [v for v, known in ((cell.object, OBJECT_NAMES), (cell.strategy, STRATEGIES)) if v not in known]
-        if bad or cell.level not in LEVELS:
-            print(f"bad trial id {args.replay!r}: unknown {bad or [cell.level]}", file=sys.stderr)
+        bad = unknown_names([cell.object], [cell.level], [cell.strategy])
+        if bad:
+            print(f"bad trial id {args.replay!r}: unknown {bad}", file=sys.stderr)
             return 2
         print(json.dumps(run_trial(TrialSpec(cell, index, args.seed)), indent=1))
         return 0
@@ -75,9 +81,9 @@ def main(argv: list[str] | None = None) -> int:
     trials = QUICK["trials"] if args.quick else args.trials
     fig9_trials = QUICK["fig9_trials"] if args.quick else args.fig9_trials
     strategies = args.strategies.split(",")
-    bad = [o for o in objects if o not in OBJECT_NAMES] + [s for s in strategies if s not in STRATEGIES]
+    bad = unknown_names(objects, levels, strategies)
     if bad:
-        print(f"unknown objects/strategies: {bad}", file=sys.stderr)
+        print(f"unknown objects/levels/strategies: {bad}", file=sys.stderr)
         return 2
     t0 = time.perf_counter()
     specs = campaign_specs(objects, levels, strategies, trials, fig9_trials, args.seed)

@@ -13,6 +13,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from rrg_sim.config import SEARCH  # noqa: E402
+
 STRATEGY_LABELS = {"open-loop": "Open-loop", "rrg-goal": "RRG-Goal", "rrg-info": "RRG-Info"}
 
 
@@ -133,17 +135,20 @@ def bar_chart(summary: dict[str, dict], objects: list[str], level: str, path: Pa
     plt.close(fig)
 
 
+def fig9_curves(summary: dict[str, dict], obj: str = "powerdrill", level: str = "high") -> dict[str, list[dict]]:
+    """Fig. 9's curves: name (RRG-Goal, RRG-Info H=1…3) → its cells' summaries, by name."""
+    curves: dict[str, list[dict]] = defaultdict(list)
+    for s in summary.values():
+        if s["object"] == obj and s["level"] == level and s["strategy"] != "open-loop":
+            curves["RRG-Goal" if s["strategy"] == "rrg-goal" else f"RRG-Info H={s['horizon']}"].append(s)
+    return dict(sorted(curves.items()))
+
+
 def fig9(summary: dict[str, dict], path: Path, obj: str = "powerdrill", level: str = "high") -> None:
     """Fig. 9: success % against mean actions, δ swept, RRG-Goal and RRG-Info at H = 1, 2, 3."""
-    series: dict[str, list[tuple[float, float, float]]] = defaultdict(list)
-    for s in summary.values():
-        if s["object"] != obj or s["level"] != level or s["strategy"] == "open-loop":
-            continue
-        name = "RRG-Goal" if s["strategy"] == "rrg-goal" else f"RRG-Info H={s['horizon']}"
-        series[name].append((s["mean_actions"], 100 * s["success_rate"], s["delta"]))
     fig, ax = plt.subplots(figsize=(6, 4.5))
-    for name in sorted(series):
-        pts = sorted(series[name])
+    for name, cells in fig9_curves(summary, obj, level).items():
+        pts = sorted((s["mean_actions"], 100 * s["success_rate"]) for s in cells)
         ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=name)
     ax.axhline(90, color="k", lw=0.8, ls="--")
     ax.set_xlabel("mean number of actions")
@@ -159,15 +164,8 @@ def fig9_frontier(summary: dict[str, dict], obj: str = "powerdrill", level: str 
                   target: float = 0.9) -> dict[str, dict | None]:
     """Per Fig. 9 curve (RRG-Goal, RRG-Info H=1…3): its point with the fewest mean actions at
     or above ``target`` success (the cell's summary), or None if no point reaches it."""
-    best: dict[str, dict | None] = {}
-    for s in summary.values():
-        if s["object"] != obj or s["level"] != level or s["strategy"] == "open-loop":
-            continue
-        name = "RRG-Goal" if s["strategy"] == "rrg-goal" else f"RRG-Info H={s['horizon']}"
-        best.setdefault(name, None)
-        if s["success_rate"] >= target and (best[name] is None or s["mean_actions"] < best[name]["mean_actions"]):
-            best[name] = s
-    return dict(sorted(best.items()))
+    return {name: min((s for s in cells if s["success_rate"] >= target), key=lambda s: s["mean_actions"], default=None)
+            for name, cells in fig9_curves(summary, obj, level).items()}
 
 
 def fig9_table(summary: dict[str, dict], target: float = 0.9) -> str:
@@ -186,7 +184,7 @@ def write_outputs(records: list[dict], out_dir: Path, objects: list[str], levels
     out_dir.mkdir(parents=True, exist_ok=True)
     summary = summarize(records)
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=1))
-    fig9_cells = any(s["delta"] != 0.1 or s["horizon"] != 2 for s in summary.values())
+    fig9_cells = any(s["delta"] != SEARCH.delta or s["horizon"] != SEARCH.horizon for s in summary.values())
     (out_dir / "table.md").write_text(markdown_table(summary, objects, levels) + "\n"
                                       + failure_table(summary, objects, levels)
                                       + ("\n" + fig9_table(summary) if fig9_cells else ""))

@@ -3,8 +3,8 @@
 Each trial's true pose is drawn from the initial belief's Gaussian (the paper: "placed at
 random positions drawn from the same distribution as the initial uncertainty"), seeded by
 (base seed, object, level, trial index) only, so every strategy faces the same poses. Any
-trial replays alone from its id (cell key and index) and the base seed. Results append to a JSONL file, one line per
-trial, so a stopped campaign resumes where it left off.
+trial replays alone from its id (cell key and index) and the base seed. Results append to a
+JSONL file, one line per trial, so a stopped campaign resumes where it left off.
 """
 from __future__ import annotations
 
