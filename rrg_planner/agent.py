@@ -128,7 +128,7 @@ class RobustGraspAgent:
         e = belief.w_star()
         if self.strategy != "rrg-info":
             return self._goal_or_reorient(e), None
-        res = self.search.select(belief, self.horizon)
+        res = self.search.select(belief, self.horizon, self.delta)
         if res.p_goal >= 1.0 - self.delta and res.goal_action >= 0:
             return res.goal_action, res
         # goal_action < 0: no goal grasp can run at w*(b) or its aim, or where one can, its

@@ -157,7 +157,13 @@ class ReferenceSearch:
                     outs_w.append(w * prob * q)
         return outs_p, outs_w
 
-    def action_values(self, points: Points, weights: list[float], level: str, horizon: int) -> np.ndarray:
+    def _held(self, points: Points, weights: list[float], level: str, goal: int, e) -> float:
+        """P_b(G) of goal grasp ``goal`` just made at e, under the posterior (points, weights)."""
+        table_g = self.model.actions[goal].goal[level]
+        return sum(w * float(table_g[self._table_index(level, e, p)]) for p, w in zip(points, weights))
+
+    def action_values(self, points: Points, weights: list[float], level: str, horizon: int,
+                      delta: float = SEARCH.delta) -> np.ndarray:
         e = np.asarray(self._argmax(points, weights))
         q = np.full(len(self.model.actions), -np.inf)
         for a in range(len(self.model.actions)):
@@ -169,22 +175,29 @@ class ReferenceSearch:
                 if inside < self.params.reorient_min_in_box:
                     continue
             branches = self.expand(points, weights, level, a)
-            if branches:
-                q[a] = sum(p * self.value(pts, w, level, horizon - 1) for p, pts, w in branches) \
-                    - self.params.action_cost
+            if not branches:
+                continue
+            total = 0.0
+            for p, pts, w in branches:
+                held = self._held(pts, w, level, a, e) if self.model.actions[a].kind == "goal" else 0.0
+                # a goal grasp the agent would declare ends the run with its P_b(G)
+                total += p * (held if held > 1.0 - delta else self.value(pts, w, level, horizon - 1, delta))
+            q[a] = total - self.params.cost_per_delta * delta
         return q
 
-    def value(self, points: Points, weights: list[float], level: str, horizon: int) -> float:
-        if horizon == 0:
-            return self.static_value(points, weights, level)
-        q = self.action_values(points, weights, level, horizon)
-        return float(q.max()) if np.isfinite(q).any() else self.static_value(points, weights, level)
+    def value(self, points: Points, weights: list[float], level: str, horizon: int,
+              delta: float = SEARCH.delta) -> float:
+        if horizon > 0:
+            q = self.action_values(points, weights, level, horizon, delta)
+            if np.isfinite(q).any():
+                return float(q.max())
+        return self.static_value(points, weights, level) - self.params.cost_per_delta * delta
 
-    def select(self, belief: Belief, horizon: int = SEARCH.horizon) -> SearchResult:
+    def select(self, belief: Belief, horizon: int = SEARCH.horizon, delta: float = SEARCH.delta) -> SearchResult:
         t0 = time.perf_counter()
         level = self.model.level_of(belief.grid)
         pts, w = self._compact([tuple(p) for p in belief.grid.points().tolist()], belief.weights.tolist())
-        q = self.action_values(pts, w, level, horizon)
+        q = self.action_values(pts, w, level, horizon, delta)
         p_goal = self.static_value(pts, w, level)
         best = int(np.argmax(q)) if np.isfinite(q).any() else -1
         return SearchResult(action=best, value=float(q[best]) if best >= 0 else float("nan"),

@@ -1,9 +1,15 @@
 """Receding-horizon POMDP forward search over WRTs (paper: "POMDP forward search"; DESIGN §6).
 
-V_0(b) = v(b), the static evaluation: the best probability, over feasible goal WRTs g,
+V_0(b) = v(b) − c, the static evaluation: the best probability, over feasible goal WRTs g,
 that executing g relative to w*(b) achieves the goal (or relative to w*(b) moved to g's
-aim: ForwardSearch.goal_estimates; P(G | Δ) is the measured physics closing's, model.py).
-V_h(b) = max_a [ Σ_c P(c | b, a) · V_{h-1}(SE(b, a, o_c)) − cost(a) ], infeasible a skipped.
+aim: ForwardSearch.goal_estimates; P(G | Δ) is the measured physics closing's, model.py),
+less the cost c of that grasp, still to run.
+V_h(b) = max_a [ Σ_c P(c | b, a) · U_{h-1}(a, o_c) − c ], infeasible a skipped, where
+U(a, o_c) = P_{b_c}(G) when a is a goal grasp whose posterior b_c = SE(b, a, o_c) gives
+its grasp P_{b_c}(G) > 1 − δ (the agent declares success and stops there), and
+V_{h-1}(b_c) otherwise. An action costs c = SearchParams.cost_per_delta · δ, in the
+currency of success probability: the user's δ says how much success one more action is
+worth (a run stops as soon as it believes the goal reached with probability 1 − δ).
 
 Beliefs inside the search are sparse: the grid points whose weight is above
 ``support_rel`` of the maximum, as (points, weights). Observation branches come from the
@@ -466,7 +472,7 @@ class ForwardSearch:
                 np.take(clusters.l_log_l[cand], idx, axis=1) @ weights32)
 
     # ---------------------------------------------------------------- search
-    def action_values(self, sb: SparseBelief, horizon: int) -> np.ndarray:
+    def action_values(self, sb: SparseBelief, horizon: int, delta: float = SEARCH.delta) -> np.ndarray:
         """Q_h(b, a) for every action (−inf where infeasible at w*(b))."""
         e = sb.w_star
         q = np.full(len(self.model.actions), -np.inf)
@@ -475,23 +481,43 @@ class ForwardSearch:
                 continue
             branches = self.expand(sb, a)
             if branches:
-                q[a] = sum(p * self.value(b, horizon - 1) for p, b in branches) - self.params.action_cost
+                q[a] = sum(p * self._outcome_value(a, e, b, horizon - 1, delta) for p, b in branches) \
+                    - self.params.cost_per_delta * delta
         return q
 
-    def value(self, sb: SparseBelief, horizon: int) -> float:
-        if horizon == 0:
-            return self.static_value(sb)
-        q = self.action_values(sb, horizon)
-        return float(q.max()) if np.isfinite(q).any() else self.static_value(sb)
+    def held_probability(self, child: SparseBelief, goal: int, e: np.ndarray) -> float:
+        """P_b(G) of goal grasp ``goal`` just made at e, under its posterior ``child``."""
+        idx = table_index(child.points, e, self._grid(child.level))
+        return float(child.weights @ self.model.actions[goal].goal[child.level][idx])
 
-    def select(self, belief: Belief, horizon: int = SEARCH.horizon) -> SearchResult:
-        """Choose the root action for a belief (grid) with a forward search of depth horizon."""
+    def _outcome_value(self, a: int, e: np.ndarray, child: SparseBelief, horizon: int, delta: float) -> float:
+        """U(a, o): the child's value, or, after a goal grasp at e that the agent would declare
+        (P_b(G) > 1 − δ: RobustGraspAgent.finished), that grasp's P_b(G), the run over."""
+        if self.model.actions[a].kind == "goal":
+            held = self.held_probability(child, a, e)
+            if held > 1.0 - delta:
+                return held
+        return self.value(child, horizon, delta)
+
+    def value(self, sb: SparseBelief, horizon: int, delta: float = SEARCH.delta) -> float:
+        """V_h(b); V_0(b) = v(b) less the goal grasp's cost."""
+        if horizon > 0:
+            q = self.action_values(sb, horizon, delta)
+            if np.isfinite(q).any():
+                return float(q.max())
+        return self.static_value(sb) - self.params.cost_per_delta * delta
+
+    def select(self, belief: Belief, horizon: int = SEARCH.horizon, delta: float = SEARCH.delta) -> SearchResult:
+        """Choose the root action for a belief (grid) with a forward search of depth horizon,
+        for a run that stops at P(G) > 1 − delta."""
         if not 1 <= horizon <= 3:
             raise ValueError(f"horizon must be 1, 2 or 3, got {horizon}")
+        if not 0.0 < delta < 1.0:
+            raise ValueError(f"delta must be in (0, 1), got {delta}")
         t0 = time.perf_counter()
         sb = SparseBelief.from_belief(belief, self.model.level_of(belief.grid), self.params)
         with _BLAS.limit(limits=1, user_api="blas"):
-            q = self.action_values(sb, horizon)
+            q = self.action_values(sb, horizon, delta)
             p_goal, g, e_goal = self.best_goal(sb)
         best = int(np.argmax(q)) if np.isfinite(q).any() else -1
         return SearchResult(action=best, value=float(q[best]) if best >= 0 else float("nan"),

@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from rrg_estimator.belief import Belief
 from rrg_estimator.update import goal_probability, update
 from rrg_planner.agent import initial_belief
 from rrg_planner.clustering import PROGRESS_BIN
@@ -16,6 +17,7 @@ from rrg_planner import search as search_module
 from rrg_planner.search import ForwardSearch, SparseBelief, merge_branches, scatter_moments
 from rrg_sim.config import SEARCH, WORLD, UncertaintyLevel
 from rrg_sim.geometric_sim import GeometricSimulator
+from rrg_sim.grid import Grid
 from rrg_sim.poses import compose_planar
 
 SMALL = UncertaintyLevel("small", sigma=(0.02, 0.02, 0.2), spacing=(0.01, 0.01, 0.1), shape=(9, 9, 5))
@@ -41,11 +43,12 @@ def beliefs(model):
 @pytest.mark.parametrize("dense_fraction", [0.0, np.inf], ids=["table-space", "gathered"])
 @pytest.mark.parametrize("horizon", [1, 2])
 @pytest.mark.parametrize("params", [EXACT, SEARCH], ids=["full-support", "default-support"])
-def test_fast_search_matches_reference(model, beliefs, horizon, params, dense_fraction, monkeypatch):
+@pytest.mark.parametrize("delta", [SEARCH.delta, 0.5])
+def test_fast_search_matches_reference(model, beliefs, horizon, params, dense_fraction, delta, monkeypatch):
     monkeypatch.setattr(search_module, "DENSE_FRACTION", dense_fraction)  # both moment paths
     fast, ref = ForwardSearch(model, params), ReferenceSearch(model, params)
     for b in beliefs:
-        f, r = fast.select(b, horizon), ref.select(b, horizon)
+        f, r = fast.select(b, horizon, delta), ref.select(b, horizon, delta)
         assert f.action == r.action
         assert np.array_equal(np.isfinite(f.action_values), np.isfinite(r.action_values))
         ok = np.isfinite(f.action_values)
@@ -117,9 +120,30 @@ def test_merge_combines_similar_posteriors_and_keeps_half_the_mass():
     assert sum(p for _, p in kept) == pytest.approx(1.0)
 
 
-def test_select_rejects_bad_horizon(model, beliefs):
+def test_select_rejects_bad_horizon_and_delta(model, beliefs):
     with pytest.raises(ValueError, match="horizon"):
         ForwardSearch(model).select(beliefs[0], 4)
+    for delta in (0.0, 1.0, float("nan")):
+        with pytest.raises(ValueError, match="delta"):
+            ForwardSearch(model).select(beliefs[0], 2, delta)
+
+
+@pytest.mark.parametrize("search_cls", [ForwardSearch, ReferenceSearch])
+def test_a_goal_grasp_the_agent_would_declare_ends_its_branch(model, search_cls):
+    """Where every reading of the goal grasp leaves P_b(G) > 1 − δ, the run stops there: the
+    grasp is worth its P_b(G) less one action's cost (cost_per_delta · δ), at any horizon. On
+    a broader belief, where it is not declared, deeper search finds more to do after it."""
+    mean = np.asarray(WORLD.nominal_pose)
+    g, delta = model.goal_actions[0], 0.5
+    sharp = Belief.gaussian(Grid.for_level(SMALL, center=mean), mean, np.array([0.004, 0.004, 0.04]))
+    search = search_cls(model, EXACT)
+    q1, q2 = (search.select(sharp, h, delta) for h in (1, 2))
+    assert q1.p_goal > 1 - delta
+    assert q1.action_values[g] == pytest.approx(q1.p_goal - SEARCH.cost_per_delta * delta, abs=0.01)
+    assert q2.action_values[g] == pytest.approx(q1.action_values[g], abs=1e-9)
+    broad = Belief.gaussian(Grid.for_level(SMALL, center=mean), mean, np.array([0.01, 0.01, 0.1]))
+    q1, q2 = (search.select(broad, h, 1e-3).action_values[g] for h in (1, 2))
+    assert q2 > q1 + 0.03
 
 
 @pytest.mark.parametrize("duplicates", [False, True], ids=["one-per-entry", "shared-entries"])

@@ -52,8 +52,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--levels", default="low,high")
     ap.add_argument("--strategies", default=",".join(STRATEGIES))
     ap.add_argument("--trials", type=int, default=100, help="trials per cell")
-    ap.add_argument("--fig9-trials", type=int, default=30,
-                    help="trials per Fig. 9 point (0: skip Fig. 9); 30 keeps the campaign near an hour")
+    ap.add_argument("--fig9-trials", type=int, default=60,
+                    help="trials per Fig. 9 point (0: skip Fig. 9); 60 keeps the campaign under an hour")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=Path("results/paper"))
