@@ -60,13 +60,8 @@ class ReferenceSearch:
             c, s = math.cos(w_star[2] - at), math.sin(w_star[2] - at)
             aimed = (w_star[0] - c * ax + s * ay, w_star[1] - s * ax - c * ay, _wrap(w_star[2] - at))
             for e in (w_star, aimed):  # w* and the estimate that puts w* at the aim
-                if not self.model.feasible(g, np.asarray(e)):
-                    continue
-                table_g = self.model.actions[g].goal[level]
-                total = 0.0
-                for p, w in zip(points, weights):
-                    total += w * float(table_g[self._table_index(level, e, p)])
-                best = max(best, total)
+                if self.model.feasible(g, np.asarray(e)):
+                    best = max(best, self._goal_probability(points, weights, level, g, e))
         return best
 
     def _stats(self, points: Points, post: list[float], e, sigma) -> tuple[float, np.ndarray]:
@@ -157,8 +152,8 @@ class ReferenceSearch:
                     outs_w.append(w * prob * q)
         return outs_p, outs_w
 
-    def _held(self, points: Points, weights: list[float], level: str, goal: int, e) -> float:
-        """P_b(G) of goal grasp ``goal`` just made at e, under the posterior (points, weights)."""
+    def _goal_probability(self, points: Points, weights: list[float], level: str, goal: int, e) -> float:
+        """P_b(G) of goal WRT ``goal`` run at e, under the belief (points, weights)."""
         table_g = self.model.actions[goal].goal[level]
         return sum(w * float(table_g[self._table_index(level, e, p)]) for p, w in zip(points, weights))
 
@@ -179,7 +174,7 @@ class ReferenceSearch:
                 continue
             total = 0.0
             for p, pts, w in branches:
-                held = self._held(pts, w, level, a, e) if self.model.actions[a].kind == "goal" else 0.0
+                held = self._goal_probability(pts, w, level, a, e) if self.model.actions[a].kind == "goal" else 0.0
                 # a goal grasp the agent would declare ends the run with its P_b(G)
                 total += p * (held if held > 1.0 - delta else self.value(pts, w, level, horizon - 1, delta))
             q[a] = total - self.params.cost_per_delta * delta
