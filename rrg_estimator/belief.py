@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rrg_sim.config import UncertaintyLevel
-from rrg_sim.grid import Grid
+from rrg_estimator.config import UncertaintyLevel
+from rrg_estimator.grid import Grid
 from rrg_sim.poses import wrap_angle
 
 

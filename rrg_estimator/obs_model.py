@@ -33,8 +33,9 @@ from typing import Callable, Protocol, TypeVar
 import numpy as np
 from scipy.ndimage import convolve1d
 
-from rrg_sim.config import LIKELIHOOD, N_SENSORS, LikelihoodParams
-from rrg_sim.grid import Grid
+from rrg_estimator.config import LIKELIHOOD, LikelihoodParams
+from rrg_sim.config import N_SENSORS
+from rrg_estimator.grid import Grid
 from rrg_sim.observation import Observation
 from rrg_sim.poses import wrap_angle
 from rrg_sim.wrt import WRT

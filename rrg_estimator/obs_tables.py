@@ -17,9 +17,9 @@ import numpy as np
 from tqdm import tqdm
 
 from rrg_sim import config
-from rrg_sim.config import UncertaintyLevel
+from rrg_estimator.config import UncertaintyLevel
 from rrg_sim.geometric_sim import SIM_VERSION, GeometricSimulator, ObjectLike, ObservationArrays, SweptPath
-from rrg_sim.grid import Grid
+from rrg_estimator.grid import Grid
 from rrg_sim.observation import Observation
 from rrg_sim.wrt import WRT
 

@@ -13,8 +13,9 @@ import logging
 
 import numpy as np
 
-from rrg_sim.config import LEVELS, TRANSITION, UncertaintyLevel
-from rrg_sim.grid import Grid
+from rrg_estimator.config import LEVELS, UncertaintyLevel
+from rrg_sim.config import REORIENT_MIN_FINGERS
+from rrg_estimator.grid import Grid
 from rrg_sim.objects import ObjectModel, get_object
 from rrg_sim.observation import Observation, holds_object
 from rrg_sim.wrt import WRT
@@ -49,7 +50,7 @@ def wrt_posterior(belief: Belief, table: TableLike, wrt: WRT, e, obs: Observatio
     with the WRT's table, then the reorientation's rotation about e for a reorient WRT whose
     grasp held the object (observation.holds_object; otherwise nothing was turned)."""
     post = update(belief, table, e, obs, params=likelihood_params(wrt))
-    if wrt.kind == "reorient" and holds_object(obs.contact, obs.sensors, TRANSITION.reorient_min_fingers):
+    if wrt.kind == "reorient" and holds_object(obs.contact, obs.sensors, REORIENT_MIN_FINGERS):
         e = np.asarray(e, dtype=float)
         post = reorient(post, wrt.reorient_angle, center_xy=e[:2], outcome=wrt.reorient_outcome, e=e)
     return post

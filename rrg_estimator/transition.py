@@ -20,9 +20,9 @@ import numpy as np
 from scipy.ndimage import map_coordinates
 from scipy.special import ndtr
 
-from rrg_sim.config import TRANSITION, TransitionParams
-from rrg_sim.grid import Grid
-from rrg_sim.objects.model import Settling
+from rrg_estimator.config import TRANSITION, TransitionParams
+from rrg_estimator.grid import Grid
+from rrg_sim.objects.object_model import Settling
 from rrg_sim.poses import compose_planar, relative_planar, wrap_angle
 from rrg_sim.wrt import ReorientOutcome
 

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from rrg_sim.config import LIKELIHOOD, LikelihoodParams
-from rrg_sim.grid import Grid
+from rrg_estimator.config import LIKELIHOOD, LikelihoodParams
+from rrg_estimator.grid import Grid
 from rrg_sim.observation import Observation
 
 from .belief import Belief

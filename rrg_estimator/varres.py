@@ -18,8 +18,8 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from rrg_sim.config import LEVELS, VARRES_EPS, VARRES_RECENTER, UncertaintyLevel
-from rrg_sim.grid import Grid
+from rrg_estimator.config import LEVELS, VARRES_EPS, VARRES_RECENTER, UncertaintyLevel
+from rrg_estimator.grid import Grid
 from rrg_sim.poses import wrap_angle
 
 from .belief import Belief

@@ -22,12 +22,14 @@ from rrg_estimator.belief import Belief
 from rrg_estimator.tracker import settle_after_grasp, wrt_posterior
 from rrg_estimator.update import goal_probability
 from rrg_estimator.varres import maybe_refine
-from rrg_sim.config import LEVELS, SEARCH, SENSOR_NAMES, UncertaintyLevel
-from rrg_sim.grid import Grid
+from rrg_estimator.config import LEVELS, UncertaintyLevel
+from rrg_planner.config import SEARCH
+from rrg_sim.config import SENSOR_NAMES
+from rrg_estimator.grid import Grid
 from rrg_sim.observation import Observation
 from rrg_sim.wrt import WRT, InfeasibleWRT
 
-from .model import PlanningModel
+from rrg_planner.planning_model import PlanningModel
 from .search import ForwardSearch, SearchResult, SparseBelief
 
 log = logging.getLogger(__name__)

@@ -14,7 +14,8 @@ import numpy as np
 
 from rrg_estimator.obs_model import features_from_table_rows, likelihood_over_table
 from rrg_estimator.obs_tables import ObservationTable
-from rrg_sim.config import LIKELIHOOD, SEARCH, LikelihoodParams, UncertaintyLevel
+from rrg_estimator.config import LIKELIHOOD, LikelihoodParams, UncertaintyLevel
+from rrg_planner.config import SEARCH
 
 #: Signature bin widths (chosen: about two σ of the likelihood's progress and closure terms).
 PROGRESS_BIN = 0.02  # m

@@ -10,14 +10,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from rrg_sim.config import N_SENSORS, SENSING, TRANSITION, SensingParams
+from rrg_sim.config import N_SENSORS, REORIENT_MIN_FINGERS, SENSING, SensingParams
 from rrg_sim.geometric_sim import GeometricSimulator
 from rrg_sim.objects import ObjectModel
 from rrg_sim.observation import Observation, holds_object
 from rrg_sim.poses import relative_planar
 from rrg_sim.wrt import WRT
 
-from .model import goal_holds
+from rrg_planner.planning_model import goal_holds
 from .search import full_turn
 
 
@@ -54,7 +54,7 @@ class GeometricEnvironment:
 
     def execute(self, wrt: WRT, e: np.ndarray) -> Observation:
         obs = self._sim(wrt).simulate(self.true_pose, e)
-        if wrt.kind == "reorient" and holds_object(obs.contact, obs.sensors, TRANSITION.reorient_min_fingers):
+        if wrt.kind == "reorient" and holds_object(obs.contact, obs.sensors, REORIENT_MIN_FINGERS):
             self.true_pose = full_turn(self.true_pose[None], e, wrt.reorient_angle, wrt.reorient_outcome)[0]
         return add_sensor_noise(obs, self.rng, self.noise)
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from rrg_sim.observation import Observation
+from rrg_sim.physics.judge import judge_grasp
 from rrg_sim.physics.world import PhysicsWorld
 from rrg_sim.wrt import WRT
 
@@ -34,5 +35,5 @@ class PhysicsEnvironment:
         self.world.retreat()
 
     def judge(self, wrt: WRT, e: np.ndarray) -> bool:
-        ok, self.last_judgement = self.world.judge_grasp(self.world.obj, e)
+        ok, self.last_judgement = judge_grasp(self.world, self.world.obj, e)
         return bool(ok)

@@ -10,10 +10,11 @@ import time
 import numpy as np
 
 from rrg_estimator.belief import Belief
-from rrg_sim.config import SEARCH, TRANSITION, SearchParams
+from rrg_planner.config import SEARCH, SearchParams
+from rrg_estimator.config import TRANSITION
 from rrg_sim.poses import compose_planar, relative_planar
 
-from .model import PlanningModel
+from rrg_planner.planning_model import PlanningModel
 from .search import BLUR_NODES, TIE_DECIMALS, TIE_RTOL, SearchResult, merge_branches
 
 Points = list[tuple[float, float, float]]

@@ -35,11 +35,12 @@ import numpy as np
 from threadpoolctl import ThreadpoolController
 
 from rrg_estimator.belief import Belief
-from rrg_sim.config import SEARCH, TRANSITION, SearchParams
+from rrg_planner.config import SEARCH, SearchParams
+from rrg_estimator.config import TRANSITION
 from rrg_sim.poses import compose_planar, relative_planar
 from rrg_sim.wrt import ReorientOutcome
 
-from .model import PlanningModel
+from rrg_planner.planning_model import PlanningModel
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:

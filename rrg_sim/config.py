@@ -147,99 +147,6 @@ WORLD = WorldParams()
 HOME_ROTVEC = (math.pi, 0.0, 0.0)
 
 
-# ------------------------------------------------------------------- belief grid
-@dataclass(frozen=True)
-class UncertaintyLevel:
-    """One initial-uncertainty level: its Gaussian σ and its belief grid."""
-
-    name: str
-    sigma: tuple[float, float, float]  # (m, m, rad)
-    spacing: tuple[float, float, float]  # grid spacing (m, m, rad)
-    shape: tuple[int, int, int] = (31, 31, 25)
-
-
-#: Paper: σ = 5 cm, 5 cm, 30°, grid 1 cm and 0.1 rad. The paper's 25 θ points span only
-#: ±1.2 rad = ±2.3σ, so about 2 % of true poses drawn from the prior lie off the grid and can
-#: never be found (campaign 4282222: 26 of 1,000 high-uncertainty RRG-Info trials, 12 of them
-#: failures); 33 span ±1.6 rad = ±3σ. x and y span ±20 cm = ±4σ (41 points; the paper's
-#: 31 span ±3σ): with ±3σ, 0.54 % of drawn poses lie off the grid in x or y, and 5 of the
-#: 6 such poses in the 1,000 high RRG-Info trials of campaign efece7d failed (teacup #3,
-#: #65, #86, cup #33, drill #80); ±4σ leaves 0.013 %.
-HIGH = UncertaintyLevel("high", (0.05, 0.05, math.radians(30.0)), (0.01, 0.01, 0.1), (41, 41, 33))
-#: Paper: σ = 1 cm, 1 cm, 3°; DESIGN §3: about 2 mm and 0.013 rad.
-LOW = UncertaintyLevel("low", (0.01, 0.01, math.radians(3.0)), (0.002, 0.002, 0.013))
-#: Chosen: the variable-resolution grid's middle step, ±3σ like LOW (±7.5 cm, ±0.6 rad at
-#: 5 mm and 0.05 rad). With HIGH and LOW alone a belief stayed on HIGH's 0.1 rad until 99 %
-#: of it fit LOW's ±0.156 rad, which is finer than the goal tolerances it must resolve
-#: (the teacup's ±0.14 rad): in campaign efece7d 41 of 100 pitcher and half the teacup
-#: trials at high uncertainty used all 10 actions, and in a session 15 replay of pitcher#38
-#: HIGH's belief settled 0.15 rad off the truth, then refined to a LOW grid the truth lay
-#: 0.065 rad beyond.
-MID = UncertaintyLevel("mid", (0.025, 0.025, 0.2), (0.005, 0.005, 0.05))
-LEVELS = {"high": HIGH, "mid": MID, "low": LOW}
-
-#: Variable-resolution grid (DESIGN §3): re-grid to the finest of the finer levels (MID, LOW)
-#: whose box holds at least 1 - VARRES_EPS of the mass.
-VARRES_EPS = 0.01
-#: A fine belief is re-centred on its mean once the mean is off the grid centre by more
-#: than this fraction of the half extent on some axis (chosen: a firm grasp turns the
-#: pitcher ~0.1 rad per goal grasp, against LOW's ±0.156 rad; re-centring at a quarter
-#: keeps such a move on the grid).
-VARRES_RECENTER = 0.25
-
-
-# ------------------------------------------------------------- observation model
-@dataclass(frozen=True)
-class LikelihoodParams:
-    """P(o | w, τ(e)) (DESIGN §5). Chosen to cover the physics simulator's spread of
-    outcomes around the geometric prediction (measured by tests/test_physics_vs_geometric)."""
-
-    p_contact_mismatch: float = 0.05  # P(early contact differs from prediction)
-    sigma_progress: float = 0.012  # m, where along the path the hand stopped
-    p_detect: float = 0.90  # P(sensor fires | predicted contact on it)
-    p_false_alarm: float = 0.04  # P(sensor fires | no predicted contact on it)
-    #: rad, per-finger proximal closure angle at the entry's exact offset; each table entry adds
-    #: its nearest-entry discretization (obs_model.closure_sigma)
-    sigma_closure: float = 0.05
-    sigma_tip: float = 0.012  # m, Nano17 contact point
-    #: Per-term outlier floors on the Gaussian terms (likelihood ratio of an outlier): a finger
-    #: that slides off or pushes a light object on, or a stop point shifted by a bump, costs
-    #: one bounded factor instead of ruling the state out. Chosen from the physics-vs-geometric
-    #: agreement (rrg_sim.physics.agreement): ~10 % of closures/tip points are such outliers.
-    outlier_progress: float = 0.02
-    outlier_closure: float = 0.05
-    outlier_tip: float = 0.05
-    floor: float = 1e-3  # ε: no single observation rules a state out
-
-
-LIKELIHOOD = LikelihoodParams()
-
-
-@dataclass(frozen=True)
-class TransitionParams:
-    """Transition model (DESIGN §3; paper: a mixture 'stays' / 'bumped')."""
-
-    p_stay: float = 0.7  # P(object does not move | contact)
-    bump_mean: float = 0.01  # m, mean displacement along the hand's motion at contact
-    bump_sigma_xy: float = 0.008  # m
-    bump_sigma_theta: float = 0.05  # rad
-    p_reorient_success: float = 0.8  # P(rotation fully achieved)
-    p_reorient_partial: float = 0.1  # P(stops half way); the rest: no rotation
-    #: rad, spread of the turn actually made about the commanded one (MuJoCo, 0.6 rad
-    #: reorientations of the giant teacup from 8 seeded starts each: 0.8-1.06 of the angle,
-    #: σ ≈ 0.04 rad; the drill: σ ≈ 0.015 rad; the larger is used). A full turn of a WRT with a
-    #: measured outcome (objects/reorientation.json, WRT.reorient_outcome) adds that one's σ.
-    reorient_sigma_theta: float = 0.04
-    #: A reorientation lifts and turns the object only when its grasp holds it: it arrived and
-    #: at least this many fingers touch (MuJoCo: a reorientation stopped early on one fingertip
-    #: turned the giant teacup by 0.03 rad where the belief turned it 0.6; the pitcher's
-    #: reorientation grasp holds its handle with two fingertips)
-    reorient_min_fingers: int = 2
-
-
-TRANSITION = TransitionParams()
-
-
 # ------------------------------------------------------------------ goal model
 #: Bandwidth of the kernel that corrects a settling map near an offset, in goal tolerances
 #: per axis (objects.Settling.outcome; chosen on 300 measured grasps per object, half for
@@ -247,57 +154,13 @@ TRANSITION = TransitionParams()
 #: and the affine map alone, Brier score 0.017 / 0.039 / 0.049 for drill / teacup / pitcher
 #: against 0.037 / 0.067 / 0.085).
 SETTLING_KERNEL_BANDWIDTH = 0.5
-#: The aimed goal grasp targets the mean of the offsets whose P(G | Δ) is at least this
-#: fraction of the best (rrg_planner.model.goal_aim; chosen: the flat top of the measured
-#: map, not one noisy peak).
-GOAL_AIM_FRACTION = 0.98
-#: P(G | Δ) below this counts as 0 (rrg_planner.model.goal_weights; chosen: the Gaussian tails
-#: of a grid cell's spread are never exactly 0, and keeping them made the search evaluate the
-#: goal over 4-8× as many table entries at high uncertainty, for nothing a δ of 0.1 can see).
-GOAL_MIN_PROBABILITY = 1e-4
 
-
-# ------------------------------------------------------------------ search
-@dataclass(frozen=True)
-class SearchParams:
-    """Forward search and strategies (paper: δ = 0.1, ≤ 10 actions, prune 0.01, keep 50 %)."""
-
-    horizon: int = 2
-    delta: float = 0.1
-    #: The search charges each action this times δ, in success probability (V_h in
-    #: rrg_planner/search.py): a run stops once P(G) > 1 − δ, so δ is what the user trades
-    #: for actions. Chosen (session 18, MuJoCo, powerdrill at high uncertainty, trials 0-59):
-    #: 0.5 against a fixed 0.01, with a declared goal grasp ending its branch, H = 2 took
-    #: 5.08 actions for 93 % at δ 0.3 (was 5.50 for 98 %) and 6.3 for 97 % at δ 0.1 (6.73,
-    #: 98 %), H = 1 5.28 for 85 % at δ 0.3 (5.17, 95 %); the one value probed.
-    cost_per_delta: float = 0.5
-    max_actions: int = 10
-    offline_prune: float = 0.01
-    online_keep_mass: float = 0.5
-    merge_entropy_tol: float = 0.15  # nats
-    merge_cov_tol: float = 0.25  # relative Frobenius difference
-    #: drop belief points below this fraction of the max in search (chosen: the likelihood floor
-    #: ε = 1e-3, so states an observation has ruled out down to the floor leave the search).
-    support_rel: float = 1e-3
-    #: An execution found infeasible at e rules its WRT out within this box around e (x [m],
-    #: y [m], θ [rad]) for the rest of the run: the feasibility maps check IK at every path
-    #: sample, the executor also needs a continuous IK chain, and where that breaks it breaks
-    #: for a region, not a point (chosen: in a session 15 replay of pitcher#28, 12 goal grasps
-    #: in a row found no chain, all within 0.5 cm, 1 cm and 0.013 rad of the first, and the
-    #: run ended with no feasible action instead of reorienting; the box also holds HIGH's
-    #: neighbouring grid points).
-    block_box: tuple[float, float, float] = (0.015, 0.015, 0.06)
-    #: A reorientation runs only when at least this much of the belief lies where its turn is
-    #: measured (WRT.reorient_outcome's box about w*): a grasp that holds the object from
-    #: further off drags and turns it unpredictably (MuJoCo, session 17: of 120 pitcher
-    #: reorientations from uniform starts within ±6 cm, ±0.5 rad, 37 held from outside the
-    #: box; 4 of those turned rigidly, the rest ended spread over σ ≈ 3-4 cm and 0.4-0.55 rad
-    #: about the turned estimate). Chosen: half; the one value probed.
-    reorient_min_in_box: float = 0.5
-
-
-SEARCH = SearchParams()
-
+# ------------------------------------------------------------ grasp holding
+#: A reorientation lifts and turns the object only when its grasp holds it: it arrived and
+#: at least this many fingers touch (MuJoCo: a reorientation stopped early on one fingertip
+#: turned the giant teacup by 0.03 rad where the belief turned it 0.6; the pitcher's
+#: reorientation grasp holds its handle with two fingertips)
+REORIENT_MIN_FINGERS = 2
 
 # ----------------------------------------------------------- geometric simulator
 @dataclass(frozen=True)

@@ -348,12 +348,3 @@ def _home_q() -> np.ndarray:
 
 HOME_Q = _home_q()
 """Joint angles [rad] of rrg_sim.poses.home_pose()."""
-
-
-def __getattr__(name: str):
-    """``FeasibilityMap`` lives in rrg_sim.wam_feasibility (which imports this module)."""
-    if name == "FeasibilityMap":
-        from .wam_feasibility import FeasibilityMap
-
-        return FeasibilityMap
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

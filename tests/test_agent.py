@@ -10,9 +10,11 @@ import pytest
 
 from rrg_planner.agent import RobustGraspAgent, initial_belief
 from rrg_planner.geometric_env import GeometricEnvironment
-from rrg_planner.model import PlanningModel
+from rrg_planner.planning_model import PlanningModel
 from rrg_planner.search import ForwardSearch
-from rrg_sim.config import SEARCH, WORLD, UncertaintyLevel
+from rrg_planner.config import SEARCH
+from rrg_sim.config import WORLD
+from rrg_estimator.config import UncertaintyLevel
 from rrg_sim.poses import compose_planar, relative_planar
 from rrg_sim.wrt import WRT, InfeasibleWRT
 

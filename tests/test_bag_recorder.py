@@ -27,9 +27,9 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from rrg_msgs.msg import BeliefGrid, Observation
-from rrg_planner.ros.bag_cli import bag_info, format_info, main as bag_cli_main
-from rrg_planner.ros.bag_writer import Rosbag2McapWriter
-from rrg_planner.ros.msg_schema import SEPARATOR, full_definition
+from rrg_planner.bags.bag_cli import bag_info, format_info, main as bag_cli_main
+from rrg_planner.bags.bag_writer import Rosbag2McapWriter
+from rrg_planner.bags.bag_schema import SEPARATOR, full_definition
 
 ROOT = Path(__file__).resolve().parents[1]
 NODE_MODULES = ROOT / ".cache" / "npm" / "node_modules"
@@ -74,7 +74,7 @@ def spin_until(executor, condition, timeout_s: float) -> bool:
 
 def start_recorder(bag: Path, env: dict) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, "-m", "rrg_planner.ros.bag_recorder", "--output", str(bag),
+        [sys.executable, "-m", "rrg_planner.bags.recorder_node", "--output", str(bag),
          "--ros-args", "-p", "discovery_period:=0.1"],
         env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
@@ -256,7 +256,7 @@ def test_sigterm_also_finalizes_the_bag(ros_node, ros_env, tmp_path):
 
 
 def test_recorder_refuses_an_existing_bag_folder(tmp_path, ros_env):
-    out = subprocess.run([sys.executable, "-m", "rrg_planner.ros.bag_recorder", "--output", str(tmp_path)],
+    out = subprocess.run([sys.executable, "-m", "rrg_planner.bags.recorder_node", "--output", str(tmp_path)],
                          env=ros_env, capture_output=True, text=True, timeout=30)
     assert out.returncode == 1 and "already exists" in out.stderr
 

@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 
 from rrg_estimator.belief import Belief
-from rrg_sim.config import HIGH, LOW, WORLD
-from rrg_sim.grid import Grid
+from rrg_estimator.config import HIGH, LOW
+from rrg_sim.config import WORLD
+from rrg_estimator.grid import Grid
 from rrg_sim.poses import wrap_angle
 
 

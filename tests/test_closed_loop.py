@@ -13,8 +13,9 @@ import pytest
 
 from rrg_planner.agent import RobustGraspAgent
 from rrg_planner.geometric_env import GeometricEnvironment
-from rrg_planner.model import PlanningModel
-from rrg_sim.config import HIGH, WORLD
+from rrg_planner.planning_model import PlanningModel
+from rrg_estimator.config import HIGH
+from rrg_sim.config import WORLD
 from rrg_sim.poses import compose_planar
 
 N_TRIALS = 24

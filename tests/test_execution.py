@@ -1,4 +1,4 @@
-"""The executor core's timing and retreat rules (rrg_sim.execution, physics.trajectory): the
+"""The executor core's timing and retreat rules (rrg_sim.executor.wrt_executor, physics.trajectory): the
 guarded move's via-point times, the servo targets that follow them, and a retreat that is
 dropped when the arm has moved since the WRT ended."""
 from __future__ import annotations
@@ -8,8 +8,9 @@ import pytest
 
 from rrg_sim import wam
 from rrg_sim.config import PHYSICS
-from rrg_sim.physics.trajectory import SETTLE_TIME, InfeasiblePath, plan_path, sample_times, servo_targets
+from rrg_sim.executor.trajectory import SETTLE_TIME, InfeasiblePath, plan_path, sample_times, servo_targets
 from rrg_sim.physics.world import PhysicsWorld
+from rrg_sim.physics.judge import judge_grasp
 
 
 def two_segment_path():
@@ -51,7 +52,7 @@ def test_retreat_is_dropped_when_the_arm_has_moved():
     world = PhysicsWorld("box", sensor_noise=0.0)
     e = world.true_object_pose()
     world.execute_wrt(world.obj.goal_wrt, e)
-    ok, _ = world.judge_grasp(world.obj, e)  # lifts the object: the arm leaves the grasp pose
+    ok, _ = judge_grasp(world, world.obj, e)  # lifts the object: the arm leaves the grasp pose
     assert ok
     lifted = world.arm_q()
     world.retreat()
@@ -83,7 +84,7 @@ def test_the_transit_to_a_side_grasp_passes_above_the_object():
     """The pitcher turned 0.44 rad: the straight line from home to its goal grasp's approach
     pose brushed it with finger 3 (a contact at progress 0 no table predicts). Through the
     pose above the approach pose the hand arrives without touching anything."""
-    from rrg_sim.execution import transit_via
+    from rrg_sim.executor.wrt_executor import transit_via
 
     world = PhysicsWorld("brita_pitcher", seed=1)
     w = np.array([0.62, 0.0, 0.444])
@@ -106,7 +107,7 @@ def test_a_goal_grasp_ends_where_the_arm_can_lift_it():
     e = np.array([0.66, 0.02, 0.0])
     world.reset(e)
     obs = world.execute_wrt(world.obj.goal_wrt, e)
-    ok, info = world.judge_grasp(world.obj, e, obs)
+    ok, info = judge_grasp(world, world.obj, e, obs)
     assert info["lift_feasible"] and info["held"] and ok
 
 
@@ -115,9 +116,9 @@ def test_planned_paths_keep_clear_of_the_joint_limits_where_they_can():
     overshoot pressed the limit stop and the collision detection read a contact at progress 0.
     Paths now keep LIMIT_MARGIN inside the limits when some chain does, and still pass
     through the margin when none does (the cooler's grasp at x = 0.75 touches J6's limit)."""
-    from rrg_sim.execution import wrt_path
+    from rrg_sim.executor.wrt_executor import wrt_path
     from rrg_sim.objects import get_object
-    from rrg_sim.physics.trajectory import LIMIT_MARGIN
+    from rrg_sim.executor.trajectory import LIMIT_MARGIN
 
     def plan(name, e):
         return wrt_path(get_object(name).goal_wrt, np.array(e), wam.HOME_Q)
@@ -173,7 +174,7 @@ def test_a_feasibility_map_over_the_executed_path_agrees_with_the_executor():
     chain (23 of 200 poses drawn at high uncertainty; agents then replanned until they gave
     up). The map over ``executed_poses`` checks that descent and the lift. Near that pose it
     is wrong at least 4× less often (it does not check joint continuity: 11 → 2 of 40)."""
-    from rrg_sim.execution import executed_poses, wrt_path
+    from rrg_sim.executor.wrt_executor import executed_poses, wrt_path
     from rrg_sim.objects import get_object
     from rrg_sim.wam_feasibility import FeasibilityMap
 

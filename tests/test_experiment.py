@@ -7,10 +7,11 @@ import json
 import numpy as np
 import pytest
 
-from rrg_planner.experiment.cli import QUICK, main
+from rrg_planner.experiment.experiment_cli import QUICK, main
 from rrg_planner.experiment.report import fig9, fig9_frontier, fig9_table, summarize, wilson
 from rrg_planner.experiment.trials import Cell, TrialSpec, load_records
-from rrg_sim.config import LEVELS, WORLD
+from rrg_estimator.config import LEVELS
+from rrg_sim.config import WORLD
 from rrg_sim.poses import relative_planar
 
 
@@ -92,7 +93,7 @@ def test_fig9_frontier_is_each_curves_fewest_actions_at_90_percent():
 def test_a_cell_key_names_its_cell_and_nothing_else():
     """Cell.from_key inverts Cell.key for every campaign cell (so a trial replays from its id
     alone); malformed or non-canonical keys are refused."""
-    from rrg_planner.experiment.cli import campaign_specs
+    from rrg_planner.experiment.experiment_cli import campaign_specs
 
     specs = campaign_specs(["powerdrill", "cup"], ["low", "high"], ["open-loop", "rrg-goal", "rrg-info"], 1, 1, 0)
     cells = {s.cell for s in specs}

@@ -9,9 +9,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from rrg_estimator.obs_tables import ObservationTable, build_table, load_or_build
-from rrg_sim.config import HIGH
+from rrg_estimator.config import HIGH
 from rrg_sim.geometric_sim import GeometricSimulator
-from rrg_sim.grid import Grid
+from rrg_estimator.grid import Grid
 from rrg_sim.objects.primitives import Primitive
 from rrg_sim.poses import compose_planar, make_pose
 from rrg_sim.wrt import WRT

@@ -53,8 +53,8 @@ def test_a_reorientation_that_stopped_early_turns_neither_the_object_nor_the_bel
     (observation.holds_object); the same grasp that holds the cup turns both."""
     from rrg_estimator import tracker
     from rrg_estimator.belief import Belief
-    from rrg_sim.config import LOW
-    from rrg_sim.grid import Grid
+    from rrg_estimator.config import LOW
+    from rrg_estimator.grid import Grid
 
     monkeypatch.setattr(tracker, "update", lambda belief, *_, **__: belief)  # only the turn is under test
 

@@ -10,18 +10,18 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.serialization import serialize_message
 
 from rrg_estimator.belief import Belief
-from rrg_estimator.ros.convert import belief_to_msg
-from rrg_planner.ros.bag_cli import main as bag_cli
-from rrg_planner.ros.bag_plot import belief_frames, plot_bag
-from rrg_planner.ros.bag_read import read_messages
-from rrg_planner.ros.bag_summary import format_summary, summarize
-from rrg_planner.ros.bag_writer import Rosbag2McapWriter
+from rrg_estimator.ros.belief_msgs import belief_to_msg
+from rrg_planner.bags.bag_cli import main as bag_cli
+from rrg_planner.bags.bag_plot import belief_frames, plot_bag
+from rrg_planner.bags.bag_read import read_messages
+from rrg_planner.bags.bag_summary import format_summary, summarize
+from rrg_planner.bags.bag_writer import Rosbag2McapWriter
 from rrg_planner.ros.planner_node import diagnostic
-from rrg_sim.config import HIGH, LOW
-from rrg_sim.grid import Grid
+from rrg_estimator.config import HIGH, LOW
+from rrg_estimator.grid import Grid
 from rrg_sim.observation import Observation
 from rrg_sim.poses import make_pose
-from rrg_sim.ros.convert import observation_to_msg
+from rrg_sim.ros_common.msg_conversions import observation_to_msg
 
 TRUE_POSE = np.array([0.64, -0.02, 0.25])
 TOPICS = {"/rrg/belief": "rrg_msgs/msg/BeliefGrid", "/rrg/observation": "rrg_msgs/msg/Observation",

@@ -9,15 +9,13 @@ from rclpy.serialization import deserialize_message, serialize_message
 from scipy.spatial.transform import Rotation
 
 from rrg_estimator.belief import Belief
-from rrg_estimator.ros.convert import (InvalidBelief, InvalidGrid, belief_from_msg, belief_markers, belief_to_msg,
-                                       grid_from_metadata, grid_to_metadata)
+from rrg_estimator.ros.belief_msgs import InvalidBelief, InvalidGrid, belief_from_msg, belief_markers, belief_to_msg, grid_from_metadata, grid_to_metadata
 from rrg_msgs.msg import Observation as ObservationMsg
-from rrg_sim.config import HIGH, LOW
-from rrg_sim.grid import Grid
+from rrg_estimator.config import HIGH, LOW
+from rrg_estimator.grid import Grid
 from rrg_sim.observation import Observation
 from rrg_sim.poses import make_pose
-from rrg_sim.ros.convert import (observation_from_msg, observation_to_msg, planar_from_msg, planar_to_msg,
-                                 pose_from_msg, pose_to_msg, tip_contacts_from_msg, tip_contacts_to_msg)
+from rrg_sim.ros_common.msg_conversions import observation_from_msg, observation_to_msg, planar_from_msg, planar_to_msg, pose_from_msg, pose_to_msg, tip_contacts_from_msg, tip_contacts_to_msg
 
 
 def random_belief(seed: int, level=HIGH, center=(0.62, -0.01, 0.3)) -> Belief:

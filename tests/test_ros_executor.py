@@ -16,7 +16,8 @@ from rrg_msgs.msg import Observation as ObservationMsg
 from rrg_msgs.srv import HandCommand, ResetSim
 from rrg_sim import wam
 from rrg_sim.physics.world import PhysicsWorld
-from rrg_sim.ros.convert import ARM_JOINT_NAMES, observation_from_msg, planar_to_msg
+from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES, observation_from_msg, planar_to_msg
+from rrg_sim.physics.judge import judge_grasp
 from ros_testing import RosClient, node_processes, ros_env
 
 DOMAIN_ID = 45
@@ -27,7 +28,7 @@ TRUE_POSE = np.array([0.625, 0.004, 0.05])
 def graph(tmp_path_factory):
     env = ros_env(DOMAIN_ID)
     specs = [("rrg_sim.ros.sim_node", {"object_name": "box", "sensor_noise": 0.0}),
-             ("rrg_sim.ros.executor_node", {})]
+             ("rrg_sim.executor.executor_node", {})]
     with node_processes(specs, env, tmp_path_factory.mktemp("logs")) as procs:
         client = RosClient(env)
         n = client.node
@@ -95,7 +96,7 @@ def test_goal_grasp_is_left_closed_for_the_judge(graph):
     world = PhysicsWorld("box", sensor_noise=0.0)
     world.reset(TRUE_POSE)
     world.execute_wrt(world.obj.goal_wrt, e)
-    ok, _ = world.judge_grasp(world.obj, e)
+    ok, _ = judge_grasp(world, world.obj, e)
     assert judged.success == ok and judged.success, judged.message
 
 

@@ -14,11 +14,11 @@ import pytest
 import yaml
 from rosbags.highlevel import AnyReader
 
-from rrg_planner.ros.bag_cli import bag_info, main as bag_cli
+from rrg_planner.bags.bag_cli import bag_info, main as bag_cli
 from ros_testing import ROOT, ros_env
 
 NODE_MODULES = ROOT / ".cache" / "npm" / "node_modules"
-LAUNCH = [sys.executable, "-m", "rrg_planner.ros.launch"]
+LAUNCH = [sys.executable, "-m", "rrg_planner.bringup.launch"]
 #: Every topic the graph publishes during a grasp (the recorder must have them all).
 GRAPH_TOPICS = {"/rrg/joint_states", "/rrg/fingertip1/wrench", "/rrg/fingertip2/wrench", "/rrg/fingertip3/wrench",
                 "/rrg/contact_pads", "/rrg/eval/object_pose", "/rrg/eval/grasp_outcome", "/rrg/observation",

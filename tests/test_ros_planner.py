@@ -12,13 +12,14 @@ from builtin_interfaces.msg import Time
 from rclpy.action import ActionClient
 
 from rrg_estimator.belief import Belief
-from rrg_estimator.ros.convert import belief_to_msg
+from rrg_estimator.ros.belief_msgs import belief_to_msg
 from rrg_msgs.action import RobustGrasp
 from rrg_msgs.msg import BeliefGrid, Observation as ObservationMsg
 from rrg_msgs.srv import GetBelief, ResetBelief, SelectAction
-from rrg_sim.config import LOW, WORLD
-from rrg_sim.grid import Grid
-from rrg_sim.ros.convert import planar_to_msg
+from rrg_estimator.config import LOW
+from rrg_sim.config import WORLD
+from rrg_estimator.grid import Grid
+from rrg_sim.ros_common.msg_conversions import planar_to_msg
 from ros_testing import RosClient, node_processes, ros_env
 
 DOMAIN_ID = 41

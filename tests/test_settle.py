@@ -7,10 +7,10 @@ import pytest
 
 from rrg_estimator.belief import Belief
 from rrg_estimator.tracker import settle_after_grasp
-from rrg_sim.config import LOW
-from rrg_sim.grid import Grid
+from rrg_estimator.config import LOW
+from rrg_estimator.grid import Grid
 from rrg_sim.objects import OBJECT_NAMES, get_object
-from rrg_sim.objects.model import load_settling
+from rrg_sim.objects.object_model import load_settling
 from rrg_sim.physics.settle import fit_affine
 from rrg_sim.poses import relative_planar
 
@@ -74,7 +74,7 @@ def test_the_outcome_corrects_the_affine_map_where_the_samples_say_so():
     """A closing that turns the object by +0.1 rad for Δθ < 0 and not at all otherwise: the
     affine fit averages the two; the kernel-corrected outcome follows each side, and is the
     affine map where there are no samples."""
-    from rrg_sim.objects.model import AffineSettle, Settling
+    from rrg_sim.objects.object_model import AffineSettle, Settling
 
     rng = np.random.default_rng(3)
     start = rng.uniform(-1, 1, (600, 3)) * (0.02, 0.02, 0.25)
@@ -97,7 +97,7 @@ def test_the_goal_weights_follow_the_drill_grasps_measured_turn():
     """The drill's closing turns it by about -0.07 rad (the committed study): a drill turned
     +0.1 rad from the estimate ends in the goal region, one turned -0.1 rad does not, though
     both start inside its ±10° region; beyond the studied box nothing moves."""
-    from rrg_planner.model import goal_holds, goal_weights
+    from rrg_planner.planning_model import goal_holds, goal_weights
 
     obj = get_object("powerdrill")
     delta = np.array([[0.0, 0.0, 0.1], [0.0, 0.0, -0.1], [0.0, 0.0, 0.0], [0.03, 0.0, 0.0]])
@@ -114,7 +114,7 @@ def test_a_coarse_grid_points_goal_weight_is_the_regions_average_over_its_cell()
     """On the high-uncertainty grid a point stands for its cell: the teacup's point -0.1 rad
     off the estimate (where its closing leaves it best placed, but the cell reaches 0.15 rad
     off, outside the 8° region) and the centre count less, and no cell reaches 0.9."""
-    from rrg_planner.model import goal_weights
+    from rrg_planner.planning_model import goal_weights
 
     obj = get_object("giant_teacup")
     delta = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, -0.1], [0.02, 0.0, 0.0]])

@@ -14,10 +14,10 @@ from rrg_estimator.obs_tables import ObservationTable
 from rrg_estimator.obs_model import (closure_sigma, features_from_observation, features_from_table_rows, sensor_prediction,
                                      likelihood_over_table, likelihood_params, log_likelihood_over_table,
                                      table_indices)
-from rrg_estimator.reference import table_index_reference, update_reference
+from rrg_estimator.reference_update import table_index_reference, update_reference
 from rrg_estimator.update import apply_likelihood, goal_probability, update
-from rrg_sim.config import HIGH, LIKELIHOOD, LOW
-from rrg_sim.grid import Grid
+from rrg_estimator.config import HIGH, LIKELIHOOD, LOW
+from rrg_estimator.grid import Grid
 from rrg_sim.observation import Observation
 from rrg_sim.poses import compose_planar, planar_pose, relative_planar
 from rrg_sim.wrt import WRT
@@ -121,7 +121,7 @@ def test_closure_sigma_adds_each_entrys_discretization():
     only to ± half a cell at the nearest entry: σ² = σ₀² + 0.12²/12 there; where it is flat,
     σ₀; a jump (a finger that misses) makes the closure uninformative around it; an ignored
     closure (σ₀ = ∞) stays ignored. The per-state reference computes the same."""
-    from rrg_estimator.reference import closure_sigma_reference
+    from rrg_estimator.reference_update import closure_sigma_reference
 
     class Table:  # the two fields closure_sigma reads
         def __init__(self, grid: Grid, closure: np.ndarray):
@@ -149,7 +149,7 @@ def test_a_sensors_predicted_contact_stands_for_the_entrys_cell():
     of index 2 and 7/8 of those of index 3 (its switch lies anywhere between the two points),
     certainly elsewhere; a flag on one grid point alone (a finger grazing one facet) counts
     (3/4)³ there. The per-state reference computes the same; the edges count their own flag."""
-    from rrg_estimator.reference import sensor_prediction_reference
+    from rrg_estimator.reference_update import sensor_prediction_reference
 
     class Table:  # the two fields sensor_prediction reads
         def __init__(self, grid: Grid, sensors: np.ndarray):

@@ -229,12 +229,6 @@ def test_feasibility_map_matches_exact_feasibility(tmp_cache):
     assert not fmap.lookup(off[0])
 
 
-def test_feasibility_map_is_exported_by_wam():
-    from rrg_sim.wam import FeasibilityMap as exported
-
-    assert exported is FeasibilityMap
-
-
 def test_feasibility_map_cache(tmp_cache):
     poses = top_down_wrt()[1:]
     built = FeasibilityMap(poses)

@@ -21,22 +21,20 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from visualization_msgs.msg import MarkerArray
 
 from rrg_msgs.msg import BeliefGrid, Observation as ObservationMsg
 from rrg_msgs.srv import GetBelief, ResetBelief
-from rrg_sim.config import LEVELS
-from rrg_sim.ros.convert import WORLD_FRAME, observation_from_msg, planar_from_msg
-from rrg_sim.ros.node_main import keep_serving, run_node
+from rrg_estimator.config import LEVELS
+from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, observation_from_msg, planar_from_msg
+from rrg_sim.ros_common.node_main import keep_serving, run_node
+from rrg_sim.ros_common.qos import LATCHED
 
 from ..tracker import BeliefTracker
-from .convert import belief_markers, belief_to_msg
+from rrg_estimator.ros.belief_msgs import belief_markers, belief_to_msg
 
 NODE_NAME = "estimator"
 NAMESPACE = "rrg"
-#: The latched belief: a late subscriber (the planner, the bag recorder, RViz) gets the last one.
-LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE)
 
 
 class EstimatorNode(Node):

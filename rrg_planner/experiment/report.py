@@ -13,7 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from rrg_sim.config import SEARCH  # noqa: E402
+from rrg_planner.config import SEARCH  # noqa: E402
 
 STRATEGY_LABELS = {"open-loop": "Open-loop", "rrg-goal": "RRG-Goal", "rrg-info": "RRG-Info"}
 

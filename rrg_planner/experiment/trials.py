@@ -20,7 +20,9 @@ from typing import Iterable, Iterator
 import numpy as np
 from tqdm import tqdm
 
-from rrg_sim.config import LEVELS, SEARCH, WORLD
+from rrg_estimator.config import LEVELS
+from rrg_planner.config import SEARCH
+from rrg_sim.config import WORLD
 from rrg_sim.poses import compose_planar
 
 log = logging.getLogger(__name__)
@@ -97,7 +99,7 @@ _ENVS: dict = {}
 
 
 def _model(obj: str, level: str):
-    from rrg_planner.model import PlanningModel
+    from rrg_planner.planning_model import PlanningModel
 
     key = (obj, model_levels(level))
     if key not in _MODELS:
@@ -160,7 +162,7 @@ def load_records(path: Path) -> list[dict]:
 def prepare_models(specs: Iterable[TrialSpec]) -> None:
     """Build (or load) every table the trials need, in this process, with progress bars,
     so the workers only read the cache."""
-    from rrg_planner.model import PlanningModel
+    from rrg_planner.planning_model import PlanningModel
 
     for obj, level in sorted({(s.cell.object, s.cell.level) for s in specs}):
         PlanningModel(obj, levels=model_levels(level), progress=True)

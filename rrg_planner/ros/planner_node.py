@@ -33,20 +33,22 @@ from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
 from rrg_estimator.belief import Belief
-from rrg_estimator.ros.convert import InvalidBelief, InvalidGrid, belief_from_msg
-from rrg_estimator.ros.estimator_node import LATCHED
+from rrg_estimator.ros.belief_msgs import InvalidBelief, InvalidGrid, belief_from_msg
 from rrg_msgs.action import ExecuteWrt, RobustGrasp
 from rrg_msgs.msg import BeliefGrid, Observation as ObservationMsg
 from rrg_msgs.srv import GetBelief, ResetBelief, SelectAction
-from rrg_sim.config import LEVELS, SEARCH, WORLD
+from rrg_estimator.config import LEVELS
+from rrg_planner.config import SEARCH
+from rrg_sim.config import WORLD
 from rrg_sim.objects import OBJECT_NAMES
-from rrg_sim.ros.convert import planar_to_msg
-from rrg_sim.ros.futures import ThreadSafeActionClient, WaitInterrupted, WaitTimeout, wait_for
-from rrg_sim.ros.node_main import run_node
+from rrg_sim.ros_common.msg_conversions import planar_to_msg
+from rrg_sim.ros_common.futures import ThreadSafeActionClient, WaitInterrupted, WaitTimeout, wait_for
+from rrg_sim.ros_common.node_main import run_node
+from rrg_sim.ros_common.qos import LATCHED
 from rrg_sim.wrt import InfeasibleWRT
 
 from ..agent import MAX_BLOCKED, STRATEGIES, RobustGraspAgent
-from ..model import PlanningModel
+from rrg_planner.planning_model import PlanningModel
 from ..search import SearchResult
 
 NODE_NAME = "planner"

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 
-from .model import ObjectModel
+from rrg_sim.objects.object_model import ObjectModel
 from .shapes import BUILDERS
 
 #: The paper's objects (Fig. 5 and 6), in the paper's order.

@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 from ..config import HAND
 from ..wrt import WRT
 from .composites import box, cylinder, cylinder_between, loop_handle, ring_wall, turn_about_z
-from .model import GoalRegion, ObjectModel
+from rrg_sim.objects.object_model import GoalRegion, ObjectModel
 from .primitives import Primitive
 from .surface_pairs import Pinch
 from .wrt_generation import designed_pinch_wrt, line_grasp_wrt, reorient_wrts, side_rotation, top_down_rotation

@@ -22,7 +22,7 @@ from ..objects import OBJECT_NAMES, get_object
 from ..observation import Observation
 from ..poses import compose_planar
 from ..wrt import WRT
-from .trajectory import InfeasiblePath
+from rrg_sim.executor.trajectory import InfeasiblePath
 from .world import PhysicsWorld
 
 log = logging.getLogger(__name__)

@@ -11,27 +11,24 @@ After a goal WRT has closed the hand, the grasp succeeds iff
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from ..config import PHYSICS, SENSOR_NAMES
 from ..objects import ObjectModel
 from ..observation import Observation, fingers_in_contact
 from ..poses import invert, raised, relative_planar
-from .trajectory import InfeasiblePath
+from rrg_sim.executor.trajectory import InfeasiblePath
 
-if TYPE_CHECKING:
-    from .world import PhysicsWorld
+from .world import PhysicsWorld
 
 #: The object counts as lifted when it rose at least this fraction of the lift (chosen: a
 #: grasp that lets it slide half-way out has failed).
 HELD_FRACTION = 0.5
-def _object_in_hand_frame(world: "PhysicsWorld") -> np.ndarray:
+def _object_in_hand_frame(world: PhysicsWorld) -> np.ndarray:
     return invert(world.hand_pose()) @ world.object_pose()
 
 
-def judge_grasp(world: "PhysicsWorld", obj: ObjectModel, e_used,
+def judge_grasp(world: PhysicsWorld, obj: ObjectModel, e_used,
                 observation: Observation | None = None) -> tuple[bool, dict]:
     """Lift and hold the grasp the last goal WRT left in ``world``; returns (success, info).
     ``observation``: that WRT's observation (default: the last one the world's own executor

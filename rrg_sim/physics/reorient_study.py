@@ -23,13 +23,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..config import TRANSITION, WORLD
+from rrg_sim.config import REORIENT_MIN_FINGERS, WORLD
 from ..objects import OBJECT_NAMES, get_object
-from ..objects.model import REORIENTATION_FILE
+from rrg_sim.objects.object_model import REORIENTATION_FILE
 from ..observation import holds_object
 from ..poses import compose_planar, relative_planar, wrap_angle
 from .settle import run_study, study_args
-from .trajectory import InfeasiblePath
+from rrg_sim.executor.trajectory import InfeasiblePath
 from .world import PhysicsWorld
 
 #: σ of the start offsets Δ [m, m, rad] (chosen: the low uncertainty level's 1 cm in x, y and
@@ -57,7 +57,7 @@ def measure(object_name: str, runs: int, seed: int = 0) -> list[dict]:
             except InfeasiblePath:
                 continue
             world.retreat()
-            if not holds_object(obs.contact, obs.sensors, TRANSITION.reorient_min_fingers):
+            if not holds_object(obs.contact, obs.sensors, REORIENT_MIN_FINGERS):
                 continue
             after = relative_planar(e + [0.0, 0.0, wrt.reorient_angle], world.true_object_pose())
             records.append(dict(wrt=wrt.name, start=delta.tolist(), after=after.tolist()))

@@ -17,8 +17,9 @@ from .. import wam
 from ..observation import Observation
 from ..poses import compose_planar
 from ..wrt import WRT
-from .trajectory import InfeasiblePath
+from rrg_sim.executor.trajectory import InfeasiblePath
 from .world import PhysicsWorld
+from rrg_sim.physics.judge import judge_grasp
 
 
 @dataclass
@@ -56,7 +57,7 @@ def run_wrt(world: PhysicsWorld, wrt: WRT, e, judge: bool = False, retreat: bool
         run.feasible = False
         return run
     if judge:
-        run.success, run.judge = world.judge_grasp(world.obj, e)
+        run.success, run.judge = judge_grasp(world, world.obj, e)
     elif retreat:
         world.retreat()
     run.wall_s, run.sim_s = time.perf_counter() - wall, world.sim_time - sim

@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 
 from ..config import PHYSICS, SENSING, SENSOR_NAMES
-from ..execution import Reading
+from rrg_sim.executor.wrt_executor import Reading
 from ..hand import hand_tree
 from .mjcf_robot import PAD_TOUCH, PALM_BODY, TIP_BODIES, TIP_FORCE, TIP_TORQUE
 

@@ -29,10 +29,10 @@ from tqdm import tqdm
 
 from ..config import WORLD
 from ..objects import OBJECT_NAMES, get_object
-from ..objects.model import SETTLING_FILE, SETTLING_THETA_BOX
+from rrg_sim.objects.object_model import SETTLING_FILE, SETTLING_THETA_BOX
 from ..observation import fingers_in_contact
 from ..poses import compose_planar, relative_planar, wrap_angle
-from .trajectory import InfeasiblePath
+from rrg_sim.executor.trajectory import InfeasiblePath
 from .world import PhysicsWorld
 
 log = logging.getLogger(__name__)

@@ -5,7 +5,7 @@ what the robot offers the executor: place the object (simulation only), run a WR
 guarded moves through IK via-points, close the fingers until each stops, read an
 ``Observation`` (the planning core's type), retreat along the path, and judge a grasp by
 lifting it. The object really moves when it is bumped; ``true_object_pose`` is for
-evaluation only. The WRT sequence itself is ``rrg_sim.execution.WrtExecutor``, which the
+evaluation only. The WRT sequence itself is ``rrg_sim.executor.wrt_executor.WrtExecutor``, which the
 executor node also runs over ROS: this world is its ``Robot`` (``follow``, ``move_hand``,
 ``close_hand``, ``reading``, ``arm_q``, ``hand_angles``, ``hand_pose``).
 
@@ -22,16 +22,15 @@ import numpy as np
 
 from .. import wam
 from ..config import HAND, N_SENSORS, PHYSICS, WORLD
-from ..execution import Reading, WrtExecutor
+from rrg_sim.executor.wrt_executor import Reading, WrtExecutor
 from ..objects import ObjectModel, get_object
 from ..observation import Observation, finger_contacts
 from ..wrt import WRT
-from .judge import judge_grasp
 from .mjcf_robot import (ARM_ACTUATORS, ARM_JOINTS, FINGER_ACTUATORS, FINGER_JOINTS, PALM_BODY,
                          ROBOT_CONAFFINITY, ROBOT_CONTYPE, SPREAD_ACTUATOR, SPREAD_JOINT)
 from .scene import OBJECT_BODY, OBJECT_JOINT, build_model
 from .sensing import HandSensors
-from .trajectory import DensePath, InfeasiblePath, TimedPath, plan_path, servo_targets, timed_controls
+from rrg_sim.executor.trajectory import DensePath, InfeasiblePath, TimedPath, plan_path, servo_targets, timed_controls
 
 __all__ = ["PhysicsWorld", "InfeasiblePath"]
 
@@ -302,9 +301,9 @@ class PhysicsWorld:
     # ------------------------------------------------------------------ WRTs
     def execute_wrt(self, wrt: WRT, e) -> Observation:
         """Run τ(e) as guarded moves from the current (home) pose, close the fingers, and
-        return the observation (rrg_sim.execution.WrtExecutor.execute). The hand is left
-        closed at the stop; call ``retreat`` next (for a goal WRT, ``judge_grasp`` may come
-        first). A "reorient" WRT also lifts the grasped object slightly, turns it by
+        return the observation (rrg_sim.executor.wrt_executor.WrtExecutor.execute). The hand is left
+        closed at the stop; call ``retreat`` next (for a goal WRT, ``physics.judge.judge_grasp``
+        may come first). A "reorient" WRT also lifts the grasped object slightly, turns it by
         wrt.reorient_angle about the vertical through e, puts it down and opens the hand.
         Raises InfeasiblePath when IK fails."""
         return self.executor.execute(wrt, e)
@@ -312,18 +311,6 @@ class PhysicsWorld:
     def retreat(self) -> None:
         """Open the hand and retrace the executed path back to home (WrtExecutor.retreat)."""
         self.executor.retreat()
-
-    def judge_grasp(self, obj: ObjectModel, e_used, observation: Observation | None = None) -> tuple[bool, dict]:
-        """Lift and hold the grasp the last goal WRT left and judge it against obj's goal
-        region relative to e_used, the estimate it ran at (rrg_sim.physics.judge); the
-        observation defaults to the last one this world's executor made."""
-        return judge_grasp(self, obj, e_used, observation)
-
-    def render_png(self, path, **kwargs):
-        """Write a PNG snapshot of the current state (rrg_sim.physics.render.render_png)."""
-        from .render import render_png  # GL and matplotlib load only when rendering
-
-        return render_png(self, path, **kwargs)
 
     @property
     def last_observation(self) -> Observation | None:

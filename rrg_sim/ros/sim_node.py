@@ -48,11 +48,11 @@ from ..config import HAND, PHYSICS, SENSING, WORLD
 from ..objects import OBJECT_NAMES
 from ..physics.mjcf_robot import TIP_BODIES
 from ..physics.sensing import HandSensors
-from ..physics.trajectory import DensePath, sample_times
+from rrg_sim.executor.trajectory import DensePath, sample_times
+from ..physics.judge import judge_grasp
 from ..physics.world import PhysicsWorld
-from .convert import (ARM_JOINT_NAMES, WORLD_FRAME, observation_from_msg, planar_from_msg, pose_to_msg,
-                      tip_contacts_to_msg, vector_to_msg)
-from .node_main import keep_serving, run_node
+from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES, WORLD_FRAME, observation_from_msg, planar_from_msg, pose_to_msg, tip_contacts_to_msg, vector_to_msg
+from rrg_sim.ros_common.node_main import keep_serving, run_node
 
 NODE_NAME = "sim"
 NAMESPACE = "rrg"
@@ -352,7 +352,7 @@ class SimNode(Node):
             resp.message = f"nothing to judge: the last WRT was {obs.object_name}/{obs.wrt_name}, not a goal grasp"
         else:
             with self._lock:
-                ok, info = self.world.judge_grasp(obj, planar_from_msg(obs.estimate), observation_from_msg(obs))
+                ok, info = judge_grasp(self.world, obj, planar_from_msg(obs.estimate), observation_from_msg(obs))
                 self.publish_state()
             resp.success = bool(ok)
             resp.message = (f"{'SUCCESS' if ok else 'FAILURE'}: in goal region {info['in_region']} "

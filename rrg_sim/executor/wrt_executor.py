@@ -21,13 +21,13 @@ from typing import Callable, Protocol
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from . import wam
-from .config import GEOMSIM, N_SENSORS, PHYSICS, TRANSITION
-from .hand import hand_geoms_world
-from .observation import Observation, grasp_arrived, holds_object
-from .physics.trajectory import DensePath, InfeasiblePath, densify, joint_path, plan_path, sample_times, solve_path
-from .poses import planar_pose, raised
-from .wrt import WRT
+from rrg_sim import wam
+from rrg_sim.config import GEOMSIM, N_SENSORS, PHYSICS, REORIENT_MIN_FINGERS
+from rrg_sim.hand import hand_geoms_world
+from rrg_sim.observation import Observation, grasp_arrived, holds_object
+from rrg_sim.executor.trajectory import DensePath, InfeasiblePath, densify, joint_path, plan_path, sample_times, solve_path
+from rrg_sim.poses import planar_pose, raised
+from rrg_sim.wrt import WRT
 
 log = logging.getLogger(__name__)
 
@@ -257,7 +257,7 @@ class WrtExecutor:
                           sensors=at_stop.fired | touched | closed.fired, closure=self.robot.hand_angles()[1],
                           tip_points=closed.tip_points, tip_normals=closed.tip_normals, motion_dir=motion_dir)
         self.last = Execution(wrt, e, path.upto(int(np.floor(index))), obs, self.robot.arm_q())
-        if wrt.kind == "reorient" and holds_object(obs.contact, obs.sensors, TRANSITION.reorient_min_fingers):
+        if wrt.kind == "reorient" and holds_object(obs.contact, obs.sensors, REORIENT_MIN_FINGERS):
             report("reorient", PHASES["reorient"])
             self._reorient(wrt, e)
         return obs

@@ -35,11 +35,13 @@ from typing import Callable, TextIO
 
 import numpy as np
 
-from rrg_sim.config import LEVELS, SEARCH, WORLD
+from rrg_estimator.config import LEVELS
+from rrg_planner.config import SEARCH
+from rrg_sim.config import WORLD
 from rrg_sim.objects import OBJECT_NAMES
 from rrg_sim.poses import compose_planar
 
-from ..agent import STRATEGIES
+from rrg_planner.agent import STRATEGIES
 
 ROOT = Path(__file__).resolve().parents[2]
 RECORDER = "rrg_bag_recorder"
@@ -55,7 +57,7 @@ OUTCOME_GRACE_S = 0.5
 #: Module of each node process, in start order (the recorder is started first, stopped last).
 NODES = {
     "sim": "rrg_sim.ros.sim_node",
-    "executor": "rrg_sim.ros.executor_node",
+    "executor": "rrg_sim.executor.executor_node",
     "estimator": "rrg_estimator.ros.estimator_node",
     "planner": "rrg_planner.ros.planner_node",
 }
@@ -143,7 +145,7 @@ class Graph:
         """Start the recorder (if recording) and the four nodes (the launch time counts from here)."""
         self.started = time.monotonic()
         if self.bag_dir is not None:
-            self.spawn("recorder", ["-m", "rrg_planner.ros.bag_recorder", "--output", str(self.bag_dir),
+            self.spawn("recorder", ["-m", "rrg_planner.bags.recorder_node", "--output", str(self.bag_dir),
                                     *ros_args({"discovery_period": 0.1})])
         params = {
             "sim": {"object_name": object_name, "seed": seed, "real_time_factor": real_time_factor,
@@ -245,7 +247,7 @@ class Graph:
 
     def recorder_caught_up(self) -> bool:
         """Whether the recorder subscribes to every visible topic that has a publisher."""
-        from .bag_recorder import is_hidden
+        from rrg_planner.bags.recorder_node import is_hidden
 
         for topic, _ in self.node.get_topic_names_and_types():
             if is_hidden(topic) or not self.node.get_publishers_info_by_topic(topic):
@@ -260,7 +262,7 @@ class Graph:
         """Place the object, run the robust grasp, judge it; fills and returns ``outcome``."""
         from rrg_msgs.action import RobustGrasp
         from rrg_msgs.srv import ResetSim
-        from rrg_sim.ros.convert import planar_to_msg
+        from rrg_sim.ros_common.msg_conversions import planar_to_msg
         from std_srvs.srv import Trigger
 
         reset = self.result(self.clients["/rrg/reset_sim"].call_async(
@@ -432,7 +434,7 @@ def main(argv: list[str] | None = None) -> int:
         graph.stop()
         signal.signal(signal.SIGINT, signal.default_int_handler)
     if bag_dir is not None:
-        from .bag_cli import bag_info
+        from rrg_planner.bags.bag_cli import bag_info
 
         info = bag_info(bag_dir)
         print(f"[rrg-launch] bag {bag_dir}: {info.message_count} messages on {len(info.topics)} topics, "

@@ -26,7 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rrg_sim.config import LEVELS, WORLD
+from rrg_estimator.config import LEVELS
+from rrg_sim.config import WORLD
 
 SELECT_TARGET_MS = 5.0  # the issue's target for the median select-action overhead
 LEVEL_NAMES = list(LEVELS)  # the planner loads all, as rrg-launch does (variable resolution)
@@ -37,7 +38,7 @@ def select_overhead(graph, object_name: str, level: str, horizon: int, calls: in
     from builtin_interfaces.msg import Time
 
     from rrg_estimator.belief import Belief
-    from rrg_estimator.ros.convert import belief_to_msg
+    from rrg_estimator.ros.belief_msgs import belief_to_msg
     from rrg_msgs.srv import SelectAction
 
     mean = np.asarray(WORLD.nominal_pose)
@@ -66,7 +67,7 @@ def first_action(graph, object_name: str, level: str, horizon: int) -> float:
     """Seconds from the launch to the first robust-grasp feedback; cancels the grasp after it."""
     from rrg_msgs.action import RobustGrasp
     from rrg_msgs.srv import ResetSim
-    from rrg_sim.ros.convert import planar_to_msg
+    from rrg_sim.ros_common.msg_conversions import planar_to_msg
 
     reset = graph.result(graph.clients["/rrg/reset_sim"].call_async(
         ResetSim.Request(object_name=object_name, pose=planar_to_msg(WORLD.nominal_pose))), 60.0, "reset_sim")
@@ -83,7 +84,7 @@ def first_action(graph, object_name: str, level: str, horizon: int) -> float:
 
 
 def bench_ros(argv: list[str]) -> int:
-    from .launch import Graph, ros_environment, warm_tables
+    from rrg_planner.bringup.launch import Graph, ros_environment, warm_tables
 
     ap = argparse.ArgumentParser(prog="rrg-bench ros", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)

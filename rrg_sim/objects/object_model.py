@@ -10,12 +10,12 @@ import numpy as np
 import trimesh
 from scipy.special import ndtr
 
-from ..config import SENSOR_NAMES, SETTLING_KERNEL_BANDWIDTH
-from ..poses import wrap_angle
-from ..wrt import WRT, ReorientOutcome
-from .primitives import Primitive, union_bounds
-from . import wrt_generation
-from .composites import turn_about_z
+from rrg_sim.config import SENSOR_NAMES, SETTLING_KERNEL_BANDWIDTH
+from rrg_sim.poses import wrap_angle
+from rrg_sim.wrt import WRT, ReorientOutcome
+from rrg_sim.objects.primitives import Primitive, union_bounds
+from .wrt_generation import info_wrts, sweep_wrt
+from rrg_sim.objects.composites import turn_about_z
 
 
 #: The measured grasp-settling fits (rrg_sim.physics.settle writes it; committed).
@@ -50,7 +50,7 @@ class AffineSettle:
 class Settling:
     """How a firm goal grasp that arrived moves the object (rrg_sim.physics.settle): the maps of
     start offsets Δ inside ``box`` (3,) half-widths to Δ once the hand has closed (where the
-    judge finds it: the goal model, rrg_planner.model.goal_weights) and after the retreat
+    judge finds it: the goal model, rrg_planner.planning_model.goal_weights) and after the retreat
     (where the next action finds it: the belief's transition), with the measured samples
     (``start`` and, per map, the Δ after (M,3)). Outside the box the object is taken not to
     move (the study did not sample there).
@@ -236,7 +236,7 @@ class ObjectModel:
     def info_wrts(self) -> tuple[WRT, ...]:
         """Information-gathering WRTs: generated from the primitives (pinches, then the sweep),
         then the hand-designed ones."""
-        return (wrt_generation.info_wrts(self.parts) + (wrt_generation.sweep_wrt(self.parts),)
+        return (info_wrts(self.parts) + (sweep_wrt(self.parts),)
                 + self.designed_info_wrts)
 
     @cached_property

@@ -1,4 +1,4 @@
-"""Conversions between the belief (rrg_estimator.belief.Belief on an rrg_sim.grid.Grid) and
+"""Conversions between the belief (rrg_estimator.belief.Belief on an rrg_estimator.grid.Grid) and
 rrg_msgs/BeliefGrid, with the validation every node applies to a belief it receives.
 
 Both layouts agree: the grid is centred on ``metadata.origin`` and the weights are C-ordered
@@ -13,10 +13,10 @@ from builtin_interfaces.msg import Time
 from visualization_msgs.msg import Marker, MarkerArray
 
 from rrg_msgs.msg import BeliefGrid, BeliefGridMetaData
-from rrg_sim.grid import Grid
-from rrg_sim.ros.convert import WORLD_FRAME, planar_from_msg, planar_to_msg
+from rrg_estimator.grid import Grid
+from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, planar_from_msg, planar_to_msg
 
-from ..belief import Belief
+from rrg_estimator.belief import Belief
 
 
 class InvalidGrid(ValueError):

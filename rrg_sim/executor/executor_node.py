@@ -1,14 +1,14 @@
 """The executor node (DESIGN §7): executes a WRT at an estimate e on the arm/hand interface and
 publishes what it observed.
 
-    python -m rrg_sim.ros.executor_node
+    python -m rrg_sim.executor.executor_node
 
 Serves ``/rrg/execute_wrt`` (rrg_msgs/ExecuteWrt): τ(e), a continuous IK path, timed joint
 via-points sent as guarded moves to ``/rrg/guarded_move``, closing through
 ``/rrg/hand_command``, the observation (published on ``/rrg/observation`` and returned), then
 the retreat home. A goal WRT is left closed on the object so that it can be judged or lifted;
 ``/rrg/retreat`` (std_srvs/Trigger), or the next execution, retreats from it. The sequence is
-the ROS-free ``rrg_sim.execution.WrtExecutor`` (the physics world runs the same one in-process);
+the ROS-free ``rrg_sim.executor.wrt_executor.WrtExecutor`` (the physics world runs the same one in-process);
 this node drives it through ``RosRobot``, so it runs unchanged against a hardware bridge.
 
 It lives in rrg_sim because everything it needs is there (the object catalogue with the
@@ -30,12 +30,12 @@ from std_srvs.srv import Trigger
 from rrg_msgs.action import ExecuteWrt
 from rrg_msgs.msg import Observation as ObservationMsg
 
-from ..execution import WrtExecutor
-from ..objects import OBJECT_NAMES, get_object
-from ..physics.trajectory import InfeasiblePath
-from .convert import observation_to_msg, planar_from_msg
-from .node_main import keep_serving, run_node
-from .robot_client import MotionCanceled, MotionFailed, RosRobot
+from rrg_sim.executor.wrt_executor import WrtExecutor
+from rrg_sim.objects import OBJECT_NAMES, get_object
+from rrg_sim.executor.trajectory import InfeasiblePath
+from rrg_sim.ros_common.msg_conversions import observation_to_msg, planar_from_msg
+from rrg_sim.ros_common.node_main import keep_serving, run_node
+from rrg_sim.executor.robot_client import MotionCanceled, MotionFailed, RosRobot
 
 NODE_NAME = "executor"
 NAMESPACE = "rrg"

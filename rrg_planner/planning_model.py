@@ -13,15 +13,17 @@ import numpy as np
 
 from rrg_estimator.obs_model import likelihood_params
 from rrg_estimator.obs_tables import ObservationTable, load_or_build
-from rrg_sim.config import GOAL_AIM_FRACTION, GOAL_MIN_PROBABILITY, LEVELS, SENSOR_NAMES, TRANSITION, UncertaintyLevel
-from rrg_sim.execution import executed_poses
+from rrg_planner.config import GOAL_AIM_FRACTION, GOAL_MIN_PROBABILITY
+from rrg_estimator.config import LEVELS, UncertaintyLevel
+from rrg_sim.config import REORIENT_MIN_FINGERS, SENSOR_NAMES
+from rrg_sim.executor.wrt_executor import executed_poses
 from rrg_sim.observation import holds_object
-from rrg_sim.grid import Grid
+from rrg_estimator.grid import Grid
 from rrg_sim.objects import ObjectModel, get_object
-from rrg_sim.wam import FeasibilityMap
+from rrg_sim.wam_feasibility import FeasibilityMap
 from rrg_sim.wrt import WRT
 
-from .clustering import ObservationClusters, cluster_table
+from rrg_planner.clustering import ObservationClusters, cluster_table
 
 log = logging.getLogger(__name__)
 
@@ -156,7 +158,7 @@ class PlanningModel:
                     act.goal[name] = goal_indicator(self.obj, table)
                 if wrt.kind == "reorient":
                     rep = act.clusters[name].representatives
-                    act.turns[name] = holds_object(table.contact[rep], table.sensors[rep], TRANSITION.reorient_min_fingers)
+                    act.turns[name] = holds_object(table.contact[rep], table.sensors[rep], REORIENT_MIN_FINGERS)
             if wrt.kind == "goal":  # a physical offset: from the finest table, for every level
                 finest = min(self.levels, key=lambda n: np.prod(act.tables[n].grid.spacing))
                 aim = goal_aim(self.obj, act.tables[finest], act.goal[finest])

@@ -18,10 +18,10 @@ import numpy as np  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
 from rrg_estimator.belief import Belief  # noqa: E402
-from rrg_estimator.ros.convert import belief_from_msg  # noqa: E402
+from rrg_estimator.ros.belief_msgs import belief_from_msg  # noqa: E402
 from rrg_sim.poses import wrap_angle  # noqa: E402
 
-from .bag_read import BELIEF_TOPIC, OBSERVATION_TOPIC, TRUE_POSE_TOPIC, read_messages  # noqa: E402
+from rrg_planner.bags.bag_read import BELIEF_TOPIC, OBSERVATION_TOPIC, TRUE_POSE_TOPIC, read_messages  # noqa: E402
 
 
 @dataclass

@@ -23,10 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import wam
-from ..config import GEOMSIM, PHYSICS
-from ..poses import interpolate_poses, raised
-from ..wrt import InfeasibleWRT
+from rrg_sim import wam
+from rrg_sim.config import GEOMSIM, PHYSICS
+from rrg_sim.poses import interpolate_poses, raised
+from rrg_sim.wrt import InfeasibleWRT
 
 #: Time to reach cruise speed on a segment [s] (chosen: 2 m/s² at 0.2 m/s, a smooth WAM move).
 ACCEL_TIME = 0.1

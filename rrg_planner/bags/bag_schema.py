@@ -8,6 +8,8 @@ from ``<prefix>/share/<pkg>/msg/`` of each ament prefix (the venv itself for the
 """
 from __future__ import annotations
 
+import importlib
+
 import os
 import re
 import sys
@@ -91,3 +93,9 @@ def full_definition(type_name: str) -> str:
 
     append_nested(package, sections[0])
     return "\n".join(sections) + "\n"
+
+
+def message_class(type_name: str) -> type:
+    """The generated Python class of ``pkg/msg/Type``."""
+    package, kind, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{package}.{kind}"), name)

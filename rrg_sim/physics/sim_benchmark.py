@@ -15,8 +15,9 @@ import time
 import mujoco
 import numpy as np
 
-from ..objects import OBJECT_NAMES
-from .world import PhysicsWorld
+from rrg_sim.objects import OBJECT_NAMES
+from rrg_sim.physics.world import PhysicsWorld
+from rrg_sim.physics.judge import judge_grasp
 
 
 def _time_goal(world: PhysicsWorld) -> tuple[float, float, bool]:
@@ -25,7 +26,7 @@ def _time_goal(world: PhysicsWorld) -> tuple[float, float, bool]:
     e = world.true_object_pose()
     wall, sim = time.perf_counter(), world.sim_time
     world.execute_wrt(world.obj.goal_wrt, e)
-    ok, _ = world.judge_grasp(world.obj, e)
+    ok, _ = judge_grasp(world, world.obj, e)
     return time.perf_counter() - wall, world.sim_time - sim, ok
 
 

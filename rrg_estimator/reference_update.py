@@ -12,11 +12,11 @@ import math
 
 import numpy as np
 
-from rrg_sim.config import LIKELIHOOD, TRANSITION, LikelihoodParams, TransitionParams
+from rrg_estimator.config import LIKELIHOOD, TRANSITION, LikelihoodParams, TransitionParams
 from rrg_sim.observation import Observation
 
-from .belief import Belief
-from .obs_model import ObsFeatures, TableLike
+from rrg_estimator.belief import Belief
+from rrg_estimator.obs_model import ObsFeatures, TableLike
 
 #: Per-axis bump factors below this are skipped (≈ 7σ out; far below float32 likelihoods).
 _NEGLIGIBLE = 1e-12

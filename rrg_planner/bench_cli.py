@@ -38,17 +38,18 @@ def _median_time(fn: Callable[[], object], repeats: int, warmup: bool = True) ->
 
 def bench_plan(argv: list[str]) -> int:
     from rrg_estimator.obs_tables import build_table
-    from rrg_estimator.reference import update_reference
+    from rrg_estimator.reference_update import update_reference
     from rrg_estimator.update import update
-    from rrg_sim.config import LEVELS, WORLD
+    from rrg_estimator.config import LEVELS
+    from rrg_sim.config import WORLD
     from rrg_sim.geometric_sim import GeometricSimulator
-    from rrg_sim.grid import Grid
+    from rrg_estimator.grid import Grid
     from rrg_sim.poses import compose_planar
 
-    from .agent import initial_belief
-    from .model import PlanningModel
-    from .reference_search import ReferenceSearch
-    from .search import ForwardSearch
+    from rrg_planner.agent import initial_belief
+    from rrg_planner.planning_model import PlanningModel
+    from rrg_planner.reference_search import ReferenceSearch
+    from rrg_planner.search import ForwardSearch
 
     ap = argparse.ArgumentParser(prog="rrg-bench plan", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -120,13 +121,13 @@ def bench_plan(argv: list[str]) -> int:
 
 
 def bench_sim(argv: list[str]) -> int:
-    from rrg_sim.physics.bench import bench_sim as run
+    from rrg_sim.physics.sim_benchmark import bench_sim as run
 
     return run(argv)
 
 
 def bench_ros(argv: list[str]) -> int:
-    from rrg_planner.ros.bench import bench_ros as run
+    from rrg_planner.bringup.graph_benchmark import bench_ros as run
 
     return run(argv)
 

@@ -1,4 +1,4 @@
-"""The executor core's ``Robot`` (rrg_sim.execution) over ROS: action and service clients of the
+"""The executor core's ``Robot`` (rrg_sim.executor.wrt_executor) over ROS: action and service clients of the
 arm/hand interface node (the simulator, or the hardware bridge), for use inside a callback of
 a MultiThreadedExecutor (the clients must be in a reentrant callback group).
 
@@ -20,11 +20,11 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from rrg_msgs.action import GuardedMove
 from rrg_msgs.srv import HandCommand
 
-from .. import wam
-from ..config import HAND, N_SENSORS
-from ..execution import Reading
-from .convert import ARM_JOINT_NAMES, PROXIMAL_JOINT_NAMES, SPREAD_JOINT_NAME, tip_contacts_from_msg
-from .futures import ThreadSafeActionClient, WaitInterrupted, WaitTimeout, wait_for
+from rrg_sim import wam
+from rrg_sim.config import HAND, N_SENSORS
+from rrg_sim.executor.wrt_executor import Reading
+from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES, PROXIMAL_JOINT_NAMES, SPREAD_JOINT_NAME, tip_contacts_from_msg
+from rrg_sim.ros_common.futures import ThreadSafeActionClient, WaitInterrupted, WaitTimeout, wait_for
 
 
 class MotionFailed(RuntimeError):

@@ -16,12 +16,13 @@ import sys
 import time
 from pathlib import Path
 
-from rrg_sim.config import LEVELS, SEARCH
+from rrg_estimator.config import LEVELS
+from rrg_planner.config import SEARCH
 from rrg_sim.objects import OBJECT_NAMES
 
-from ..agent import STRATEGIES
-from .report import write_outputs
-from .trials import Cell, TrialSpec, run_campaign, run_trial
+from rrg_planner.agent import STRATEGIES
+from rrg_planner.experiment.report import write_outputs
+from rrg_planner.experiment.trials import Cell, TrialSpec, run_campaign, run_trial
 
 QUICK = dict(objects=["box"], levels=["low", "high"], trials=2, fig9_trials=0)
 FIG9_DELTAS = (0.5, 0.3, 0.1, 0.03)

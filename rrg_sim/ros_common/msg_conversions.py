@@ -10,8 +10,8 @@ from scipy.spatial.transform import Rotation
 
 from rrg_msgs.msg import FingertipContact, Observation as ObservationMsg, PlanarPose
 
-from ..config import N_SENSORS
-from ..observation import Observation
+from rrg_sim.config import N_SENSORS
+from rrg_sim.observation import Observation
 
 WORLD_FRAME = "world"
 #: Joint names of the arm/hand interface (sim node and hardware bridge alike): the WAM's 7 joints,

@@ -15,7 +15,7 @@ from pathlib import Path
 import yaml
 from mcap.writer import CompressionType, Writer
 
-from .msg_schema import SCHEMA_ENCODING, full_definition
+from rrg_planner.bags.bag_schema import SCHEMA_ENCODING, full_definition
 
 PROFILE = "ros2"
 MESSAGE_ENCODING = "cdr"

@@ -13,8 +13,7 @@ import numpy as np
 
 from rrg_sim.config import SENSOR_NAMES
 
-from .bag_read import (BELIEF_TOPIC, GRASP_OUTCOME_TOPIC, GRASP_STEP_TOPIC, OBSERVATION_TOPIC, key_values,
-                       read_messages)
+from rrg_planner.bags.bag_read import BELIEF_TOPIC, GRASP_OUTCOME_TOPIC, GRASP_STEP_TOPIC, OBSERVATION_TOPIC, key_values, read_messages
 
 
 @dataclass

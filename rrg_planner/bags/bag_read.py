@@ -15,8 +15,8 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Message, Schema
 from rclpy.serialization import deserialize_message
 
-from .bag_cli import complete_records, find_mcap
-from .bag_recorder import message_class
+from rrg_planner.bags.bag_info import complete_records, find_mcap
+from rrg_planner.bags.bag_schema import message_class
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .config import UncertaintyLevel
-from .poses import wrap_angle
+from rrg_sim.poses import wrap_angle
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 Run as a process, e.g. as the launcher's child::
 
-    python -m rrg_planner.ros.bag_recorder --output bags/NAME [--ros-args -p discovery_period:=0.2]
+    python -m rrg_planner.bags.recorder_node --output bags/NAME [--ros-args -p discovery_period:=0.2]
 
 It polls the graph for topics, subscribes to each new one with ``raw=True`` (CDR bytes as they
 came off the wire), and matches its publishers' durability, so latched (TRANSIENT_LOCAL) topics
@@ -29,16 +29,10 @@ from rclpy.topic_endpoint_info import TopicEndpointInfo
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.utilities import remove_ros_args
 
-from .bag_writer import Rosbag2McapWriter
-from .msg_schema import UnknownMessageType
+from rrg_planner.bags.bag_writer import Rosbag2McapWriter
+from rrg_planner.bags.bag_schema import UnknownMessageType, message_class
 
 NODE_NAME = "rrg_bag_recorder"
-
-
-def message_class(type_name: str) -> type:
-    """The generated Python class of ``pkg/msg/Type``."""
-    package, kind, name = type_name.split("/")
-    return getattr(importlib.import_module(f"{package}.{kind}"), name)
 
 
 def is_hidden(topic: str) -> bool:
@@ -130,7 +124,7 @@ class BagRecorder(Node):
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m rrg_planner.ros.bag_recorder",
+    parser = argparse.ArgumentParser(prog="python -m rrg_planner.bags.recorder_node",
                                      description="Record every topic into a rosbag2-layout MCAP bag.")
     parser.add_argument("--output", "-o", required=True, type=Path,
                         help="bag folder to create (e.g. bags/NAME); must not exist")

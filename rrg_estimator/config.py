@@ -1,0 +1,99 @@
+"""The estimator's parameters: uncertainty levels and belief grids, the variable-resolution
+grid, the observation likelihood and the transition model, each with its source.
+
+Units are SI (m, rad) unless a name says otherwise. Sources: the paper (Hsiao, Lozano-Pérez,
+Kaelbling, "Relatively Robust Grasping"), docs/design.md, MuJoCo measurements (docs/world.md),
+or "chosen" with the reason where none gives a number.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+# ------------------------------------------------------------------- belief grid
+@dataclass(frozen=True)
+class UncertaintyLevel:
+    """One initial-uncertainty level: its Gaussian σ and its belief grid."""
+
+    name: str
+    sigma: tuple[float, float, float]  # (m, m, rad)
+    spacing: tuple[float, float, float]  # grid spacing (m, m, rad)
+    shape: tuple[int, int, int] = (31, 31, 25)
+
+
+#: Paper: σ = 5 cm, 5 cm, 30°, grid 1 cm and 0.1 rad. The paper's 25 θ points span only
+#: ±1.2 rad = ±2.3σ, so about 2 % of true poses drawn from the prior lie off the grid and can
+#: never be found (campaign 4282222: 26 of 1,000 high-uncertainty RRG-Info trials, 12 of them
+#: failures); 33 span ±1.6 rad = ±3σ. x and y span ±20 cm = ±4σ (41 points; the paper's
+#: 31 span ±3σ): with ±3σ, 0.54 % of drawn poses lie off the grid in x or y, and 5 of the
+#: 6 such poses in the 1,000 high RRG-Info trials of campaign efece7d failed (teacup #3,
+#: #65, #86, cup #33, drill #80); ±4σ leaves 0.013 %.
+HIGH = UncertaintyLevel("high", (0.05, 0.05, math.radians(30.0)), (0.01, 0.01, 0.1), (41, 41, 33))
+#: Paper: σ = 1 cm, 1 cm, 3°; DESIGN §3: about 2 mm and 0.013 rad.
+LOW = UncertaintyLevel("low", (0.01, 0.01, math.radians(3.0)), (0.002, 0.002, 0.013))
+#: Chosen: the variable-resolution grid's middle step, ±3σ like LOW (±7.5 cm, ±0.6 rad at
+#: 5 mm and 0.05 rad). With HIGH and LOW alone a belief stayed on HIGH's 0.1 rad until 99 %
+#: of it fit LOW's ±0.156 rad, which is finer than the goal tolerances it must resolve
+#: (the teacup's ±0.14 rad): in campaign efece7d 41 of 100 pitcher and half the teacup
+#: trials at high uncertainty used all 10 actions, and in a session 15 replay of pitcher#38
+#: HIGH's belief settled 0.15 rad off the truth, then refined to a LOW grid the truth lay
+#: 0.065 rad beyond.
+MID = UncertaintyLevel("mid", (0.025, 0.025, 0.2), (0.005, 0.005, 0.05))
+LEVELS = {"high": HIGH, "mid": MID, "low": LOW}
+
+#: Variable-resolution grid (DESIGN §3): re-grid to the finest of the finer levels (MID, LOW)
+#: whose box holds at least 1 - VARRES_EPS of the mass.
+VARRES_EPS = 0.01
+#: A fine belief is re-centred on its mean once the mean is off the grid centre by more
+#: than this fraction of the half extent on some axis (chosen: a firm grasp turns the
+#: pitcher ~0.1 rad per goal grasp, against LOW's ±0.156 rad; re-centring at a quarter
+#: keeps such a move on the grid).
+VARRES_RECENTER = 0.25
+
+
+# ------------------------------------------------------------- observation model
+@dataclass(frozen=True)
+class LikelihoodParams:
+    """P(o | w, τ(e)) (DESIGN §5). Chosen to cover the physics simulator's spread of
+    outcomes around the geometric prediction (measured by tests/test_physics_vs_geometric)."""
+
+    p_contact_mismatch: float = 0.05  # P(early contact differs from prediction)
+    sigma_progress: float = 0.012  # m, where along the path the hand stopped
+    p_detect: float = 0.90  # P(sensor fires | predicted contact on it)
+    p_false_alarm: float = 0.04  # P(sensor fires | no predicted contact on it)
+    #: rad, per-finger proximal closure angle at the entry's exact offset; each table entry adds
+    #: its nearest-entry discretization (obs_model.closure_sigma)
+    sigma_closure: float = 0.05
+    sigma_tip: float = 0.012  # m, Nano17 contact point
+    #: Per-term outlier floors on the Gaussian terms (likelihood ratio of an outlier): a finger
+    #: that slides off or pushes a light object on, or a stop point shifted by a bump, costs
+    #: one bounded factor instead of ruling the state out. Chosen from the physics-vs-geometric
+    #: agreement (rrg_sim.physics.agreement): ~10 % of closures/tip points are such outliers.
+    outlier_progress: float = 0.02
+    outlier_closure: float = 0.05
+    outlier_tip: float = 0.05
+    floor: float = 1e-3  # ε: no single observation rules a state out
+
+
+LIKELIHOOD = LikelihoodParams()
+
+
+@dataclass(frozen=True)
+class TransitionParams:
+    """Transition model (DESIGN §3; paper: a mixture 'stays' / 'bumped')."""
+
+    p_stay: float = 0.7  # P(object does not move | contact)
+    bump_mean: float = 0.01  # m, mean displacement along the hand's motion at contact
+    bump_sigma_xy: float = 0.008  # m
+    bump_sigma_theta: float = 0.05  # rad
+    p_reorient_success: float = 0.8  # P(rotation fully achieved)
+    p_reorient_partial: float = 0.1  # P(stops half way); the rest: no rotation
+    #: rad, spread of the turn actually made about the commanded one (MuJoCo, 0.6 rad
+    #: reorientations of the giant teacup from 8 seeded starts each: 0.8-1.06 of the angle,
+    #: σ ≈ 0.04 rad; the drill: σ ≈ 0.015 rad; the larger is used). A full turn of a WRT with a
+    #: measured outcome (objects/reorientation.json, WRT.reorient_outcome) adds that one's σ.
+    reorient_sigma_theta: float = 0.04
+
+
+TRANSITION = TransitionParams()
