@@ -30,7 +30,7 @@ class UncertaintyLevel:
 #: 6 such poses in the 1,000 high RRG-Info trials of campaign efece7d failed (teacup #3,
 #: #65, #86, cup #33, drill #80); ±4σ leaves 0.013 %.
 HIGH = UncertaintyLevel("high", (0.05, 0.05, math.radians(30.0)), (0.01, 0.01, 0.1), (41, 41, 33))
-#: Paper: σ = 1 cm, 1 cm, 3°; DESIGN §3: about 2 mm and 0.013 rad.
+#: Paper: σ = 1 cm, 1 cm, 3°; design §3: about 2 mm and 0.013 rad.
 LOW = UncertaintyLevel("low", (0.01, 0.01, math.radians(3.0)), (0.002, 0.002, 0.013))
 #: Chosen: the variable-resolution grid's middle step, ±3σ like LOW (±7.5 cm, ±0.6 rad at
 #: 5 mm and 0.05 rad). With HIGH and LOW alone a belief stayed on HIGH's 0.1 rad until 99 %
@@ -42,7 +42,7 @@ LOW = UncertaintyLevel("low", (0.01, 0.01, math.radians(3.0)), (0.002, 0.002, 0.
 MID = UncertaintyLevel("mid", (0.025, 0.025, 0.2), (0.005, 0.005, 0.05))
 LEVELS = {"high": HIGH, "mid": MID, "low": LOW}
 
-#: Variable-resolution grid (DESIGN §3): re-grid to the finest of the finer levels (MID, LOW)
+#: Variable-resolution grid (design §3): re-grid to the finest of the finer levels (MID, LOW)
 #: whose box holds at least 1 - VARRES_EPS of the mass.
 VARRES_EPS = 0.01
 #: A fine belief is re-centred on its mean once the mean is off the grid centre by more
@@ -55,7 +55,7 @@ VARRES_RECENTER = 0.25
 # ------------------------------------------------------------- observation model
 @dataclass(frozen=True)
 class LikelihoodParams:
-    """P(o | w, τ(e)) (DESIGN §5). Chosen to cover the physics simulator's spread of
+    """P(o | w, τ(e)) (design §5). Chosen to cover the physics simulator's spread of
     outcomes around the geometric prediction (measured by tests/test_physics_vs_geometric)."""
 
     p_contact_mismatch: float = 0.05  # P(early contact differs from prediction)
@@ -81,7 +81,7 @@ LIKELIHOOD = LikelihoodParams()
 
 @dataclass(frozen=True)
 class TransitionParams:
-    """Transition model (DESIGN §3; paper: a mixture 'stays' / 'bumped')."""
+    """Transition model (design §3; paper: a mixture 'stays' / 'bumped')."""
 
     p_stay: float = 0.7  # P(object does not move | contact)
     bump_mean: float = 0.01  # m, mean displacement along the hand's motion at contact

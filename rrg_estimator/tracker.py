@@ -1,15 +1,22 @@
-"""The estimator as a ROS-free core: one object's belief, reset to a Gaussian and updated with
-each WRT's observation (DESIGN §3), with the offline tables loaded on demand.
+"""The estimator as a ROS-free core: one object's belief, reset to a Gaussian, updated with each
+WRT's observation and carried through each retreat (design §3). The estimator node and the
+in-process closed loop (rrg_planner.closed_loop) both keep their belief here, so the sequence of
+updates exists once.
 
-One update is SE(b, τ(e), o) with the WRT's table at the belief's grid level, then, for a
-reorientation WRT, the commanded rotation about e; afterwards the belief is re-gridded finer
-when it has concentrated (variable resolution). A goal grasp that arrived moves the object
-as it closes and retreats (``settle_after_grasp``); the tracker applies that at the next
-update, since the belief that declares the grasp is the one before it.
+An update is SE(b, τ(e), o): the Bayes update with the WRT's table at the belief's grid level,
+then, for a reorientation WRT whose grasp held the object, the commanded rotation about e. The
+belief after an update is the one the agent's stopping rule reads. When the hand retreats,
+``retreated`` applies the retreat's transition: the belief is re-gridded finer once it has
+concentrated (variable resolution), then a goal grasp that arrived moves the object as its
+measured settling says (it closed firmly and the object followed the fingers). An update that
+comes before the last retreat was reported applies that retreat first.
 """
+
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterable
+from typing import Protocol
 
 import numpy as np
 
@@ -65,23 +72,60 @@ def settle_after_grasp(belief: Belief, obj: ObjectModel, wrt: WRT, e, contact: b
     return settle(belief, obj.settling, e)
 
 
-class BeliefTracker:
-    """The belief over one object's pose and the tables that update it.
+class WrtTables(Protocol):
+    """Where a tracker finds an object's WRTs and their observation tables."""
+
+    def wrt(self, name: str) -> WRT:
+        """The WRT called ``name`` (KeyError if the object has none)."""
+
+    def table(self, wrt_name: str, grid: Grid) -> TableLike:
+        """The WRT's table at the level whose spacing a belief grid has (ValueError if none)."""
+
+
+class CachedTables:
+    """An object's own WRTs, with their tables from the on-disk cache (built when missing).
 
     workers: processes used when a table has to be built (it is normally cached on disk).
     """
 
-    def __init__(self, obj: ObjectModel, belief: Belief, variable_resolution: bool = True, workers: int = 2):
+    def __init__(self, obj: ObjectModel, workers: int = 2):
         self.obj = obj
-        self.belief = belief
-        self.variable_resolution = variable_resolution
         self.workers = workers
         self._tables: dict[tuple[str, str], ObservationTable] = {}
-        #: the last WRT, its estimate and whether it stopped early, until the next update
-        self._last: tuple[WRT, np.ndarray, bool] | None = None
+
+    def wrt(self, name: str) -> WRT:
+        return self.obj.wrt(name)
+
+    def table(self, wrt_name: str, grid: Grid) -> ObservationTable:
+        """The WRT's table at the grid's level (from memory, the disk cache, or built: ~1 min, logged)."""
+        level = level_of_grid(grid)
+        key = (wrt_name, level.name)
+        if key not in self._tables:
+            log.info("loading observation table %s/%s at level %s", self.obj.name, wrt_name, level.name)
+            self._tables[key] = load_or_build(self.obj, self.wrt(wrt_name), level, workers=self.workers,
+                                              progress=False)
+        return self._tables[key]
+
+
+class BeliefTracker:
+    """The belief over one object's pose, and the sequence that changes it.
+
+    tables: the WRTs and their tables (default: the object's own, from the disk cache).
+    levels: the uncertainty levels a concentrated belief may be re-gridded to (variable resolution).
+    """
+
+    def __init__(self, obj: ObjectModel, belief: Belief, tables: WrtTables | None = None,
+                 levels: Iterable[UncertaintyLevel] = LEVELS.values(), variable_resolution: bool = True):
+        self.obj = obj
+        self.belief = belief
+        self.tables = tables if tables is not None else CachedTables(obj)
+        self.levels = tuple(levels)
+        self.variable_resolution = variable_resolution
+        #: the last WRT, its estimate and whether it stopped early, until the hand retreats from it
+        self._pending: tuple[WRT, np.ndarray, bool] | None = None
 
     @classmethod
-    def gaussian(cls, object_name: str, mean, sigma, level: UncertaintyLevel | None = None,
+    def gaussian(cls, obj: ObjectModel | str, mean, sigma, level: UncertaintyLevel | None = None,
                  **kwargs) -> "BeliefTracker":
         """A tracker whose belief is N(mean, diag(σ²)) on the level's grid centred at the mean
         (level None: the one whose σ is closest). Raises KeyError for an unknown object and
@@ -91,32 +135,33 @@ class BeliefTracker:
             raise ValueError(f"mean must be finite, got {mean.tolist()}")
         if not (np.all(np.isfinite(sigma)) and np.all(sigma > 0.0)):
             raise ValueError(f"sigma must be finite and > 0, got {sigma.tolist()}")
-        obj = get_object(object_name)
+        obj = get_object(obj) if isinstance(obj, str) else obj
         level = level or closest_level(sigma)
         return cls(obj, Belief.gaussian(Grid.for_level(level, center=mean), mean, sigma), **kwargs)
 
-    def table(self, wrt: WRT, level: UncertaintyLevel) -> ObservationTable:
-        """The WRT's table at a level (from memory, the disk cache, or built: ~1 min, logged)."""
-        key = (wrt.name, level.name)
-        if key not in self._tables:
-            log.info("loading observation table %s/%s at level %s", self.obj.name, wrt.name, level.name)
-            self._tables[key] = load_or_build(self.obj, wrt, level, workers=self.workers, progress=False)
-        return self._tables[key]
-
     def preload(self) -> None:
         """Load every WRT's table at the belief's level, so the first update does not wait."""
-        level = level_of_grid(self.belief.grid)
         for wrt in self.obj.wrts():
-            self.table(wrt, level)
+            self.tables.table(wrt.name, self.belief.grid)
 
-    def observe(self, wrt_name: str, e, obs: Observation) -> Belief:
-        """Update the belief with the observation of WRT ``wrt_name`` run at estimate e, then
-        re-grid it finer if it has concentrated. Raises KeyError for a WRT the object does not
-        have and ValueError for an observation the belief cannot explain; the belief is kept then."""
-        wrt = self.obj.wrt(wrt_name)
-        prior = self.belief if self._last is None else settle_after_grasp(self.belief, self.obj, *self._last)
-        post = wrt_posterior(prior, self.table(wrt, level_of_grid(prior.grid)), wrt, e, obs)
-        if self.variable_resolution:
-            post = maybe_refine(post) or post
-        self.belief, self._last = post, (wrt, np.asarray(e, dtype=float), bool(obs.contact))
+    def update(self, wrt_name: str, e, obs: Observation) -> Belief:
+        """The belief after WRT ``wrt_name`` ran at estimate e and observed ``obs``. Raises
+        KeyError for a WRT the object does not have and ValueError for an observation the belief
+        cannot explain; the belief is kept then."""
+        wrt = self.tables.wrt(wrt_name)
+        prior = self.retreated()
+        post = wrt_posterior(prior, self.tables.table(wrt_name, prior.grid), wrt, e, obs)
+        self.belief, self._pending = post, (wrt, np.asarray(e, dtype=float), bool(obs.contact))
         return post
+
+    def retreated(self) -> Belief:
+        """The belief once the hand retreated from the last WRT: re-gridded finer if it has
+        concentrated, then moved as a goal grasp that arrived settles the object. Nothing
+        changes when no update is pending."""
+        if self._pending is None:
+            return self.belief
+        belief = self.belief
+        if self.variable_resolution:
+            belief = maybe_refine(belief, self.levels) or belief
+        self.belief, self._pending = settle_after_grasp(belief, self.obj, *self._pending), None
+        return self.belief

@@ -1,4 +1,5 @@
-"""The RRG agent: a belief, a strategy and the closed loop act → observe → update (DESIGN §6).
+"""The RRG agent: chooses the next WRT for a belief with a strategy (design §6); the closed loop
+that runs its choices is rrg_planner.closed_loop.
 
 Strategies (paper, "Experiments"):
 * ``open-loop``: the goal WRT once, relative to the initial mean.
@@ -12,75 +13,22 @@ After the 9th action the 10th is the goal grasp, executed open-loop, then judged
 from __future__ import annotations
 
 import logging
-import time
-from dataclasses import dataclass, field
-from typing import Callable, Protocol
 
 import numpy as np
 
 from rrg_estimator.belief import Belief
-from rrg_estimator.tracker import settle_after_grasp, wrt_posterior
-from rrg_estimator.update import goal_probability
-from rrg_estimator.varres import maybe_refine
-from rrg_estimator.config import LEVELS, UncertaintyLevel
-from rrg_planner.config import SEARCH
-from rrg_sim.config import SENSOR_NAMES
+from rrg_estimator.config import UncertaintyLevel
 from rrg_estimator.grid import Grid
-from rrg_sim.observation import Observation
-from rrg_sim.wrt import WRT, InfeasibleWRT
-
+from rrg_estimator.update import goal_probability
+from rrg_planner.config import SEARCH
 from rrg_planner.planning_model import PlanningModel
-from .search import ForwardSearch, SearchResult, SparseBelief
+from rrg_planner.requests import check_choice
+from rrg_planner.search import ForwardSearch, SearchResult, SparseBelief
 
 log = logging.getLogger(__name__)
 
-STRATEGIES = ("open-loop", "rrg-goal", "rrg-info")
 MAX_BLOCKED = 20  # infeasible executions tolerated in one run before giving up
 MAX_FALLBACK_STATES = 300  # most likely states searched for one where the goal grasp is feasible
-
-
-class Environment(Protocol):
-    """What the agent acts on: the geometric simulator, MuJoCo physics, or the robot."""
-
-    def execute(self, wrt: WRT, e: np.ndarray) -> Observation:
-        """Run τ(e) with guarded moves, close the fingers, and return the observation."""
-
-    def retreat(self) -> None:
-        """Open the hand and retrace back to the home pose."""
-
-    def judge(self, wrt: WRT, e: np.ndarray) -> bool:
-        """Whether the goal grasp just executed relative to e holds (evaluation only)."""
-
-
-@dataclass
-class Step:
-    """One executed action."""
-
-    wrt: str
-    kind: str
-    estimate: np.ndarray  # (3,) w*(b) the WRT was executed relative to
-    contact: bool
-    sensors: list[str]
-    p_goal: float  # v(b) or, after a goal grasp, P_b(G) of the grasp just made
-    planning_time: float  # s
-    action_values: dict[str, float] = field(default_factory=dict)
-
-
-@dataclass
-class TrialResult:
-    """Outcome of one robust-grasp run."""
-
-    success: bool
-    declared: bool  # the agent believed P(G) > 1 − δ when it stopped
-    steps: list[Step]
-    p_goal: float
-    planning_time: float  # s, total
-    belief: Belief
-    error: str = ""
-
-    @property
-    def n_actions(self) -> int:
-        return len(self.steps)
 
 
 def initial_belief(level: UncertaintyLevel, mean) -> Belief:
@@ -90,24 +38,18 @@ def initial_belief(level: UncertaintyLevel, mean) -> Belief:
 
 
 class RobustGraspAgent:
-    """Chooses WRTs with a strategy and tracks the belief (the pomdp_py 'agent')."""
+    """Chooses WRTs with a strategy (the pomdp_py 'agent'); the belief it decides on is the
+    estimator's, and the search remembers what ran (``executed``) and what could not (``block``)."""
 
     def __init__(self, model: PlanningModel, strategy: str = "rrg-info", horizon: int = SEARCH.horizon,
-                 delta: float = SEARCH.delta, max_actions: int = SEARCH.max_actions,
-                 variable_resolution: bool = True):
-        if strategy not in STRATEGIES:
-            raise ValueError(f"unknown strategy {strategy!r}; valid: {STRATEGIES}")
-        if not 1 <= horizon <= 3:
-            raise ValueError(f"horizon must be 1, 2 or 3, got {horizon}")
-        if not 0.0 < delta < 1.0:
-            raise ValueError(f"delta must be in (0, 1), got {delta}")
+                 delta: float = SEARCH.delta, max_actions: int = SEARCH.max_actions):
+        check_choice(strategy, horizon, delta)
         self.model = model
         self.search = ForwardSearch(model)
         self.strategy = strategy
         self.horizon = horizon
         self.delta = delta
         self.max_actions = max_actions
-        self.variable_resolution = variable_resolution and "low" in model.levels
         self.goal = model.goal_actions[0]
 
     # --------------------------------------------------------------- choice
@@ -203,6 +145,12 @@ class RobustGraspAgent:
             return float("nan")
         return goal_probability(posterior, act.goal[self.model.level_of(posterior.grid)], e)
 
+    def static_value(self, belief: Belief) -> float:
+        """v(b) without a search: P_b(G) of the goal WRT at its best estimate (goal_estimate; 0
+        where it is infeasible)."""
+        e = self.goal_estimate(belief, self.goal)
+        return self.grasp_probability(belief, self.goal, e) if self.model.feasible(self.goal, e) else 0.0
+
     def finished(self, action: int, p_exec: float, last: bool) -> bool:
         """Whether a run stops after this action: a goal grasp believed to hold, or the last one."""
         return self.model.actions[action].kind == "goal" and (p_exec > 1.0 - self.delta or last)
@@ -216,65 +164,3 @@ class RobustGraspAgent:
         one reading, twice at the same estimate (campaign cc990d4, giant_teacup#10)."""
         if self.model.actions[action].kind == "info":
             self.search.spend(action, e)
-
-    def observe(self, belief: Belief, action: int, e: np.ndarray, obs: Observation) -> tuple[Belief, float]:
-        """SE(b, τ(e), o); returns the new belief and, for goal WRTs, P_b(G) of the grasp made."""
-        act = self.model.actions[action]
-        post = wrt_posterior(belief, act.tables[self.model.level_of(belief.grid)], act.wrt, e, obs)
-        return post, self.grasp_probability(post, action, e)
-
-    def after_retreat(self, belief: Belief, action: int, e: np.ndarray, contact: bool) -> Belief:
-        """The belief once the robot retreated from an action run at e: a goal grasp that
-        arrived (no early contact: it closed firmly) moved the object as its settling says."""
-        return settle_after_grasp(belief, self.model.obj, self.model.actions[action].wrt, e, contact)
-
-    # ------------------------------------------------------------ closed loop
-    def run(self, env: Environment, level: UncertaintyLevel | str, mean,
-            on_step: Callable[[Step, Belief], None] | None = None) -> TrialResult:
-        """One robust grasp: act until the goal is believed achieved or actions run out."""
-        level = LEVELS[level] if isinstance(level, str) else level
-        belief = initial_belief(level, mean)
-        self.search.clear()
-        steps: list[Step] = []
-        total_plan = 0.0
-        p_goal = float("nan")
-        while True:  # ends at the last action, which is always the goal grasp
-            n = len(steps) + 1  # an execution found infeasible (nothing moved) is not an action
-            t0 = time.perf_counter()
-            action, e, res, last = self.plan_step(belief, n)
-            plan_t = time.perf_counter() - t0
-            total_plan += plan_t
-            if action < 0:
-                return TrialResult(False, False, steps, p_goal, total_plan, belief,
-                                   error=f"no feasible action at w*={np.round(e, 3).tolist()}")
-            act = self.model.actions[action]
-            try:
-                obs = env.execute(act.wrt, e)
-            except InfeasibleWRT as exc:  # nothing moved: rule it out at e and choose again
-                log.warning("%s infeasible at %s (%s): replanning", act.name, np.round(e, 3).tolist(), exc)
-                self.search.block(action, e)
-                if len(self.search.blocked) > MAX_BLOCKED:
-                    return TrialResult(False, False, steps, p_goal, total_plan, belief,
-                                       error=f"{len(self.search.blocked)} infeasible executions")
-                continue
-            self.executed(action, e)
-            belief, p_exec = self.observe(belief, action, e, obs)
-            p_goal = p_exec if act.kind == "goal" else (res.p_goal if res else float("nan"))
-            step = Step(wrt=act.name, kind=act.kind, estimate=e, contact=bool(obs.contact),
-                        sensors=[s for s, on in zip(SENSOR_NAMES, obs.sensors) if on],
-                        p_goal=float(p_goal), planning_time=plan_t,
-                        action_values=({self.model.names[i]: float(v) for i, v in enumerate(res.action_values)}
-                                       if res else {}))
-            steps.append(step)
-            log.info("action %d: %s at %s → contact=%s sensors=%s P(goal)=%.3f (%.1f ms)", n, act.name,
-                     np.round(e, 3).tolist(), obs.contact, step.sensors, p_goal, plan_t * 1e3)
-            if on_step:
-                on_step(step, belief)
-            if self.finished(action, p_exec, last):
-                success = env.judge(act.wrt, e)
-                return TrialResult(bool(success), bool(p_exec > 1.0 - self.delta), steps, p_exec,
-                                   total_plan, belief)
-            env.retreat()
-            if self.variable_resolution:  # as the estimator node does, before the settling
-                belief = maybe_refine(belief, self.model.levels.values()) or belief
-            belief = self.after_retreat(belief, action, e, bool(obs.contact))

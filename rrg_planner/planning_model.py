@@ -194,6 +194,14 @@ class PlanningModel:
                 return name
         raise ValueError(f"no tables for grid spacing {grid.spacing}; loaded levels: {list(self.levels)}")
 
+    def wrt(self, name: str) -> WRT:
+        """The WRT called ``name`` as this model plans with it (KeyError with the valid names)."""
+        return self.actions[self.index(name)].wrt
+
+    def table(self, wrt_name: str, grid: Grid) -> ObservationTable:
+        """The WRT's observation table at the level whose spacing ``grid`` has (ValueError if none)."""
+        return self.actions[self.index(wrt_name)].tables[self.level_of(grid)]
+
     def feasible(self, action: int, e) -> bool:
         """F_τ(e): IK within joint limits and the arm clear of the table at every sample of the
         path an executor follows (execution.executed_poses)."""

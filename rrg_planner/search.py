@@ -1,4 +1,4 @@
-"""Receding-horizon POMDP forward search over WRTs (paper: "POMDP forward search"; DESIGN §6).
+"""Receding-horizon POMDP forward search over WRTs (paper: "POMDP forward search"; design §6).
 
 V_0(b) = v(b) − c, the static evaluation: the best probability, over feasible goal WRTs g,
 that executing g relative to w*(b) achieves the goal (or relative to w*(b) moved to g's
@@ -41,6 +41,7 @@ from rrg_sim.poses import compose_planar, relative_planar
 from rrg_sim.wrt import ReorientOutcome
 
 from rrg_planner.planning_model import PlanningModel
+from rrg_planner.requests import check_search
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:
@@ -511,10 +512,7 @@ class ForwardSearch:
     def select(self, belief: Belief, horizon: int = SEARCH.horizon, delta: float = SEARCH.delta) -> SearchResult:
         """Choose the root action for a belief (grid) with a forward search of depth horizon,
         for a run that stops at P(G) > 1 − delta."""
-        if not 1 <= horizon <= 3:
-            raise ValueError(f"horizon must be 1, 2 or 3, got {horizon}")
-        if not 0.0 < delta < 1.0:
-            raise ValueError(f"delta must be in (0, 1), got {delta}")
+        check_search(horizon, delta)
         t0 = time.perf_counter()
         sb = SparseBelief.from_belief(belief, self.model.level_of(belief.grid), self.params)
         with _BLAS.limit(limits=1, user_api="blas"):

@@ -11,7 +11,7 @@ Units are SI (m, rad, N, kg, s) unless a name says otherwise. Frames:
 
 Sources are cited per block: the paper (Hsiao, Lozano-Pérez, Kaelbling,
 "Relatively Robust Grasping"), ``shared/notes/mujoco-world.md`` (published
-WAM and BarrettHand dimensions), ``shared/DESIGN.md``, or "chosen" with the
+WAM and BarrettHand dimensions), docs/design.md, or "chosen" with the
 reason where neither gives a number.
 """
 from __future__ import annotations
@@ -245,7 +245,7 @@ WAM_ARMATURE: tuple[float, ...] = (0.20518962, 0.18885672, 0.18885672, 0.0346280
 
 @dataclass(frozen=True)
 class PhysicsParams:
-    """The MuJoCo world (DESIGN §2): control, motion and judging parameters."""
+    """The MuJoCo world (design §2): control, motion and judging parameters."""
 
     #: Integration step = the WAM's 500 Hz control period [s] (notes: 2 ms steps).
     timestep: float = 0.002

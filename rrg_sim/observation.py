@@ -36,7 +36,7 @@ def holds_object(contact, sensors: np.ndarray, min_fingers: int) -> np.ndarray:
 
 @dataclass
 class Observation:
-    """What the robot senses when one WRT ends (DESIGN §5).
+    """What the robot senses when one WRT ends (design §5).
 
     contact: True if a guarded move stopped early on a sensed contact.
     progress: path length [m] the palm travelled from the WRT's first pose when it stopped

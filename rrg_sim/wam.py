@@ -1,5 +1,5 @@
 """Barrett WAM 7-DOF kinematics: forward kinematics, analytic IK with redundancy resolution,
-and the feasibility F_τ(e) of hand paths (joint limits and table clearance, DESIGN §4).
+and the feasibility F_τ(e) of hand paths (joint limits and table clearance, design §4).
 
 Model: Barrett's published DH table for the WAM (standard/distal DH, Barrett WAM manual
 "WAM kinematics", as transcribed in shared/notes/mujoco-world.md and ``config.WAM``),
@@ -334,7 +334,7 @@ def feasible_paths(Ts) -> np.ndarray:
 
 
 def feasible_path(Ts) -> bool:
-    """F_τ(e) for one hand path τ(e) (K,4,4) in world (DESIGN §4)."""
+    """F_τ(e) for one hand path τ(e) (K,4,4) in world (design §4)."""
     return bool(feasible_paths(Ts))
 
 

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from rrg_planner.agent import RobustGraspAgent, initial_belief
+from rrg_planner.closed_loop import run_in_process
 from rrg_planner.geometric_env import GeometricEnvironment
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.search import ForwardSearch
@@ -45,7 +46,7 @@ def true_pose():
 def test_infeasible_execution_is_blocked_and_not_counted(model):
     agent = RobustGraspAgent(model, strategy="rrg-info", horizon=1, delta=0.01, max_actions=3)
     env = RefusesFirst(model.obj, true_pose(), seed=1)
-    res = agent.run(env, SMALL, WORLD.nominal_pose)
+    res = run_in_process(agent, env, SMALL, WORLD.nominal_pose)
     refused = model.index(env.refused[0])
     e0 = np.asarray(WORLD.nominal_pose)
     assert agent.search.blocked == {agent.search._key(refused, e0)}
@@ -76,12 +77,12 @@ def test_an_info_reading_is_spent_at_its_estimate(model):
 
 
 def test_open_loop_runs_the_goal_once_and_max_actions_ends_with_the_goal(model):
-    open_loop = RobustGraspAgent(model, strategy="open-loop").run(
-        GeometricEnvironment(model.obj, true_pose(), seed=2), SMALL, WORLD.nominal_pose)
+    open_loop = run_in_process(RobustGraspAgent(model, strategy="open-loop"),
+                               GeometricEnvironment(model.obj, true_pose(), seed=2), SMALL, WORLD.nominal_pose)
     assert [s.wrt for s in open_loop.steps] == ["goal"]
     # δ this small is never reached: the run ends with the goal grasp as action max_actions.
     agent = RobustGraspAgent(model, strategy="rrg-info", horizon=1, delta=1e-9, max_actions=4)
-    res = agent.run(GeometricEnvironment(model.obj, true_pose(), seed=3), SMALL, WORLD.nominal_pose)
+    res = run_in_process(agent, GeometricEnvironment(model.obj, true_pose(), seed=3), SMALL, WORLD.nominal_pose)
     assert res.n_actions == 4 and res.steps[-1].kind == "goal" and not res.declared
 
 

@@ -73,7 +73,7 @@ def _is_ros(name: str) -> bool:
 
 def test_the_module_list_is_complete():
     assert len(MODULES) > 80
-    assert "rrg_planner.agent" in MODULES and "rrg_estimator.tracker" in MODULES
+    assert "rrg_planner.closed_loop" in MODULES and "rrg_estimator.tracker" in MODULES
 
 
 def test_no_import_cycles():

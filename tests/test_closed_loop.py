@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from rrg_planner.agent import RobustGraspAgent
+from rrg_planner.closed_loop import run_in_process
 from rrg_planner.geometric_env import GeometricEnvironment
 from rrg_planner.planning_model import PlanningModel
 from rrg_estimator.config import HIGH
@@ -32,7 +33,7 @@ def success_rate(model: PlanningModel, strategy: str, poses: np.ndarray, seed: i
     results = []
     for i, w in enumerate(poses):
         env = GeometricEnvironment(model.obj, w, seed=seed + i)
-        results.append(agent.run(env, HIGH, WORLD.nominal_pose))
+        results.append(run_in_process(agent, env, HIGH, WORLD.nominal_pose))
     return float(np.mean([r.success for r in results])), results
 
 

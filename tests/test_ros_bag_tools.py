@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
-from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from rclpy.serialization import serialize_message
 
@@ -16,7 +15,10 @@ from rrg_planner.bags.bag_plot import belief_frames, plot_bag
 from rrg_planner.bags.bag_read import read_messages
 from rrg_planner.bags.bag_summary import format_summary, summarize
 from rrg_planner.bags.bag_writer import Rosbag2McapWriter
-from rrg_planner.ros.planner_node import diagnostic
+from rrg_msgs.action import RobustGrasp
+from rrg_msgs.msg import GraspOutcome
+from rrg_planner.closed_loop import Decision
+from rrg_planner.ros.grasp_records import decision_record, done_record
 from rrg_estimator.config import HIGH, LOW
 from rrg_estimator.grid import Grid
 from rrg_sim.observation import Observation
@@ -25,15 +27,16 @@ from rrg_sim.ros_common.msg_conversions import observation_to_msg
 
 TRUE_POSE = np.array([0.64, -0.02, 0.25])
 TOPICS = {"/rrg/belief": "rrg_msgs/msg/BeliefGrid", "/rrg/observation": "rrg_msgs/msg/Observation",
-          "/rrg/grasp_step": "diagnostic_msgs/msg/DiagnosticStatus",
+          "/rrg/grasp_step": "rrg_msgs/msg/GraspStep",
           "/rrg/eval/object_pose": "geometry_msgs/msg/PoseStamped",
-          "/rrg/eval/grasp_outcome": "diagnostic_msgs/msg/DiagnosticStatus"}
+          "/rrg/eval/grasp_outcome": "rrg_msgs/msg/GraspOutcome"}
+GOAL = RobustGrasp.Goal(object_name="box", strategy="rrg-info", horizon=2, delta=0.1)
 
 
-def step_record(step: int, wrt: str, kind: str, p_goal: float) -> DiagnosticStatus:
-    return diagnostic("robust_grasp", f"step {step}: {wrt}", DiagnosticStatus.OK,
-                      dict(object="box", strategy="rrg-info", step=step, wrt=wrt, kind=kind, value=p_goal + 0.1,
-                           p_goal=p_goal, planning_time_s=0.05, estimate=[0.62, 0.0, 0.0]))
+def step_record(step: int, wrt: str, kind: str, p_goal: float):
+    decision = Decision(step, 0, wrt, kind, np.array([0.62, 0.0, 0.0]), False, p_goal + 0.1, p_goal, 0.05,
+                        action_values={wrt: p_goal + 0.1, "sweep": float("nan")})
+    return decision_record(GOAL, decision, Time(sec=100 + step))
 
 
 def observation(wrt: str, stamp: Time, contact: bool) -> Observation:
@@ -58,11 +61,11 @@ def grasp_bag(tmp_path_factory):
             ("/rrg/observation", observation("info1", t1, True)), ("/rrg/belief", belief_to_msg(b1, t1)),
             ("/rrg/grasp_step", step_record(2, "goal", "goal", 0.95)),
             ("/rrg/observation", observation("goal", t2, False)), ("/rrg/belief", belief_to_msg(b2, t2)),
-            ("/rrg/grasp_step", diagnostic("robust_grasp", "done", DiagnosticStatus.OK,
-                                           dict(object="box", strategy="rrg-info", success=True,
-                                                actions="info1,goal", p_goal=0.97, error_code=0, error_msg=""))),
-            ("/rrg/eval/grasp_outcome", diagnostic("grasp_judge", "SUCCESS: held, in the goal region",
-                                                   DiagnosticStatus.OK, dict(success=True)))]
+            ("/rrg/grasp_step", done_record(GOAL, RobustGrasp.Result(success=True, actions_taken=["info1", "goal"],
+                                                                     final_p_goal=0.97), Time(sec=103))),
+            ("/rrg/eval/grasp_outcome", GraspOutcome(object_name="box", wrt_name="goal", success=True,
+                                                     in_region=True, held=True,
+                                                     message="SUCCESS: held, in the goal region"))]
     with Rosbag2McapWriter(bag) as writer:
         for topic, msg_type in TOPICS.items():
             writer.add_topic(topic, msg_type, [])
@@ -77,7 +80,8 @@ def test_summary_lists_steps_observations_and_outcome(grasp_bag, capsys):
     assert [(st.wrt, st.kind, st.p_goal, st.contact) for st in s.steps] == [
         ("info1", "info", 0.31, True), ("goal", "goal", 0.95, False)]
     assert s.steps[0].sensors == ["tip1"] and s.steps[1].sensors == ["palm"]
-    assert s.planner_outcome["success"] == "True" and s.judged_outcome["success"] == "True"
+    assert s.planner_outcome["success"] is True and s.judged_outcome["success"] is True
+    assert s.planner_outcome["actions"] == ["info1", "goal"] and s.planner_outcome["p_goal"] == 0.97
     text = format_summary(s)
     assert "step 2: goal" in text and "P(goal) = 0.950" in text and "SUCCESS" in text
     assert bag_cli(["summary", str(grasp_bag)]) == 0

@@ -12,8 +12,8 @@ from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from rrg_msgs.action import ExecuteWrt, GuardedMove
-from rrg_msgs.msg import Observation as ObservationMsg
-from rrg_msgs.srv import HandCommand, ResetSim
+from rrg_msgs.msg import Observation as ObservationMsg, Retreated
+from rrg_msgs.srv import HandCommand, ResetSim, Retreat
 from rrg_sim import wam
 from rrg_sim.physics.world import PhysicsWorld
 from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES, observation_from_msg, planar_to_msg
@@ -34,14 +34,16 @@ def graph(tmp_path_factory):
         n = client.node
         c = {"reset": n.create_client(ResetSim, "/rrg/reset_sim"),
              "hand": n.create_client(HandCommand, "/rrg/hand_command"),
-             "retreat": n.create_client(Trigger, "/rrg/retreat"),
+             "retreat": n.create_client(Retreat, "/rrg/retreat"),
              "judge": n.create_client(Trigger, "/rrg/eval/judge_grasp")}
         client.wait_for_services(c.values(), procs, timeout_s=60.0)
         c["execute"] = ActionClient(n, ExecuteWrt, "/rrg/execute_wrt")
         c["move"] = ActionClient(n, GuardedMove, "/rrg/guarded_move")
         assert c["execute"].wait_for_server(timeout_sec=30.0) and c["move"].wait_for_server(timeout_sec=30.0)
-        observations = []
+        observations, retreats = [], []
         n.create_subscription(ObservationMsg, "/rrg/observation", observations.append, 10)
+        n.create_subscription(Retreated, "/rrg/retreated", retreats.append, 10)
+        c["retreats"] = retreats
         yield client, c, observations
         client.close()
 
@@ -78,7 +80,7 @@ def test_execute_wrt_over_ros_matches_the_in_process_execution(graph):
         np.testing.assert_allclose(ros.motion_dir, local.motion_dir, atol=1e-3)
         np.testing.assert_allclose(ros.hand_pose[:3, 3], local.hand_pose[:3, 3], atol=1e-3)
         if name == "goal":
-            assert client.call(c["retreat"], Trigger.Request()).success
+            assert client.call(c["retreat"], Retreat.Request()).error_code == Retreat.Response.NONE
             world.retreat()
     np.testing.assert_allclose(ros.tip_points, local.tip_points, atol=1e-3)
 
@@ -100,16 +102,31 @@ def test_goal_grasp_is_left_closed_for_the_judge(graph):
     assert judged.success == ok and judged.success, judged.message
 
 
-def test_info_wrt_retreats_home(graph):
+def arm_q(client: RosClient, c) -> np.ndarray:
+    """The arm's joint angles [rad], read from the hand command's joint state (opening the hand)."""
+    hand = client.call(c["hand"], HandCommand.Request(mode=HandCommand.Request.MODE_OPEN))
+    return np.array([hand.joint_state.position[hand.joint_state.name.index(n)] for n in ARM_JOINT_NAMES])
+
+
+def test_an_info_wrt_stays_where_it_stopped_until_the_retreat_it_announces(graph):
     client, c, _ = graph
     assert reset(client, c).error_code == ResetSim.Response.NONE
     res = run_action(client, c["execute"], ExecuteWrt.Goal(object_name="box", wrt_name="info1",
                                                            estimate=planar_to_msg(TRUE_POSE)))
     assert res.error_code == ExecuteWrt.Result.NONE, res.error_msg
-    hand = client.call(c["hand"], HandCommand.Request(mode=HandCommand.Request.MODE_OPEN))
-    q = np.array([hand.joint_state.position[hand.joint_state.name.index(n)] for n in ARM_JOINT_NAMES])
-    np.testing.assert_allclose(q, wam.HOME_Q, atol=0.02)  # an info WRT ends at home
-    assert client.call(c["retreat"], Trigger.Request()).success  # nothing pending: a no-op
+    assert np.abs(arm_q(client, c) - wam.HOME_Q).max() > 0.1  # still at the box
+    c["retreats"].clear()
+    answer = client.call(c["retreat"], Retreat.Request())
+    assert answer.error_code == Retreat.Response.NONE, answer.error_msg
+    assert client.spin_until(lambda: len(c["retreats"]) == 1, 10.0)
+    event = c["retreats"][0]
+    assert (event.header.stamp, event.observation_stamp) == (answer.header.stamp, res.observation.header.stamp)
+    assert (event.object_name, event.wrt_name) == ("box", "info1")
+    np.testing.assert_allclose(arm_q(client, c), wam.HOME_Q, atol=0.02)
+    again = client.call(c["retreat"], Retreat.Request())  # nothing pending: announced, nothing moves
+    assert again.error_code == Retreat.Response.NONE
+    assert client.spin_until(lambda: len(c["retreats"]) == 2, 10.0)
+    assert c["retreats"][1].wrt_name == "" and c["retreats"][1].header.stamp == again.header.stamp
 
 
 BAD_EXECUTIONS = {

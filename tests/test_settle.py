@@ -49,9 +49,10 @@ def test_a_firm_goal_grasp_moves_the_belief_and_an_early_contact_does_not():
     assert settle_after_grasp(b, obj, obj.info_wrts[0], e, contact=False) is b
 
 
-def test_the_estimator_settles_a_firm_goal_grasp_at_its_next_update():
+def test_the_estimator_settles_a_firm_goal_grasp_when_the_hand_retreats():
     """BeliefTracker: the belief that follows a goal grasp is the one that judged it; the
-    settling is applied before the next observation's update, as the agent does on retreat."""
+    settling is applied when the hand retreats, or, when no retreat was reported, before the
+    next observation's update."""
     from rrg_estimator.tracker import BeliefTracker, wrt_posterior
     from rrg_sim.geometric_sim import GeometricSimulator
 
@@ -60,14 +61,21 @@ def test_the_estimator_settles_a_firm_goal_grasp_at_its_next_update():
     obj, goal, info = tracker.obj, tracker.obj.goal_wrt, tracker.obj.info_wrts[0]
     grasped = GeometricSimulator(obj, goal).simulate(mean, mean)
     assert not grasped.contact
-    after_goal = tracker.observe(goal.name, mean, grasped)
+    after_goal = tracker.update(goal.name, mean, grasped)
     assert after_goal is tracker.belief
+    settled = settle_after_grasp(after_goal, obj, goal, mean, contact=False)
+    np.testing.assert_allclose(tracker.retreated().weights, settled.weights, atol=1e-12)
+    assert tracker.retreated() is tracker.belief  # nothing more to apply
     sensed = GeometricSimulator(obj, info).simulate(mean, mean)
-    expected = wrt_posterior(settle_after_grasp(after_goal, obj, goal, mean, contact=False),
-                             tracker.table(info, LOW), info, mean, sensed)
-    np.testing.assert_allclose(tracker.observe(info.name, mean, sensed).weights, expected.weights, atol=1e-12)
-    unsettled = wrt_posterior(after_goal, tracker.table(info, LOW), info, mean, sensed)
+    table = tracker.tables.table(info.name, tracker.belief.grid)
+    expected = wrt_posterior(settled, table, info, mean, sensed)
+    np.testing.assert_allclose(tracker.update(info.name, mean, sensed).weights, expected.weights, atol=1e-12)
+    unsettled = wrt_posterior(after_goal, table, info, mean, sensed)
     assert np.abs(unsettled.weights - expected.weights).sum() > 0.05  # the settling mattered
+    # Without a reported retreat, the next update applies it first.
+    lazy = BeliefTracker.gaussian("powerdrill", mean, LOW.sigma, level=LOW, variable_resolution=False)
+    lazy.update(goal.name, mean, grasped)
+    np.testing.assert_allclose(lazy.update(info.name, mean, sensed).weights, expected.weights, atol=1e-12)
 
 
 def test_the_outcome_corrects_the_affine_map_where_the_samples_say_so():

@@ -1,15 +1,18 @@
-"""The estimator node (DESIGN §7): keeps the belief over the object's pose, updates it with every
+"""The estimator node (design §7): keeps the belief over the object's pose, updates it with every
 observation on ``/rrg/observation``, and publishes it.
 
     python -m rrg_estimator.ros.estimator_node [--ros-args -p marker_count:=300 ...]
 
-Topics: subscribes ``/rrg/observation`` (rrg_msgs/Observation); publishes ``/rrg/belief``
+Topics: subscribes ``/rrg/observation`` (rrg_msgs/Observation) and ``/rrg/retreated``
+(rrg_msgs/Retreated: the executor retreated the hand, so the belief takes the retreat's
+transition, tracker.BeliefTracker.retreated); publishes ``/rrg/belief``
 (rrg_msgs/BeliefGrid, TRANSIENT_LOCAL depth 1: late joiners get the current belief) and
 ``/rrg/belief_markers`` (visualization_msgs/MarkerArray, the heaviest grid points).
 Services: ``/rrg/reset_belief`` (rrg_msgs/ResetBelief), ``/rrg/get_belief`` (rrg_msgs/GetBelief).
 
-A published belief is stamped with the stamp of the observation it incorporates (header and
-metadata.update_time), so a client can wait for the update of the observation it caused. An
+A published belief is stamped with the stamp of the event it incorporates, an observation or a
+retreat (header and metadata.update_time), so a client can wait for the update of the event it
+caused. Every retreat gets a belief of its stamp, even one with nothing to apply. An
 observation that cannot be used (no belief yet, another object, an unknown WRT, a malformed
 or impossible observation) is logged as an error and the belief is kept.
 """
@@ -23,14 +26,15 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 from visualization_msgs.msg import MarkerArray
 
-from rrg_msgs.msg import BeliefGrid, Observation as ObservationMsg
+from rrg_msgs.msg import BeliefGrid, Observation as ObservationMsg, Retreated
 from rrg_msgs.srv import GetBelief, ResetBelief
 from rrg_estimator.config import LEVELS
 from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, observation_from_msg, planar_from_msg
 from rrg_sim.ros_common.node_main import keep_serving, run_node
 from rrg_sim.ros_common.qos import LATCHED
 
-from ..tracker import BeliefTracker
+from rrg_estimator.tracker import BeliefTracker, CachedTables
+from rrg_sim.objects import get_object
 from rrg_estimator.ros.belief_msgs import belief_markers, belief_to_msg
 
 NODE_NAME = "estimator"
@@ -59,6 +63,7 @@ class EstimatorNode(Node):
         self.belief_pub = self.create_publisher(BeliefGrid, "belief", LATCHED)
         self.marker_pub = self.create_publisher(MarkerArray, "belief_markers", LATCHED)
         self.create_subscription(ObservationMsg, "observation", self.on_observation, 10)
+        self.create_subscription(Retreated, "retreated", self.on_retreated, 10)
         self.create_service(ResetBelief, "reset_belief", self.on_reset_belief)
         self.create_service(GetBelief, "get_belief", self.on_get_belief)
         self.get_logger().info("estimator ready: call reset_belief to start a belief")
@@ -88,7 +93,7 @@ class EstimatorNode(Node):
             return
         old_grid = self.tracker.belief.grid
         try:
-            belief = self.tracker.observe(msg.wrt_name, planar_from_msg(msg.estimate), observation_from_msg(msg))
+            belief = self.tracker.update(msg.wrt_name, planar_from_msg(msg.estimate), observation_from_msg(msg))
         except KeyError as exc:
             log.error(f"observation ignored, unknown WRT: {exc.args[0]}; belief kept")
             return
@@ -98,6 +103,20 @@ class EstimatorNode(Node):
         self.publish_belief(msg.header.stamp, belief.grid != old_grid)
         log.info(f"updated with {msg.wrt_name} (contact={msg.contact}): w* = "
                  f"{np.round(belief.w_star(), 3).tolist()}, grid spacing {belief.grid.spacing}")
+
+    def on_retreated(self, msg: Retreated) -> None:
+        if self.tracker is None:
+            self.get_logger().warn(f"retreat from {msg.object_name}/{msg.wrt_name} ignored: no belief yet")
+            return
+        old_grid = self.tracker.belief.grid
+        try:
+            belief = self.tracker.retreated()
+        except Exception as exc:  # noqa: BLE001 - keep serving; the belief is kept
+            self.get_logger().error(f"retreat from {msg.wrt_name} not applied: {type(exc).__name__}: {exc}")
+            belief = self.tracker.belief
+        self.publish_belief(msg.header.stamp, belief.grid != old_grid)
+        self.get_logger().info(f"retreated from {msg.wrt_name or 'nothing'}: w* = "
+                               f"{np.round(belief.w_star(), 3).tolist()}, grid spacing {belief.grid.spacing}")
 
     @keep_serving
     def on_reset_belief(self, req: ResetBelief.Request, resp: ResetBelief.Response) -> ResetBelief.Response:
@@ -113,10 +132,11 @@ class EstimatorNode(Node):
             resp.error_msg = f"sigma (x, y, theta) must be finite and > 0, got {sigma.tolist()}"
         else:
             try:
+                obj = get_object(req.object_name)
+                # workers=1: no fork from a process running DDS threads (tables are normally cached)
                 tracker = BeliefTracker.gaussian(
-                    req.object_name, mean, sigma, LEVELS.get(req.level),
-                    variable_resolution=self.get_parameter("variable_resolution").value,
-                    workers=1)  # no fork from a process running DDS threads (tables are normally cached)
+                    obj, mean, sigma, LEVELS.get(req.level), tables=CachedTables(obj, workers=1),
+                    variable_resolution=self.get_parameter("variable_resolution").value)
             except KeyError as exc:
                 resp.error_code, resp.error_msg = ResetBelief.Response.UNKNOWN_OBJECT, str(exc.args[0])
             else:

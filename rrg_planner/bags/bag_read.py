@@ -74,8 +74,3 @@ OBSERVATION_TOPIC = "/rrg/observation"
 GRASP_STEP_TOPIC = "/rrg/grasp_step"
 TRUE_POSE_TOPIC = "/rrg/eval/object_pose"
 GRASP_OUTCOME_TOPIC = "/rrg/eval/grasp_outcome"
-
-
-def key_values(status) -> dict[str, str]:
-    """A diagnostic_msgs/DiagnosticStatus's values as a dict."""
-    return {kv.key: kv.value for kv in status.values}

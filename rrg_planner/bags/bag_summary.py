@@ -13,7 +13,8 @@ import numpy as np
 
 from rrg_sim.config import SENSOR_NAMES
 
-from rrg_planner.bags.bag_read import BELIEF_TOPIC, GRASP_OUTCOME_TOPIC, GRASP_STEP_TOPIC, OBSERVATION_TOPIC, key_values, read_messages
+from rrg_planner.bags.bag_read import (BELIEF_TOPIC, GRASP_OUTCOME_TOPIC, GRASP_STEP_TOPIC, OBSERVATION_TOPIC,
+                                       read_messages)
 
 
 @dataclass
@@ -39,8 +40,8 @@ class GraspSummary:
     steps: list[StepSummary] = field(default_factory=list)
     beliefs: int = 0
     replanned: list[str] = field(default_factory=list)  # WRTs found infeasible before moving
-    planner_outcome: dict[str, str] = field(default_factory=dict)  # the planner's "done" record
-    judged_outcome: dict[str, str] = field(default_factory=dict)  # the simulator's judgement
+    planner_outcome: dict = field(default_factory=dict)  # the planner's "done" record
+    judged_outcome: dict = field(default_factory=dict)  # the simulator's judgement
 
 
 def summarize(bag: str | Path) -> GraspSummary:
@@ -50,20 +51,21 @@ def summarize(bag: str | Path) -> GraspSummary:
         if m.topic == BELIEF_TOPIC:
             s.beliefs += 1
         elif m.topic == GRASP_STEP_TOPIC:
-            kv = key_values(m.msg)
-            if "infeasible" in kv:  # the last chosen step did not move: the planner chose again
-                if s.steps and s.steps[-1].wrt == kv["infeasible"] and s.steps[-1].contact is None:
+            r = m.msg
+            estimate = [r.estimate.x, r.estimate.y, r.estimate.theta]
+            if r.event == r.EVENT_INFEASIBLE:  # the last chosen step did not move: the planner chose again
+                if s.steps and s.steps[-1].wrt == r.wrt_name and s.steps[-1].contact is None:
                     s.steps.pop()
-                s.replanned.append(f"step {kv['step']}: {kv['infeasible']} infeasible at e = {kv['estimate']}")
-            elif "step" in kv:
+                s.replanned.append(f"step {r.step}: {r.wrt_name} infeasible at e = {np.round(estimate, 4).tolist()}")
+            elif r.event == r.EVENT_DECISION:
                 if s.planner_outcome:  # a step after a finished grasp: a new grasp, keep only the last
                     s.steps, s.replanned, s.planner_outcome, s.judged_outcome = [], [], {}, {}
-                s.object_name, s.strategy = kv["object"], kv["strategy"]
-                s.steps.append(StepSummary(int(kv["step"]), kv["wrt"], kv["kind"],
-                                           [float(v) for v in kv["estimate"].strip("[]").split(",")],
-                                           float(kv["p_goal"]), float(kv["value"]), float(kv["planning_time_s"])))
+                s.object_name, s.strategy = r.object_name, r.strategy
+                s.steps.append(StepSummary(int(r.step), r.wrt_name, r.wrt_kind, estimate, r.p_goal, r.value,
+                                           r.planning_time))
             else:
-                s.planner_outcome = kv | {"message": m.msg.message}
+                s.planner_outcome = dict(success=r.success, p_goal=r.final_p_goal, actions=list(r.actions_taken),
+                                         error_code=r.error_code, error_msg=r.error_msg)
         elif m.topic == OBSERVATION_TOPIC:
             pending = [st for st in s.steps if st.contact is None and st.wrt == m.msg.wrt_name]
             if pending:
@@ -71,7 +73,9 @@ def summarize(bag: str | Path) -> GraspSummary:
                 st.contact, st.progress_m = bool(m.msg.contact), float(m.msg.progress)
                 st.sensors = [n for n, on in zip(SENSOR_NAMES, m.msg.sensors) if on]
         elif m.topic == GRASP_OUTCOME_TOPIC:
-            s.judged_outcome = key_values(m.msg) | {"message": m.msg.message}
+            o = m.msg
+            s.judged_outcome = dict(success=o.success, in_region=o.in_region, held=o.held,
+                                    offset=[o.offset.x, o.offset.y, o.offset.theta], message=o.message)
     return s
 
 
@@ -94,8 +98,8 @@ def format_summary(s: GraspSummary) -> str:
     lines += [f"Replanned: {r} (nothing moved)" for r in s.replanned]
     if s.planner_outcome:
         o = s.planner_outcome
-        lines.append(f"Planner:   success = {o.get('success')}, final P(goal) = {float(o.get('p_goal', 'nan')):.3f}"
-                     + (f", error {o['error_code']}: {o['error_msg']}" if o.get("error_code", "0") != "0" else ""))
+        lines.append(f"Planner:   success = {o['success']}, final P(goal) = {o['p_goal']:.3f}"
+                     + (f", error {o['error_code']}: {o['error_msg']}" if o["error_code"] else ""))
     else:
         lines.append("Planner:   no outcome recorded (interrupted?)")
     if s.judged_outcome:

@@ -1,4 +1,4 @@
-"""Record every topic of a running ROS 2 graph into a rosbag2-layout MCAP bag (DESIGN §8).
+"""Record every topic of a running ROS 2 graph into a rosbag2-layout MCAP bag (design §8).
 
 Run as a process, e.g. as the launcher's child::
 

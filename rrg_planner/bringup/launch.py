@@ -1,5 +1,5 @@
 """``rrg-launch``: start RRG's ROS 2 graph as child processes, record every topic, and optionally
-run one robust grasp (DESIGN §8).
+run one robust grasp (design §8).
 
     rrg-launch                                      # the simulated graph, until Ctrl-C
     rrg-launch --grasp powerdrill --level high --strategy rrg-info
@@ -41,7 +41,7 @@ from rrg_sim.config import WORLD
 from rrg_sim.objects import OBJECT_NAMES
 from rrg_sim.poses import compose_planar
 
-from rrg_planner.agent import STRATEGIES
+from rrg_planner.requests import STRATEGIES
 
 ROOT = Path(__file__).resolve().parents[2]
 RECORDER = "rrg_bag_recorder"
@@ -225,18 +225,18 @@ class Graph:
         returns the seconds since the launch."""
         from rclpy.action import ActionClient
 
-        from diagnostic_msgs.msg import DiagnosticStatus
         from rrg_msgs.action import ExecuteWrt, GuardedMove, RobustGrasp
-        from rrg_msgs.srv import GetBelief, HandCommand, ResetBelief, ResetSim, SelectAction
+        from rrg_msgs.msg import GraspOutcome
+        from rrg_msgs.srv import GetBelief, HandCommand, ResetBelief, ResetSim, Retreat, SelectAction
         from std_srvs.srv import Trigger
 
         types = {"/rrg/reset_sim": ResetSim, "/rrg/hand_command": HandCommand, "/rrg/eval/judge_grasp": Trigger,
-                 "/rrg/retreat": Trigger, "/rrg/reset_belief": ResetBelief, "/rrg/get_belief": GetBelief,
+                 "/rrg/retreat": Retreat, "/rrg/reset_belief": ResetBelief, "/rrg/get_belief": GetBelief,
                  "/rrg/select_action": SelectAction, "/rrg/guarded_move": GuardedMove,
                  "/rrg/execute_wrt": ExecuteWrt, "/rrg/robust_grasp": RobustGrasp}
         self.clients = {name: self.node.create_client(types[name], name) for name in SERVICES}
         self.actions = {name: ActionClient(self.node, types[name], name) for name in ACTIONS}
-        self.node.create_subscription(DiagnosticStatus, "/rrg/eval/grasp_outcome", self.on_outcome, 10)
+        self.node.create_subscription(GraspOutcome, "/rrg/eval/grasp_outcome", self.on_outcome, 10)
         deadline = time.monotonic() + timeout_s
         for name, client in [*self.clients.items(), *self.actions.items()]:
             ready = client.service_is_ready if name in self.clients else client.server_is_ready

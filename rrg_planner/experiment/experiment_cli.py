@@ -20,7 +20,7 @@ from rrg_estimator.config import LEVELS
 from rrg_planner.config import SEARCH
 from rrg_sim.objects import OBJECT_NAMES
 
-from rrg_planner.agent import STRATEGIES
+from rrg_planner.requests import STRATEGIES
 from rrg_planner.experiment.report import write_outputs
 from rrg_planner.experiment.trials import Cell, TrialSpec, run_campaign, run_trial
 

@@ -118,6 +118,7 @@ def _env(obj: str):
 def run_trial(spec: TrialSpec) -> dict:
     """Run one physics trial and return its JSON-able record."""
     from rrg_planner.agent import RobustGraspAgent
+    from rrg_planner.closed_loop import run_in_process
 
     cell = spec.cell
     t0 = time.perf_counter()
@@ -127,7 +128,7 @@ def run_trial(spec: TrialSpec) -> dict:
     agent = RobustGraspAgent(_model(cell.object, cell.level), strategy=cell.strategy,
                              horizon=cell.horizon, delta=cell.delta)
     try:
-        res = agent.run(env, cell.level, WORLD.nominal_pose)
+        res = run_in_process(agent, env, cell.level, WORLD.nominal_pose)
         out = dict(success=res.success, declared=res.declared, n_actions=res.n_actions,
                    actions=[s.wrt for s in res.steps], p_goal=res.p_goal,
                    planning_time_s=res.planning_time, error=res.error, judge=_jsonable(env.last_judgement))

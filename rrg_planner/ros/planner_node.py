@@ -1,4 +1,4 @@
-"""The planner node (DESIGN §7): the select-action service that other robot software calls, and
+"""The planner node (design §7): the select-action service that other robot software calls, and
 the robust-grasp action that runs the whole loop.
 
     python -m rrg_planner.ros.planner_node [--ros-args -p preload:="['powerdrill']" -p levels:="['high','mid','low']"]
@@ -7,14 +7,16 @@ Services and actions:
 * ``/rrg/select_action`` (rrg_msgs/SelectAction): the next WRT for a given belief (or the
   estimator's current one), a strategy, H and δ. Every input is validated before the core sees
   it; a bad one gets its error code and a message, and the node keeps serving.
-* ``/rrg/robust_grasp`` (rrg_msgs/RobustGrasp): reset the belief through the estimator, then
-  repeatedly select a WRT, execute it through the executor's ``/rrg/execute_wrt``, and wait for
-  the estimator's updated belief (stamped with the observation's stamp), with feedback at every
-  step, until the agent's stopping rule holds. Cancellable between and during actions.
-* publishes ``/rrg/grasp_step`` (diagnostic_msgs/DiagnosticStatus): one record per chosen action
-  and one when a grasp ends, so a bag holds the decisions (``rrg-bag summary`` reads them).
+* ``/rrg/robust_grasp`` (rrg_msgs/RobustGrasp): reset the belief through the estimator, then run
+  the closed loop (rrg_planner.closed_loop) with the executor and estimator nodes as its World
+  and Estimator (rrg_planner.ros.graph_client), with feedback at every step, until the agent's
+  stopping rule holds. Cancellable between and during actions.
+* publishes ``/rrg/grasp_step`` (rrg_msgs/GraspStep): one typed record per chosen action, one per
+  WRT found infeasible before it moved, and one when a grasp ends, so a bag holds the decisions
+  (``rrg-bag summary`` reads them; a bag viewer can plot P(goal) over a run).
 
-The decisions are the core's (rrg_planner.agent.RobustGraspAgent): this node only moves messages.
+The decisions are the core's (rrg_planner.agent.RobustGraspAgent) and the belief is the estimator
+node's: this node only moves messages.
 """
 from __future__ import annotations
 
@@ -23,33 +25,30 @@ import threading
 import time
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.action.server import ServerGoalHandle
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from std_srvs.srv import Trigger
 
 from rrg_estimator.belief import Belief
-from rrg_estimator.ros.belief_msgs import InvalidBelief, InvalidGrid, belief_from_msg
-from rrg_msgs.action import ExecuteWrt, RobustGrasp
-from rrg_msgs.msg import BeliefGrid, Observation as ObservationMsg
-from rrg_msgs.srv import GetBelief, ResetBelief, SelectAction
 from rrg_estimator.config import LEVELS
-from rrg_planner.config import SEARCH
-from rrg_sim.config import WORLD
-from rrg_sim.objects import OBJECT_NAMES
-from rrg_sim.ros_common.msg_conversions import planar_to_msg
-from rrg_sim.ros_common.futures import ThreadSafeActionClient, WaitInterrupted, WaitTimeout, wait_for
-from rrg_sim.ros_common.node_main import run_node
-from rrg_sim.ros_common.qos import LATCHED
-from rrg_sim.wrt import InfeasibleWRT
-
-from ..agent import MAX_BLOCKED, STRATEGIES, RobustGraspAgent
+from rrg_estimator.ros.belief_msgs import InvalidBelief, InvalidGrid, belief_from_msg
+from rrg_msgs.action import RobustGrasp
+from rrg_msgs.msg import GraspStep
+from rrg_msgs.srv import GetBelief, SelectAction
+from rrg_planner import requests
+from rrg_planner.agent import RobustGraspAgent
+from rrg_planner.closed_loop import ClosedLoop, Decision, GraspCanceled, decide
 from rrg_planner.planning_model import PlanningModel
-from ..search import SearchResult
+from rrg_planner.requests import InvalidRequest
+from rrg_planner.ros.grasp_records import decision_record, done_record, infeasible_record
+from rrg_planner.ros.graph_client import GraphClient, GraphError
+from rrg_sim.config import WORLD
+from rrg_sim.ros_common.futures import WaitInterrupted, wait_for
+from rrg_sim.ros_common.msg_conversions import planar_to_msg
+from rrg_sim.ros_common.node_main import run_node
 
 NODE_NAME = "planner"
 NAMESPACE = "rrg"
@@ -64,17 +63,11 @@ class RequestError(Exception):
         super().__init__(message)
         self.code = code
 
-
-def static_value(agent: RobustGraspAgent, belief: Belief) -> float:
-    """v(b): P_b(goal) of the goal WRT executed at its best estimate (agent.goal_estimate; 0
-    where it is infeasible)."""
-    e = agent.goal_estimate(belief, agent.goal)
-    return agent.grasp_probability(belief, agent.goal, e) if agent.model.feasible(agent.goal, e) else 0.0
-
-
-def diagnostic(name: str, message: str, level: bytes, values: dict) -> DiagnosticStatus:
-    return DiagnosticStatus(level=level, name=name, message=message, hardware_id="rrg",
-                            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+    @classmethod
+    def of(cls, exc: InvalidRequest, codes) -> "RequestError":
+        """The interface's code for a core validation error (codes: SelectAction.Response or
+        RobustGrasp.Result)."""
+        return cls(getattr(codes, exc.code), str(exc))
 
 
 class PlannerNode(Node):
@@ -92,10 +85,10 @@ class PlannerNode(Node):
             description="Longest wait [s] for the estimator's reset (it may load or build tables)",
             floating_point_range=[FloatingPointRange(from_value=1.0, to_value=3600.0)]))
         self.declare_parameter("execute_timeout", 300.0, ParameterDescriptor(
-            description="Longest wait [s] for one WRT execution",
+            description="Longest wait [s] for one WRT execution or retreat",
             floating_point_range=[FloatingPointRange(from_value=1.0, to_value=3600.0)]))
         self.declare_parameter("belief_timeout", 120.0, ParameterDescriptor(
-            description="Longest wait [s] for the estimator's belief after an observation",
+            description="Longest wait [s] for the estimator's belief after an observation or a retreat",
             floating_point_range=[FloatingPointRange(from_value=0.1, to_value=3600.0)]))
         self.levels = tuple(self.get_parameter("levels").value)
         unknown = [lv for lv in self.levels if lv not in LEVELS]
@@ -107,14 +100,9 @@ class PlannerNode(Node):
             self.model(name)
 
         group = ReentrantCallbackGroup()
-        self._belief_cv = threading.Condition()
-        self._belief_msg: BeliefGrid | None = None
-        self.create_subscription(BeliefGrid, "belief", self.on_belief, LATCHED, callback_group=group)
-        self.step_pub = self.create_publisher(DiagnosticStatus, "grasp_step", 10)
-        self.reset_client = self.create_client(ResetBelief, "reset_belief", callback_group=group)
+        self.graph = GraphClient(self, group, self.timeouts)
+        self.step_pub = self.create_publisher(GraspStep, "grasp_step", 10)
         self.get_client = self.create_client(GetBelief, "get_belief", callback_group=group)
-        self.retreat_client = self.create_client(Trigger, "retreat", callback_group=group)
-        self.execute_client = ThreadSafeActionClient(self, ExecuteWrt, "execute_wrt", callback_group=group)
         self._grasp_active = threading.Lock()
         self.create_service(SelectAction, "select_action", self.on_select_action, callback_group=group)
         ActionServer(self, RobustGrasp, "robust_grasp", execute_callback=self.execute_robust_grasp,
@@ -122,7 +110,11 @@ class PlannerNode(Node):
                      callback_group=group)
         self.get_logger().info(f"planner ready (levels {list(self.levels)}, models loaded: {sorted(self._models)})")
 
-    # ------------------------------------------------------------------ models and beliefs
+    def timeouts(self) -> dict[str, float]:
+        """The graph client's timeouts [s], read from the parameters at each use."""
+        return {name: self.get_parameter(f"{name}_timeout").value for name in ("reset", "execute", "belief")}
+
+    # ------------------------------------------------------------------ models
     def model(self, object_name: str) -> PlanningModel:
         """The object's planning model, loaded on first use (a first build takes ~1 min)."""
         with self._model_lock:
@@ -137,35 +129,7 @@ class PlannerNode(Node):
                                        f"WRTs {self._models[object_name].names}")
             return self._models[object_name]
 
-    def on_belief(self, msg: BeliefGrid) -> None:
-        with self._belief_cv:
-            self._belief_msg = msg
-            self._belief_cv.notify_all()
-
-    def wait_for_belief(self, stamp, timeout_s: float, interrupted) -> BeliefGrid:
-        """The estimator's belief stamped ``stamp`` (the update of the observation with that stamp)."""
-        deadline = time.monotonic() + timeout_s
-        with self._belief_cv:
-            while self._belief_msg is None or self._belief_msg.header.stamp != stamp:
-                if interrupted():
-                    raise WaitInterrupted("interrupted while waiting for the belief")
-                if time.monotonic() > deadline:
-                    raise WaitTimeout(f"no updated belief from the estimator within {timeout_s:.0f} s")
-                self._belief_cv.wait(0.05)
-            return self._belief_msg
-
     # ------------------------------------------------------------------ select action
-    def validate_choice(self, object_name: str, strategy: str, horizon: int, delta: float, codes) -> None:
-        """Raise RequestError (with the interface's codes) for a bad strategy, H, δ or object."""
-        if strategy not in STRATEGIES:
-            raise RequestError(codes.UNKNOWN_STRATEGY, f"unknown strategy {strategy!r}; valid: {list(STRATEGIES)}")
-        if not 1 <= horizon <= 3:
-            raise RequestError(codes.INVALID_HORIZON, f"horizon must be 1, 2 or 3, got {horizon}")
-        if not 0.0 < delta < 1.0:  # also false for NaN
-            raise RequestError(codes.INVALID_DELTA, f"delta must be in (0, 1), got {delta}")
-        if object_name not in OBJECT_NAMES:
-            raise RequestError(codes.UNKNOWN_OBJECT, f"unknown object {object_name!r}; valid: {list(OBJECT_NAMES)}")
-
     def request_belief(self, req: SelectAction.Request) -> Belief:
         """The belief to plan on: the request's, or the estimator's current one (same object)."""
         msg = req.belief
@@ -188,22 +152,27 @@ class PlannerNode(Node):
 
     def on_select_action(self, req: SelectAction.Request, resp: SelectAction.Response) -> SelectAction.Response:
         try:
-            self.validate_choice(req.object_name, req.strategy, req.horizon, req.delta, SA)
+            try:
+                requests.check_choice(req.strategy, req.horizon, req.delta)
+                requests.check_object(req.object_name)
+            except InvalidRequest as exc:
+                raise RequestError.of(exc, SA) from exc
             belief = self.request_belief(req)
             model = self.model(req.object_name)
             try:
                 model.level_of(belief.grid)
             except ValueError as exc:
                 raise RequestError(SA.INVALID_GRID, str(exc)) from exc
-            agent = RobustGraspAgent(model, req.strategy, req.horizon, req.delta)
-            t0 = time.perf_counter()
-            action, e, res, _ = agent.plan_step(belief, step=1)
-            elapsed = time.perf_counter() - t0
-            if action < 0:
+            decision = decide(RobustGraspAgent(model, req.strategy, req.horizon, req.delta), belief, number=1)
+            if decision.action < 0:
                 raise RequestError(SA.NO_FEASIBLE_ACTION, f"no WRT of {req.object_name} is feasible at "
                                                           f"w* = {np.round(belief.w_star(), 3).tolist()}")
-            self.fill_choice(resp, agent, belief, action, res, elapsed)
-            resp.estimate = planar_to_msg(e)
+            resp.wrt_name, resp.estimate = decision.wrt, planar_to_msg(decision.estimate)
+            resp.value, resp.p_goal, resp.planning_time = decision.value, decision.p_goal, decision.planning_time
+            if decision.search is not None:
+                values = decision.search.action_values
+                resp.action_names = model.names
+                resp.action_values = np.where(np.isfinite(values), values, np.nan).tolist()
         except RequestError as exc:
             resp.error_code, resp.error_msg = exc.code, str(exc)
             self.get_logger().warn(f"select_action refused: {exc}")
@@ -211,20 +180,6 @@ class PlannerNode(Node):
             resp.error_code, resp.error_msg = SA.UNKNOWN, f"{type(exc).__name__}: {exc}"
             self.get_logger().error(f"select_action failed: {resp.error_msg}")
         return resp
-
-    @staticmethod
-    def fill_choice(resp: SelectAction.Response, agent: RobustGraspAgent, belief: Belief, action: int,
-                    res: SearchResult | None, elapsed_s: float) -> None:
-        """The response of a successful choice. Without a search (open-loop, rrg-goal) the value
-        is v(b) and no action values are listed."""
-        resp.wrt_name = agent.model.names[action]
-        if res is not None:
-            values = np.where(np.isfinite(res.action_values), res.action_values, np.nan)
-            resp.value, resp.p_goal, resp.planning_time = float(values[action]), res.p_goal, res.planning_time
-            resp.action_names, resp.action_values = agent.model.names, values.tolist()
-        else:
-            resp.p_goal = resp.value = static_value(agent, belief)
-            resp.planning_time = elapsed_s
 
     # ------------------------------------------------------------------ robust grasp
     def on_grasp_goal(self, goal: RobustGrasp.Goal) -> GoalResponse:
@@ -235,36 +190,30 @@ class PlannerNode(Node):
 
     def validate_grasp(self, goal: RobustGrasp.Goal) -> tuple[np.ndarray, np.ndarray, int]:
         """(mean, sigma, max_actions) of a valid goal; RequestError otherwise."""
-        self.validate_choice(goal.object_name, goal.strategy, goal.horizon, goal.delta, RG)
-        if goal.level not in LEVELS:
-            raise RequestError(RG.UNKNOWN_LEVEL, f"unknown level {goal.level!r}; valid: {sorted(LEVELS)}")
-        if goal.level not in self.levels:
-            raise RequestError(RG.UNKNOWN_LEVEL, f"level {goal.level!r} is not loaded; loaded: {list(self.levels)}")
-        override = np.array([goal.sigma_x, goal.sigma_y, goal.sigma_theta])
-        if not np.all(np.isfinite(override)) or np.any(override < 0.0):
-            raise RequestError(RG.INVALID_SIGMA, f"sigma overrides must be finite and >= 0, got {override.tolist()}")
-        sigma = np.where(override > 0.0, override, LEVELS[goal.level].sigma)
-        mean = (np.array([goal.initial_mean.x, goal.initial_mean.y, goal.initial_mean.theta])
-                if goal.use_initial_mean else np.asarray(WORLD.nominal_pose, dtype=float))
-        if not np.all(np.isfinite(mean)):
-            raise RequestError(RG.INVALID_SIGMA, f"initial mean must be finite, got {mean.tolist()}")
-        max_actions = goal.max_actions or SEARCH.max_actions
-        if max_actions > SEARCH.max_actions:
-            raise RequestError(RG.INVALID_MAX_ACTIONS, f"max_actions must be 1-{SEARCH.max_actions} "
-                                                       f"(0: {SEARCH.max_actions}), got {goal.max_actions}")
-        return mean, sigma, max_actions
+        try:
+            requests.check_choice(goal.strategy, goal.horizon, goal.delta)
+            requests.check_object(goal.object_name)
+            requests.check_level(goal.level, self.levels)
+            mean = ([goal.initial_mean.x, goal.initial_mean.y, goal.initial_mean.theta]
+                    if goal.use_initial_mean else WORLD.nominal_pose)
+            mean, sigma = requests.grasp_prior(goal.level, [goal.sigma_x, goal.sigma_y, goal.sigma_theta], mean)
+            return mean, sigma, requests.max_actions(goal.max_actions)
+        except InvalidRequest as exc:
+            raise RequestError.of(exc, RG) from exc
 
     def execute_robust_grasp(self, handle: ServerGoalHandle) -> RobustGrasp.Result:
         with self._grasp_active:
             result = RobustGrasp.Result()
             try:
                 self.run_grasp(handle, result)
-            except RequestError as exc:
+            except (RequestError, GraphError) as exc:
                 result.error_code, result.error_msg = exc.code, str(exc)
-            except WaitInterrupted:
+            except (WaitInterrupted, GraspCanceled):
                 result.error_code, result.error_msg = RG.CANCELED, "canceled"
             except Exception as exc:  # report, keep serving
                 result.error_code, result.error_msg = RG.UNKNOWN, f"{type(exc).__name__}: {exc}"
+            if self.graph.belief_msg is not None:
+                result.final_belief = self.graph.belief_msg
             if result.error_code == RG.CANCELED and handle.is_cancel_requested:
                 handle.canceled()
             elif result.error_code == RG.NONE:
@@ -277,9 +226,7 @@ class PlannerNode(Node):
                 self.get_logger().info(text)
             else:
                 self.get_logger().error(f"{text}, error {result.error_code}: {result.error_msg}")
-            self.publish_step(handle.request, "done", DiagnosticStatus.OK if result.success else DiagnosticStatus.WARN,
-                              success=result.success, actions=",".join(result.actions_taken),
-                              p_goal=result.final_p_goal, error_code=result.error_code, error_msg=result.error_msg)
+            self.step_pub.publish(done_record(handle.request, result, self.now()))
             return result
 
     def run_grasp(self, handle: ServerGoalHandle, result: RobustGrasp.Result) -> None:
@@ -287,102 +234,34 @@ class PlannerNode(Node):
         mean, sigma, max_actions = self.validate_grasp(goal)
         model = self.model(goal.object_name)
         interrupted = lambda: handle.is_cancel_requested or not self.context.ok()  # noqa: E731
-        belief_msg = self.reset_belief(goal, mean, sigma, interrupted)
-        belief = belief_from_msg(belief_msg)
+        self.graph.reset(goal.object_name, goal.level, mean, sigma, interrupted)
         agent = RobustGraspAgent(model, goal.strategy, goal.horizon, goal.delta, max_actions)
-        while True:  # ends at the last action, which is always the goal grasp
-            if interrupted():
-                raise WaitInterrupted("canceled")
-            step = len(result.actions_taken) + 1  # an infeasible execution (nothing moved) is not an action
-            t0 = time.perf_counter()
-            action, e, res, last = agent.plan_step(belief, step)
-            plan_s = time.perf_counter() - t0
-            if action < 0:
-                raise RequestError(RG.PLANNING_FAILED, f"no feasible WRT at w* = {np.round(e, 3).tolist()}")
-            name, kind = model.names[action], model.actions[action].kind
-            p_goal = res.p_goal if res is not None else static_value(agent, belief)
-            value = float(res.action_values[action]) if res is not None else p_goal
-            handle.publish_feedback(RobustGrasp.Feedback(step=step, wrt_name=name, value=value, p_goal=p_goal,
-                                                         belief=belief_msg))
-            self.publish_step(goal, f"step {step}: {name}", DiagnosticStatus.OK, step=step, wrt=name, kind=kind,
-                              value=value, p_goal=p_goal, planning_time_s=plan_s,
-                              estimate=np.round(e, 4).tolist())
-            self.get_logger().info(f"step {step}: {name} ({kind}) at e = {np.round(e, 3).tolist()}, "
-                                   f"P(goal) = {p_goal:.3f}, planned in {plan_s * 1e3:.0f} ms")
-            try:
-                obs = self.execute(goal.object_name, name, e, interrupted)
-            except InfeasibleWRT as exc:  # nothing moved: rule it out at e and choose again (as the agent does)
-                self.get_logger().warn(f"{name} infeasible at {np.round(e, 3).tolist()} ({exc}): replanning")
-                self.publish_step(goal, f"step {step}: {name} infeasible, replanning", DiagnosticStatus.WARN,
-                                  step=step, infeasible=name, estimate=np.round(e, 4).tolist())
-                agent.search.block(action, e)
-                if len(agent.search.blocked) > MAX_BLOCKED:
-                    raise RequestError(RG.PLANNING_FAILED, f"{len(agent.search.blocked)} infeasible executions") \
-                        from exc
-                continue
-            result.actions_taken.append(name)
-            agent.executed(action, e)
-            belief_msg = self.wait_for_belief(obs.header.stamp, self.get_parameter("belief_timeout").value,
-                                              interrupted)
-            belief = belief_from_msg(belief_msg)
-            p_exec = agent.grasp_probability(belief, action, e)
-            result.final_belief, result.final_p_goal = belief_msg, p_exec if kind == "goal" else p_goal
-            if agent.finished(action, p_exec, last):
-                result.success = bool(p_exec > 1.0 - goal.delta)
-                return
-            if kind == "goal":  # the executor leaves a goal grasp closed on the object
-                self.retreat(interrupted)
-                belief = agent.after_retreat(belief, action, e, bool(obs.contact))  # as the estimator will
 
-    # ------------------------------------------------------------------ calls to the other nodes
-    def reset_belief(self, goal: RobustGrasp.Goal, mean: np.ndarray, sigma: np.ndarray, interrupted) -> BeliefGrid:
-        if not self.reset_client.wait_for_service(timeout_sec=10.0):
-            raise RequestError(RG.ESTIMATION_FAILED, "the estimator's reset_belief is not available")
-        req = ResetBelief.Request(object_name=goal.object_name, mean=planar_to_msg(mean), level=goal.level,
-                                  sigma_x=float(sigma[0]), sigma_y=float(sigma[1]), sigma_theta=float(sigma[2]))
-        try:
-            resp = wait_for(self.reset_client.call_async(req), self.get_parameter("reset_timeout").value, interrupted)
-        except WaitTimeout as exc:
-            raise RequestError(RG.ESTIMATION_FAILED, f"reset_belief: {exc}") from exc
-        if resp.error_code != ResetBelief.Response.NONE:
-            raise RequestError(RG.ESTIMATION_FAILED, f"reset_belief failed: {resp.error_msg}")
-        return resp.belief
+        def on_decision(d: Decision) -> None:
+            handle.publish_feedback(RobustGrasp.Feedback(step=d.number, wrt_name=d.wrt, value=d.value,
+                                                         p_goal=d.p_goal, belief=self.graph.belief_msg))
+            self.step_pub.publish(decision_record(goal, d, self.now()))
+            self.get_logger().info(f"step {d.number}: {d.wrt} ({d.kind}) at e = {np.round(d.estimate, 3).tolist()}, "
+                                   f"P(goal) = {d.p_goal:.3f}, planned in {d.planning_time * 1e3:.0f} ms")
 
-    def execute(self, object_name: str, wrt_name: str, e: np.ndarray, interrupted) -> ObservationMsg:
-        """Run ExecuteWrt and return its observation; a cancel request cancels the execution.
-        Raises InfeasibleWRT when the executor found τ(e) infeasible before moving."""
-        if not self.execute_client.wait_for_server(timeout_sec=10.0):
-            raise RequestError(RG.EXECUTION_FAILED, "the executor's execute_wrt is not available")
-        goal = ExecuteWrt.Goal(object_name=object_name, wrt_name=wrt_name, estimate=planar_to_msg(e))
-        handle = wait_for(self.execute_client.send_goal_async(goal), 10.0)
-        if not handle.accepted:
-            raise RequestError(RG.EXECUTION_FAILED, f"execute_wrt rejected {wrt_name}")
-        timeout = self.get_parameter("execute_timeout").value
-        try:
-            answer = wait_for(handle.get_result_async(), timeout, interrupted)
-        except WaitInterrupted:
-            wait_for(handle.cancel_goal_async(), 10.0)
-            raise
-        except WaitTimeout as exc:
-            handle.cancel_goal_async()
-            raise RequestError(RG.EXECUTION_FAILED, f"execute_wrt {wrt_name}: {exc}") from exc
-        if answer.result.error_code == ExecuteWrt.Result.INFEASIBLE:
-            raise InfeasibleWRT(answer.result.error_msg)
-        if answer.result.error_code != ExecuteWrt.Result.NONE:
-            raise RequestError(RG.EXECUTION_FAILED, f"execute_wrt {wrt_name} failed: {answer.result.error_msg}")
-        return answer.result.observation
+        def on_infeasible(d: Decision, reason: str) -> None:
+            self.get_logger().warn(f"{d.wrt} infeasible at {np.round(d.estimate, 3).tolist()} ({reason}): replanning")
+            self.step_pub.publish(infeasible_record(goal, d, reason, self.now()))
 
-    def retreat(self, interrupted) -> None:
-        if not self.retreat_client.wait_for_service(timeout_sec=10.0):
-            raise RequestError(RG.EXECUTION_FAILED, "the executor's retreat is not available")
-        resp = wait_for(self.retreat_client.call_async(Trigger.Request()),
-                        self.get_parameter("execute_timeout").value, interrupted)
-        if not resp.success:
-            raise RequestError(RG.EXECUTION_FAILED, f"retreat failed: {resp.message}")
+        def on_step(step, belief) -> None:
+            result.actions_taken.append(step.wrt)
+            result.final_p_goal = step.p_goal
 
-    def publish_step(self, goal: RobustGrasp.Goal, message: str, level: bytes, **values) -> None:
-        self.step_pub.publish(diagnostic("robust_grasp", message, level,
-                                         dict(object=goal.object_name, strategy=goal.strategy, **values)))
+        loop = ClosedLoop(agent, self.graph, self.graph, on_decision=on_decision, on_infeasible=on_infeasible,
+                          on_step=on_step, canceled=interrupted)
+        run = loop.run()
+        if run.error:
+            raise RequestError(RG.PLANNING_FAILED, run.error)
+        result.final_p_goal, result.success = run.p_goal, run.declared
+
+    def now(self):
+        """The node clock's time as a message stamp."""
+        return self.get_clock().now().to_msg()
 
 
 def main(argv: list[str] | None = None) -> int:

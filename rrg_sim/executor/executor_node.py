@@ -1,13 +1,15 @@
-"""The executor node (DESIGN §7): executes a WRT at an estimate e on the arm/hand interface and
+"""The executor node (design §7): executes a WRT at an estimate e on the arm/hand interface and
 publishes what it observed.
 
     python -m rrg_sim.executor.executor_node
 
 Serves ``/rrg/execute_wrt`` (rrg_msgs/ExecuteWrt): τ(e), a continuous IK path, timed joint
 via-points sent as guarded moves to ``/rrg/guarded_move``, closing through
-``/rrg/hand_command``, the observation (published on ``/rrg/observation`` and returned), then
-the retreat home. A goal WRT is left closed on the object so that it can be judged or lifted;
-``/rrg/retreat`` (std_srvs/Trigger), or the next execution, retreats from it. The sequence is
+``/rrg/hand_command``, and the observation (published on ``/rrg/observation`` and returned). The
+hand is left where the WRT stopped (a goal grasp closed on the object, so that it can be judged
+or lifted): ``/rrg/retreat`` (rrg_msgs/Retreat), or the next execution, retreats from it. Every
+retreat is published on ``/rrg/retreated`` (rrg_msgs/Retreated), so the estimator applies its
+transition. The sequence is
 the ROS-free ``rrg_sim.executor.wrt_executor.WrtExecutor`` (the physics world runs the same one in-process);
 this node drives it through ``RosRobot``, so it runs unchanged against a hardware bridge.
 
@@ -25,15 +27,16 @@ from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.action.server import ServerGoalHandle
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from std_srvs.srv import Trigger
+from std_msgs.msg import Header
 
 from rrg_msgs.action import ExecuteWrt
-from rrg_msgs.msg import Observation as ObservationMsg
+from rrg_msgs.msg import Observation as ObservationMsg, Retreated
+from rrg_msgs.srv import Retreat
 
 from rrg_sim.executor.wrt_executor import WrtExecutor
 from rrg_sim.objects import OBJECT_NAMES, get_object
 from rrg_sim.executor.trajectory import InfeasiblePath
-from rrg_sim.ros_common.msg_conversions import observation_to_msg, planar_from_msg
+from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, observation_to_msg, planar_from_msg
 from rrg_sim.ros_common.node_main import keep_serving, run_node
 from rrg_sim.executor.robot_client import MotionCanceled, MotionFailed, RosRobot
 
@@ -58,10 +61,12 @@ class ExecutorNode(Node):
         self.core = WrtExecutor(self.robot)
         self._busy = threading.Lock()
         self.obs_pub = self.create_publisher(ObservationMsg, "observation", 10)
+        self.retreated_pub = self.create_publisher(Retreated, "retreated", 10)
+        self._last_observation: ObservationMsg | None = None  # of the WRT a retreat would leave
         ActionServer(self, ExecuteWrt, "execute_wrt", execute_callback=self.execute_wrt,
                      goal_callback=self.on_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
                      callback_group=group)
-        self.create_service(Trigger, "retreat", self.on_retreat, callback_group=group)
+        self.create_service(Retreat, "retreat", self.on_retreat, callback_group=group)
         self.get_logger().info("executor ready")
 
     def on_goal(self, goal: ExecuteWrt.Goal) -> GoalResponse:
@@ -112,14 +117,15 @@ class ExecutorNode(Node):
 
         self.robot.interrupted = lambda: handle.is_cancel_requested or not self.context.ok()
         try:
+            if self.core.last is not None:  # the previous WRT's retreat, announced like any other
+                self.retreat(progress)
             obs = self.core.execute(wrt, e, progress)
             msg = observation_to_msg(obs, handle.request.object_name, wrt.name, e, self.get_clock().now().to_msg())
+            self._last_observation = msg
             self.obs_pub.publish(msg)
             result.observation = msg
             self.get_logger().info(f"{wrt.name} at {np.round(e, 3).tolist()}: contact={obs.contact}, "
                                    f"progress {obs.progress:.3f} m, sensors {np.flatnonzero(obs.sensors).tolist()}")
-            if wrt.kind != "goal":  # a goal grasp stays closed until judged or retreated from
-                self.core.retreat(progress)
         except InfeasiblePath as exc:
             result.error_code, result.error_msg = R.INFEASIBLE, f"no IK path for {wrt.name} at {e.tolist()}: {exc}"
         except MotionCanceled as exc:
@@ -131,17 +137,29 @@ class ExecutorNode(Node):
         finally:
             self.robot.interrupted = lambda: not self.context.ok()
 
+    def retreat(self, progress=None) -> Header:
+        """Retreat from the last WRT and publish it on /rrg/retreated; returns its header."""
+        self.core.retreat(progress)
+        obs, self._last_observation = self._last_observation, None
+        header = Header(stamp=self.get_clock().now().to_msg(), frame_id=WORLD_FRAME)
+        event = Retreated(header=header)
+        if obs is not None:
+            event.observation_stamp, event.object_name, event.wrt_name = obs.header.stamp, obs.object_name, obs.wrt_name
+        self.retreated_pub.publish(event)
+        return header
+
     @keep_serving
-    def on_retreat(self, req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
+    def on_retreat(self, req: Retreat.Request, resp: Retreat.Response) -> Retreat.Response:
         if not self.wait_ready():
-            resp.message = "the arm/hand interface is not available"
+            resp.error_code, resp.error_msg = Retreat.Response.UNAVAILABLE, "the arm/hand interface is not available"
             return resp
         with self._busy:
             try:
-                self.core.retreat()
-                resp.success, resp.message = True, "retreated"
+                resp.header = self.retreat()
             except (MotionFailed, MotionCanceled, InfeasiblePath) as exc:
-                resp.message = f"retreat failed: {exc}"
+                resp.error_code, resp.error_msg = Retreat.Response.MOTION_FAILED, f"retreat failed: {exc}"
+        if resp.error_code != Retreat.Response.NONE:
+            self.get_logger().error(resp.error_msg)
         return resp
 
 

@@ -1,4 +1,4 @@
-"""Executing a world-relative trajectory on a robot (DESIGN §4): the one sequence that the physics
+"""Executing a world-relative trajectory on a robot (design §4): the one sequence that the physics
 world runs in-process and the executor node runs over ROS against the arm/hand interface.
 
 τ(e) → straight Cartesian segments, densified and solved to one continuous IK chain

@@ -1,4 +1,4 @@
-"""The simulated arm/hand interface (DESIGN §7): the MuJoCo world behind the same ROS interface a
+"""The simulated arm/hand interface (design §7): the MuJoCo world behind the same ROS interface a
 hardware bridge offers, plus simulation-only reset and evaluation.
 
     python -m rrg_sim.ros.sim_node [--ros-args -p object_name:=powerdrill -p seed:=0 -p real_time_factor:=0.0]
@@ -15,7 +15,7 @@ first pad or Nano17 over its threshold; cancellable), ``/rrg/hand_command``
 (rrg_msgs/HandCommand), and, simulation only, ``/rrg/reset_sim`` (rrg_msgs/ResetSim: place an
 object, arm home) and ``/rrg/eval/judge_grasp`` (std_srvs/Trigger: lift and hold the grasp
 the last goal WRT on ``/rrg/observation`` left, judge it against the ground truth, and publish
-the judgement on ``/rrg/eval/grasp_outcome``, diagnostic_msgs/DiagnosticStatus).
+the judgement on ``/rrg/eval/grasp_outcome``, rrg_msgs/GraspOutcome).
 
 The world is stepped inside the action and service callbacks under one lock; a
 MultiThreadedExecutor keeps the node responsive meanwhile, and the state topics are published
@@ -29,7 +29,6 @@ import time
 from typing import Callable
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
@@ -37,10 +36,11 @@ from rclpy.action.server import ServerGoalHandle
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from rrg_msgs.action import GuardedMove
-from rrg_msgs.msg import ContactPads, Observation as ObservationMsg
+from rrg_msgs.msg import ContactPads, GraspOutcome, Observation as ObservationMsg
 from rrg_msgs.srv import HandCommand, ResetSim
 
 from .. import wam
@@ -51,7 +51,7 @@ from ..physics.sensing import HandSensors
 from rrg_sim.executor.trajectory import DensePath, sample_times
 from ..physics.judge import judge_grasp
 from ..physics.world import PhysicsWorld
-from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES, WORLD_FRAME, observation_from_msg, planar_from_msg, pose_to_msg, tip_contacts_to_msg, vector_to_msg
+from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES, WORLD_FRAME, observation_from_msg, planar_from_msg, planar_to_msg, pose_to_msg, tip_contacts_to_msg, vector_to_msg
 from rrg_sim.ros_common.node_main import keep_serving, run_node
 
 NODE_NAME = "sim"
@@ -104,7 +104,7 @@ class SimNode(Node):
         self.wrench_pubs = [self.create_publisher(WrenchStamped, f"fingertip{i}/wrench", 10) for i in (1, 2, 3)]
         self.pads_pub = self.create_publisher(ContactPads, "contact_pads", 10)
         self.truth_pub = self.create_publisher(PoseStamped, "eval/object_pose", 10)
-        self.outcome_pub = self.create_publisher(DiagnosticStatus, "eval/grasp_outcome", 10)
+        self.outcome_pub = self.create_publisher(GraspOutcome, "eval/grasp_outcome", 10)
         self.create_subscription(ObservationMsg, "observation", self.on_observation, 10, callback_group=group)
         self.create_service(ResetSim, "reset_sim", self.on_reset_sim, callback_group=group)
         self.create_service(HandCommand, "hand_command", self.on_hand_command, callback_group=group)
@@ -359,10 +359,14 @@ class SimNode(Node):
                             f"(offset {np.round(info['delta'], 4).tolist()}), {info['fingers']} fingers in "
                             f"contact, required sensors {info['required_ok']}, held {info['held']} "
                             f"(lifted {info['lift_dz']:.3f} m of {PHYSICS.lift_height} m, slip {info['slip']:.4f} m)")
-            self.outcome_pub.publish(DiagnosticStatus(
-                level=DiagnosticStatus.OK if ok else DiagnosticStatus.WARN, name="grasp_judge",
-                message=resp.message, hardware_id="rrg_sim",
-                values=[KeyValue(key=k, value=str(v)) for k, v in {"success": bool(ok), **info}.items()]))
+            self.outcome_pub.publish(GraspOutcome(
+                header=Header(stamp=self.get_clock().now().to_msg(), frame_id=WORLD_FRAME),
+                object_name=obj.name, wrt_name=obs.wrt_name, success=bool(ok), in_region=bool(info["in_region"]),
+                offset=planar_to_msg(info["delta"]), fingers_in_contact=int(info["fingers"]),
+                required_contacts=bool(info["required_ok"]), held=bool(info["held"]),
+                lift_feasible=bool(info["lift_feasible"]), lift_dz=float(info["lift_dz"]), slip=float(info["slip"]),
+                early_contact=bool(info["early_contact"]), true_pose=planar_to_msg(info["w_true"]),
+                message=resp.message))
         if resp.success:
             self.get_logger().info(f"judge_grasp: {resp.message}")
         else:
