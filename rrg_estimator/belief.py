@@ -4,6 +4,7 @@ Weights are proportional to the probability density at the grid points (paper, "
 space and belief space") and always sum to 1. A Belief is immutable: its weight array is
 read-only, and every update returns a new Belief.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -29,7 +30,9 @@ class Belief:
     def __post_init__(self) -> None:
         w = np.array(self.weights, dtype=np.float64).ravel()
         if w.shape != (self.grid.size,):
-            raise ValueError(f"belief needs {self.grid.size} weights for grid shape {self.grid.shape}, got {w.shape}")
+            raise ValueError(
+                f"belief needs {self.grid.size} weights for grid shape {self.grid.shape}, got {w.shape}"
+            )
         if not np.all(np.isfinite(w)):
             raise ValueError("belief weights contain NaN or inf")
         if w.min() < 0.0:
@@ -37,14 +40,16 @@ class Belief:
         total = w.sum()
         if not total > 0.0:
             raise ValueError("belief weights sum to zero: no state is possible")
-        if abs(total - 1.0) > 1e-12:  # weights already normalized stay bit-exact (a message round trip)
+        if (
+            abs(total - 1.0) > 1e-12
+        ):  # weights already normalized stay bit-exact (a message round trip)
             w /= total
         w.flags.writeable = False
         object.__setattr__(self, "weights", w)
 
     # ------------------------------------------------------------ construction
     @classmethod
-    def gaussian(cls, grid: Grid, mean, sigma) -> "Belief":
+    def gaussian(cls, grid: Grid, mean, sigma) -> Belief:
         """A Gaussian N(mean, diag(sigma²)) sampled at the grid points (θ deviations wrapped)."""
         d = grid.points() - np.asarray(mean, dtype=float)
         d[:, 2] = wrap_angle(d[:, 2])
@@ -52,11 +57,11 @@ class Belief:
         return cls(grid, np.exp(-0.5 * np.einsum("ij,ij->i", z, z)))
 
     @classmethod
-    def for_level(cls, level: UncertaintyLevel, mean) -> "Belief":
+    def for_level(cls, level: UncertaintyLevel, mean) -> Belief:
         """The initial belief of an uncertainty level: its Gaussian on its grid centred on the mean."""
         return cls.gaussian(Grid.for_level(level, center=mean), mean, level.sigma)
 
-    def with_weights(self, weights: np.ndarray) -> "Belief":
+    def with_weights(self, weights: np.ndarray) -> Belief:
         """A new Belief on the same grid (weights are normalized)."""
         return Belief(self.grid, weights)
 

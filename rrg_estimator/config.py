@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+
 # ------------------------------------------------------------------- belief grid
 @dataclass(frozen=True)
 class UncertaintyLevel:

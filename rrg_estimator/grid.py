@@ -1,12 +1,14 @@
 """A regular (x, y, θ) lattice: the support of the belief and of the observation tables."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
 
-from .config import UncertaintyLevel
 from rrg_sim.poses import wrap_angle
+
+from .config import UncertaintyLevel
 
 
 @dataclass(frozen=True)
@@ -22,7 +24,7 @@ class Grid:
     shape: tuple[int, int, int]
 
     @classmethod
-    def for_level(cls, level: UncertaintyLevel, center=(0.0, 0.0, 0.0)) -> "Grid":
+    def for_level(cls, level: UncertaintyLevel, center=(0.0, 0.0, 0.0)) -> Grid:
         return cls(tuple(float(c) for c in center), tuple(level.spacing), tuple(level.shape))
 
     @property
@@ -36,8 +38,10 @@ class Grid:
 
     def axes(self) -> list[np.ndarray]:
         """Coordinates along x, y and θ (θ not wrapped, so axes stay monotonic)."""
-        return [c + (np.arange(n) - (n - 1) / 2) * s
-                for c, s, n in zip(self.center, self.spacing, self.shape)]
+        return [
+            c + (np.arange(n) - (n - 1) / 2) * s
+            for c, s, n in zip(self.center, self.spacing, self.shape)
+        ]
 
     def points(self) -> np.ndarray:
         """(N,3) grid points (x, y, θ) in flat-index order."""
@@ -69,5 +73,5 @@ class Grid:
 
     def key(self) -> str:
         """Stable text key (cache file names)."""
-        f = lambda t: "_".join(f"{v:.6g}" for v in t)  # noqa: E731
+        f = lambda t: "_".join(f"{v:.6g}" for v in t)
         return f"c{f(self.center)}-s{f(self.spacing)}-n{f(self.shape)}"

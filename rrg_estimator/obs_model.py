@@ -24,18 +24,20 @@ and is then floored: L' = (1 - ε)·L + ε with ε = LIKELIHOOD.floor, so no sin
 observation can rule out a state (the true state survives a surprising reading, e.g.
 from unmodelled dynamics, and later observations can bring it back).
 """
+
 from __future__ import annotations
 
 import weakref
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Callable, Protocol, TypeVar
+from typing import Protocol, TypeVar
 
 import numpy as np
 from scipy.ndimage import convolve1d
 
 from rrg_estimator.config import LIKELIHOOD, LikelihoodParams
-from rrg_sim.config import N_SENSORS
 from rrg_estimator.grid import Grid
+from rrg_sim.config import N_SENSORS
 from rrg_sim.observation import Observation
 from rrg_sim.poses import wrap_angle
 from rrg_sim.wrt import WRT
@@ -76,11 +78,15 @@ class ObsFeatures:
     def __len__(self) -> int:
         return len(self.contact)
 
-    def take(self, rows) -> "ObsFeatures":
+    def take(self, rows) -> ObsFeatures:
         """The features of the given rows."""
         rows = np.atleast_1d(np.asarray(rows, dtype=np.int64))
-        return ObsFeatures(*(getattr(self, f)[rows] for f in
-                             ("contact", "progress", "sensors", "closure", "tip_points", "motion_dir")))
+        return ObsFeatures(
+            *(
+                getattr(self, f)[rows]
+                for f in ("contact", "progress", "sensors", "closure", "tip_points", "motion_dir")
+            )
+        )
 
 
 def _features(contact, progress, sensors, closure, tip_points, motion_dir) -> ObsFeatures:
@@ -112,8 +118,14 @@ def features_from_observation(obs: Observation, e=None) -> ObsFeatures:
 def features_from_table_rows(table: TableLike, rows) -> ObsFeatures:
     """The predicted observations Ω_τ(Δ_j) of the given table rows, as features."""
     rows = np.atleast_1d(np.asarray(rows, dtype=np.int64))
-    return _features(table.contact[rows], table.progress[rows], table.sensors[rows],
-                     table.closure[rows], table.tip_points[rows], table.motion_dir[rows])
+    return _features(
+        table.contact[rows],
+        table.progress[rows],
+        table.sensors[rows],
+        table.closure[rows],
+        table.tip_points[rows],
+        table.motion_dir[rows],
+    )
 
 
 #: Weights of an entry and its two neighbours along one grid axis in the probability that a
@@ -122,10 +134,12 @@ def features_from_table_rows(table: TableLike, rows) -> ObsFeatures:
 #: average 1/8 of the cell (±½ cell about its point) is on the neighbour's side.
 CELL_WEIGHTS = np.array([0.125, 0.75, 0.125])
 
-_SENSOR_LOG: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_SENSOR_LOG: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def _per_table(cache: "weakref.WeakKeyDictionary", table: TableLike, key, build: Callable[[], T]) -> T:
+def _per_table(
+    cache: weakref.WeakKeyDictionary, table: TableLike, key, build: Callable[[], T]
+) -> T:
     """``build()`` for ``table``, remembered in ``cache`` (weakly referenced) while ``key``
     (the parameters it depends on) stays the same."""
     cached = cache.get(table)
@@ -147,16 +161,21 @@ def sensor_prediction(table: TableLike) -> np.ndarray:
     return q.reshape(len(table.sensors), -1)
 
 
-def sensor_log_likelihood(table: TableLike, params: LikelihoodParams) -> tuple[np.ndarray, np.ndarray]:
+def sensor_log_likelihood(
+    table: TableLike, params: LikelihoodParams
+) -> tuple[np.ndarray, np.ndarray]:
     """(silent (N,), gain (10, N)) float32: every sensor silent, Σ_s log P(silent | q_s), per
     entry, and log P(fired | q) - log P(silent | q) per sensor (``sensor_prediction``); a
     reading's sensor term is silent + o @ gain. Cached per table (weakly referenced)."""
+
     def build() -> tuple[np.ndarray, np.ndarray]:
         q = sensor_prediction(table)
         fired = q * params.p_detect + (1.0 - q) * params.p_false_alarm
         silent = np.log1p(-fired)
-        return (silent.sum(axis=1).astype(np.float32),
-                np.ascontiguousarray((np.log(fired) - silent).T.astype(np.float32)))
+        return (
+            silent.sum(axis=1).astype(np.float32),
+            np.ascontiguousarray((np.log(fired) - silent).T.astype(np.float32)),
+        )
 
     return _per_table(_SENSOR_LOG, table, (params.p_detect, params.p_false_alarm), build)
 
@@ -167,7 +186,7 @@ def likelihood_params(wrt: WRT, params: LikelihoodParams = LIKELIHOOD) -> Likeli
     return params if wrt.closure_informative else replace(params, sigma_closure=float("inf"))
 
 
-_CLOSURE_SIGMA: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_CLOSURE_SIGMA: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def closure_sigma(table: TableLike, sigma: float) -> np.ndarray:
@@ -195,18 +214,23 @@ def closure_sigma(table: TableLike, sigma: float) -> np.ndarray:
     return _per_table(_CLOSURE_SIGMA, table, sigma, build)
 
 
-def log_likelihood_over_table(table: TableLike, feats: ObsFeatures,
-                              params: LikelihoodParams = LIKELIHOOD) -> np.ndarray:
+def log_likelihood_over_table(
+    table: TableLike, feats: ObsFeatures, params: LikelihoodParams = LIKELIHOOD
+) -> np.ndarray:
     """(M, N_table) float32 log L (before the floor) of each observation at each table entry."""
     f32 = np.float32
     n = len(table.contact)
     t_contact = np.asarray(table.contact, dtype=bool)
     # contact agreement
     agree = feats.contact[:, None] == t_contact[None, :]
-    logl = np.where(agree, f32(np.log1p(-params.p_contact_mismatch)), f32(np.log(params.p_contact_mismatch)))
+    logl = np.where(
+        agree, f32(np.log1p(-params.p_contact_mismatch)), f32(np.log(params.p_contact_mismatch))
+    )
     # progress, where both stopped early
     if feats.contact.any():
-        zp = (feats.progress[:, None] - np.asarray(table.progress, dtype=f32)[None, :]) / f32(params.sigma_progress)
+        zp = (feats.progress[:, None] - np.asarray(table.progress, dtype=f32)[None, :]) / f32(
+            params.sigma_progress
+        )
         cost = np.minimum(f32(0.5) * zp * zp, f32(-np.log(params.outlier_progress)))
         logl -= np.where(feats.contact[:, None] & t_contact[None, :], cost, f32(0.0))
     # sensors: Σ_s log P(o_s | q_s) = Σ_s log P(silent | q_s) + Σ_s o_s (log P(fired | q_s) - log P(silent | q_s))
@@ -225,14 +249,17 @@ def log_likelihood_over_table(table: TableLike, feats: ObsFeatures,
         seen = ~np.isnan(feats.tip_points[:, f, 0])
         if not seen.any():
             continue
-        d2 = sum((feats.tip_points[:, f, k, None] - tips[3 * f + k][None, :]) ** 2 for k in range(3))
-        cost = np.minimum(d2 * f32(0.5 / params.sigma_tip ** 2), f32(-np.log(params.outlier_tip)))
+        d2 = sum(
+            (feats.tip_points[:, f, k, None] - tips[3 * f + k][None, :]) ** 2 for k in range(3)
+        )
+        cost = np.minimum(d2 * f32(0.5 / params.sigma_tip**2), f32(-np.log(params.outlier_tip)))
         logl -= np.where(np.isnan(d2), f32(0.0), cost)
     return logl
 
 
-def likelihood_over_table(table: TableLike, feats: ObsFeatures,
-                          params: LikelihoodParams = LIKELIHOOD) -> np.ndarray:
+def likelihood_over_table(
+    table: TableLike, feats: ObsFeatures, params: LikelihoodParams = LIKELIHOOD
+) -> np.ndarray:
     """(M, N_table) float32: the floored likelihood (1-ε)·L + ε of each observation at each entry.
 
     Raises ValueError when an observation's progress or closure is NaN.

@@ -5,6 +5,7 @@ the predicted observation of a WRT for every (w, e) pair with e⁻¹ ⊕ w = Δ:
 relative to e₀ = identity and the object sits at Δ. Tables are cached on disk as .npz,
 keyed by object, WRT, a hash of everything they depend on, and the grid.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -16,10 +17,16 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from rrg_sim import config
 from rrg_estimator.config import UncertaintyLevel
-from rrg_sim.geometric_sim import SIM_VERSION, GeometricSimulator, ObjectLike, ObservationArrays, SweptPath
 from rrg_estimator.grid import Grid
+from rrg_sim import config
+from rrg_sim.geometric_sim import (
+    SIM_VERSION,
+    GeometricSimulator,
+    ObjectLike,
+    ObservationArrays,
+    SweptPath,
+)
 from rrg_sim.observation import Observation
 from rrg_sim.wrt import WRT
 
@@ -58,25 +65,44 @@ class ObservationTable:
 
     def observation(self, j: int) -> Observation:
         """Row j as an Observation in the frame of e₀ (hand_pose = stop pose)."""
-        return Observation(bool(self.contact[j]), float(self.progress[j]), self.stop_pose[j], self.sensors[j],
-                           self.closure[j], self.tip_points[j], self.tip_normals[j], self.motion_dir[j])
+        return Observation(
+            bool(self.contact[j]),
+            float(self.progress[j]),
+            self.stop_pose[j],
+            self.sensors[j],
+            self.closure[j],
+            self.tip_points[j],
+            self.tip_normals[j],
+            self.motion_dir[j],
+        )
 
     def save(self, path: Path, key: str) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".tmp.npz")
-        np.savez(tmp, key=key, object_name=self.object_name, wrt_name=self.wrt_name,
-                 grid=np.array([*self.grid.center, *self.grid.spacing, *self.grid.shape], float),
-                 path_length=self.path_length, **{f: getattr(self, f) for f in ARRAY_FIELDS})
+        np.savez(
+            tmp,
+            key=key,
+            object_name=self.object_name,
+            wrt_name=self.wrt_name,
+            grid=np.array([*self.grid.center, *self.grid.spacing, *self.grid.shape], float),
+            path_length=self.path_length,
+            **{f: getattr(self, f) for f in ARRAY_FIELDS},
+        )
         tmp.replace(path)
 
     @classmethod
-    def load(cls, path: Path) -> tuple["ObservationTable", str]:
+    def load(cls, path: Path) -> tuple[ObservationTable, str]:
         """(table, key) from a file written by ``save``."""
         with np.load(path) as z:
             g = z["grid"]
             grid = Grid(tuple(g[0:3]), tuple(g[3:6]), tuple(int(n) for n in g[6:9]))
-            table = cls(str(z["object_name"]), str(z["wrt_name"]), grid, float(z["path_length"]),
-                        **{f: z[f] for f in ARRAY_FIELDS})
+            table = cls(
+                str(z["object_name"]),
+                str(z["wrt_name"]),
+                grid,
+                float(z["path_length"]),
+                **{f: z[f] for f in ARRAY_FIELDS},
+            )
             return table, str(z["key"])
 
 
@@ -96,13 +122,18 @@ def _run_chunk(deltas: np.ndarray) -> ObservationArrays:
     return _worker_sim.simulate_batch(deltas)
 
 
-def build_table(obj: ObjectLike, wrt: WRT, level_or_grid: UncertaintyLevel | Grid, workers: int = 2,
-                progress: bool = True) -> ObservationTable:
+def build_table(
+    obj: ObjectLike,
+    wrt: WRT,
+    level_or_grid: UncertaintyLevel | Grid,
+    workers: int = 2,
+    progress: bool = True,
+) -> ObservationTable:
     """One geometric simulation per grid offset Δ, on ``workers`` processes (each builds its
     own probe model), with a progress bar."""
     grid = _as_grid(level_or_grid)
     deltas = grid.points()
-    chunks = [deltas[s:s + CHUNK] for s in range(0, len(deltas), CHUNK)]
+    chunks = [deltas[s : s + CHUNK] for s in range(0, len(deltas), CHUNK)]
     bar = tqdm(total=len(deltas), desc=f"Ω {obj.name}/{wrt.name}", unit="Δ", disable=not progress)
     results: list[ObservationArrays] = []
     if workers <= 1:
@@ -117,25 +148,52 @@ def build_table(obj: ObjectLike, wrt: WRT, level_or_grid: UncertaintyLevel | Gri
                 bar.update(len(r.contact))
     bar.close()
     arrays = ObservationArrays.concatenate(results)
-    return ObservationTable(obj.name, wrt.name, grid, SweptPath.from_wrt(wrt).length,
-                            **{f: getattr(arrays, f) for f in ARRAY_FIELDS})
+    return ObservationTable(
+        obj.name,
+        wrt.name,
+        grid,
+        SweptPath.from_wrt(wrt).length,
+        **{f: getattr(arrays, f) for f in ARRAY_FIELDS},
+    )
 
 
 def table_key(obj: ObjectLike, wrt: WRT, grid: Grid) -> str:
     """Hash of everything a table depends on: object parts, WRT, grid, model and simulator."""
     h = hashlib.sha256()
     for p in obj.parts:
-        h.update(repr((p.kind, *(np.round(np.asarray(v, float), 9).tolist() for v in (p.size, p.pos, p.quat))))
-                 .encode())
+        h.update(
+            repr(
+                (
+                    p.kind,
+                    *(np.round(np.asarray(v, float), 9).tolist() for v in (p.size, p.pos, p.quat)),
+                )
+            ).encode()
+        )
     h.update(np.ascontiguousarray(np.round(wrt.poses, 9)).tobytes())
-    h.update(repr((wrt.spread, wrt.preclose, grid.key(), config.MODEL_VERSION, SIM_VERSION,
-                   config.HAND, config.GEOMSIM)).encode())
+    h.update(
+        repr(
+            (
+                wrt.spread,
+                wrt.preclose,
+                grid.key(),
+                config.MODEL_VERSION,
+                SIM_VERSION,
+                config.HAND,
+                config.GEOMSIM,
+            )
+        ).encode()
+    )
     return h.hexdigest()[:16]
 
 
-def load_or_build(obj: ObjectLike, wrt: WRT, grid: UncertaintyLevel | Grid,
-                  cache_dir: Path | str = DEFAULT_CACHE_DIR, workers: int = 2,
-                  progress: bool = True) -> ObservationTable:
+def load_or_build(
+    obj: ObjectLike,
+    wrt: WRT,
+    grid: UncertaintyLevel | Grid,
+    cache_dir: Path | str = DEFAULT_CACHE_DIR,
+    workers: int = 2,
+    progress: bool = True,
+) -> ObservationTable:
     """The cached table if it is current, else build it, store it, and drop stale versions."""
     grid = _as_grid(grid)
     key = table_key(obj, wrt, grid)
@@ -147,7 +205,13 @@ def load_or_build(obj: ObjectLike, wrt: WRT, grid: UncertaintyLevel | Grid,
         table, stored = ObservationTable.load(path)
         if stored == key:
             return table
-    log.info("building observation table %s/%s over %d offsets (%s)", obj.name, wrt.name, grid.size, grid.key())
+    log.info(
+        "building observation table %s/%s over %d offsets (%s)",
+        obj.name,
+        wrt.name,
+        grid.size,
+        grid.key(),
+    )
     table = build_table(obj, wrt, grid, workers=workers, progress=progress)
     for stale in cache_dir.glob(f"{stem}*.npz"):
         stale.unlink()

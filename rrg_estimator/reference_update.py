@@ -6,17 +6,17 @@ grids, and the benchmark uses it as the baseline.
 Cost: the likelihood is O(N) Python iterations; the bump transition is a double loop over
 states, O(N · support of the bump kernel), i.e. O(N²) on fine grids: keep grids small.
 """
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
 
-from rrg_estimator.config import LIKELIHOOD, TRANSITION, LikelihoodParams, TransitionParams
-from rrg_sim.observation import Observation
-
 from rrg_estimator.belief import Belief
+from rrg_estimator.config import LIKELIHOOD, TRANSITION, LikelihoodParams, TransitionParams
 from rrg_estimator.obs_model import ObsFeatures, TableLike
+from rrg_sim.observation import Observation
 
 #: Per-axis bump factors below this are skipped (≈ 7σ out; far below float32 likelihoods).
 _NEGLIGIBLE = 1e-12
@@ -29,7 +29,7 @@ def _wrap(a: float) -> float:
 def _cell_mass(offset_cells: float, sigma_cells: float) -> float:
     """Mass of N(0, σ²) over the unit cell [offset - ½, offset + ½] (cells)."""
     sigma = max(sigma_cells, 1e-6)
-    cdf = lambda x: 0.5 * (1.0 + math.erf(x / (sigma * math.sqrt(2.0))))  # noqa: E731
+    cdf = lambda x: 0.5 * (1.0 + math.erf(x / (sigma * math.sqrt(2.0))))
     return cdf(offset_cells + 0.5) - cdf(offset_cells - 0.5)
 
 
@@ -93,11 +93,17 @@ def sensor_prediction_reference(table: TableLike, j: int, s: int) -> float:
     return q
 
 
-def likelihood_reference(table: TableLike, j: int, obs: dict, params: LikelihoodParams = LIKELIHOOD) -> float:
+def likelihood_reference(
+    table: TableLike, j: int, obs: dict, params: LikelihoodParams = LIKELIHOOD
+) -> float:
     """Floored likelihood of one observation (dict of plain values) at table entry j, term by term."""
     like = 1.0
     predicted_contact = bool(table.contact[j])
-    like *= (1.0 - params.p_contact_mismatch) if obs["contact"] == predicted_contact else params.p_contact_mismatch
+    like *= (
+        (1.0 - params.p_contact_mismatch)
+        if obs["contact"] == predicted_contact
+        else params.p_contact_mismatch
+    )
     if obs["contact"] and predicted_contact:
         z = (obs["progress"] - float(table.progress[j])) / params.sigma_progress
         like *= max(math.exp(-0.5 * z * z), params.outlier_progress)
@@ -106,18 +112,22 @@ def likelihood_reference(table: TableLike, j: int, obs: dict, params: Likelihood
         p_fired = q * params.p_detect + (1.0 - q) * params.p_false_alarm
         like *= p_fired if obs["sensors"][s] else 1.0 - p_fired
     for f in range(3):
-        z = (obs["closure"][f] - float(table.closure[j][f])) / closure_sigma_reference(table, j, f, params.sigma_closure)
+        z = (obs["closure"][f] - float(table.closure[j][f])) / closure_sigma_reference(
+            table, j, f, params.sigma_closure
+        )
         like *= max(math.exp(-0.5 * z * z), params.outlier_closure)
     for f in range(3):
         o, t = obs["tip_points"][f], table.tip_points[j][f]
         if any(math.isnan(v) for v in o) or any(math.isnan(float(v)) for v in t):
             continue
         d2 = sum((o[k] - float(t[k])) ** 2 for k in range(3))
-        like *= max(math.exp(-0.5 * d2 / params.sigma_tip ** 2), params.outlier_tip)
+        like *= max(math.exp(-0.5 * d2 / params.sigma_tip**2), params.outlier_tip)
     return (1.0 - params.floor) * like + params.floor
 
 
-def bump_reference(belief: Belief, direction_xy_world, params: TransitionParams = TRANSITION) -> list[float]:
+def bump_reference(
+    belief: Belief, direction_xy_world, params: TransitionParams = TRANSITION
+) -> list[float]:
     """Bump transition as an explicit double loop over (source, destination) states; the
     destination loops skip coordinates where the kernel factor is negligible."""
     g = belief.grid
@@ -127,8 +137,14 @@ def bump_reference(belief: Belief, direction_xy_world, params: TransitionParams 
     if norm > 1.0:
         dx, dy = dx / norm, dy / norm
     # kernel factor per axis and index offset (destination - source)
-    fx = {o: _cell_mass(o - params.bump_mean * dx / sx, params.bump_sigma_xy / sx) for o in range(-nx, nx)}
-    fy = {o: _cell_mass(o - params.bump_mean * dy / sy, params.bump_sigma_xy / sy) for o in range(-ny, ny)}
+    fx = {
+        o: _cell_mass(o - params.bump_mean * dx / sx, params.bump_sigma_xy / sx)
+        for o in range(-nx, nx)
+    }
+    fy = {
+        o: _cell_mass(o - params.bump_mean * dy / sy, params.bump_sigma_xy / sy)
+        for o in range(-ny, ny)
+    }
     ft = {o: _cell_mass(o, params.bump_sigma_theta / st) for o in range(-nt, nt)}
     n = len(belief.weights)
     moved = [0.0] * n
@@ -149,7 +165,10 @@ def bump_reference(belief: Belief, direction_xy_world, params: TransitionParams 
                     pt = ft[c - k]
                     if pt >= _NEGLIGIBLE:
                         moved[(a * ny + b) * nt + c] += w * px * py * pt
-    out = [params.p_stay * float(belief.weights[s]) + (1.0 - params.p_stay) * moved[s] for s in range(n)]
+    out = [
+        params.p_stay * float(belief.weights[s]) + (1.0 - params.p_stay) * moved[s]
+        for s in range(n)
+    ]
     total = sum(out)
     return [v / total for v in out]
 
@@ -159,21 +178,42 @@ def _observation_dict(obs_or_features: Observation | ObsFeatures, e) -> dict:
     if isinstance(obs_or_features, Observation):
         o = obs_or_features
         motion = [float(v) for v in o.motion_dir]
-        contact, progress, sensors, closure, tips = o.contact, o.progress, o.sensors, o.closure, o.tip_points
+        contact, progress, sensors, closure, tips = (
+            o.contact,
+            o.progress,
+            o.sensors,
+            o.closure,
+            o.tip_points,
+        )
     else:
         f = obs_or_features
         m = [float(v) for v in f.motion_dir[0]]
         c, s = math.cos(e[2]), math.sin(e[2])
         motion = [c * m[0] - s * m[1], s * m[0] + c * m[1], m[2]]
-        contact, progress, sensors, closure, tips = (f.contact[0], f.progress[0], f.sensors[0],
-                                                     f.closure[0], f.tip_points[0])
-    return {"contact": bool(contact), "progress": float(progress),
-            "sensors": [bool(v) for v in sensors], "closure": [float(v) for v in closure],
-            "tip_points": [[float(v) for v in row] for row in tips], "motion_dir": motion}
+        contact, progress, sensors, closure, tips = (
+            f.contact[0],
+            f.progress[0],
+            f.sensors[0],
+            f.closure[0],
+            f.tip_points[0],
+        )
+    return {
+        "contact": bool(contact),
+        "progress": float(progress),
+        "sensors": [bool(v) for v in sensors],
+        "closure": [float(v) for v in closure],
+        "tip_points": [[float(v) for v in row] for row in tips],
+        "motion_dir": motion,
+    }
 
 
-def update_reference(belief: Belief, table: TableLike, e, obs_or_features: Observation | ObsFeatures,
-                     transition: bool = True) -> Belief:
+def update_reference(
+    belief: Belief,
+    table: TableLike,
+    e,
+    obs_or_features: Observation | ObsFeatures,
+    transition: bool = True,
+) -> Belief:
     """SE(b, τ(e), o) state by state: bump (if contact), likelihood per state, normalize."""
     e = [float(v) for v in e]
     obs = _observation_dict(obs_or_features, e)

@@ -21,8 +21,8 @@ from typing import Protocol
 import numpy as np
 
 from rrg_estimator.config import LEVELS, UncertaintyLevel
-from rrg_sim.config import REORIENT_MIN_FINGERS
 from rrg_estimator.grid import Grid
+from rrg_sim.config import REORIENT_MIN_FINGERS
 from rrg_sim.objects import ObjectModel, get_object
 from rrg_sim.observation import Observation, holds_object
 from rrg_sim.wrt import WRT
@@ -42,8 +42,10 @@ def level_of_grid(grid: Grid) -> UncertaintyLevel:
     for level in LEVELS.values():
         if np.allclose(grid.spacing, level.spacing):
             return level
-    raise ValueError(f"no observation tables for grid spacing {tuple(grid.spacing)}; "
-                     f"levels: { {n: lv.spacing for n, lv in LEVELS.items()} }")
+    raise ValueError(
+        f"no observation tables for grid spacing {tuple(grid.spacing)}; "
+        f"levels: { {n: lv.spacing for n, lv in LEVELS.items()} }"
+    )
 
 
 def closest_level(sigma) -> UncertaintyLevel:
@@ -59,7 +61,9 @@ def wrt_posterior(belief: Belief, table: TableLike, wrt: WRT, e, obs: Observatio
     post = update(belief, table, e, obs, params=likelihood_params(wrt))
     if wrt.kind == "reorient" and holds_object(obs.contact, obs.sensors, REORIENT_MIN_FINGERS):
         e = np.asarray(e, dtype=float)
-        post = reorient(post, wrt.reorient_angle, center_xy=e[:2], outcome=wrt.reorient_outcome, e=e)
+        post = reorient(
+            post, wrt.reorient_angle, center_xy=e[:2], outcome=wrt.reorient_outcome, e=e
+        )
     return post
 
 
@@ -101,9 +105,12 @@ class CachedTables:
         level = level_of_grid(grid)
         key = (wrt_name, level.name)
         if key not in self._tables:
-            log.info("loading observation table %s/%s at level %s", self.obj.name, wrt_name, level.name)
-            self._tables[key] = load_or_build(self.obj, self.wrt(wrt_name), level, workers=self.workers,
-                                              progress=False)
+            log.info(
+                "loading observation table %s/%s at level %s", self.obj.name, wrt_name, level.name
+            )
+            self._tables[key] = load_or_build(
+                self.obj, self.wrt(wrt_name), level, workers=self.workers, progress=False
+            )
         return self._tables[key]
 
 
@@ -114,8 +121,14 @@ class BeliefTracker:
     levels: the uncertainty levels a concentrated belief may be re-gridded to (variable resolution).
     """
 
-    def __init__(self, obj: ObjectModel, belief: Belief, tables: WrtTables | None = None,
-                 levels: Iterable[UncertaintyLevel] = LEVELS.values(), variable_resolution: bool = True):
+    def __init__(
+        self,
+        obj: ObjectModel,
+        belief: Belief,
+        tables: WrtTables | None = None,
+        levels: Iterable[UncertaintyLevel] = LEVELS.values(),
+        variable_resolution: bool = True,
+    ):
         self.obj = obj
         self.belief = belief
         self.tables = tables if tables is not None else CachedTables(obj)
@@ -125,12 +138,16 @@ class BeliefTracker:
         self._pending: tuple[WRT, np.ndarray, bool] | None = None
 
     @classmethod
-    def gaussian(cls, obj: ObjectModel | str, mean, sigma, level: UncertaintyLevel | None = None,
-                 **kwargs) -> "BeliefTracker":
+    def gaussian(
+        cls, obj: ObjectModel | str, mean, sigma, level: UncertaintyLevel | None = None, **kwargs
+    ) -> BeliefTracker:
         """A tracker whose belief is N(mean, diag(σ²)) on the level's grid centred at the mean
         (level None: the one whose σ is closest). Raises KeyError for an unknown object and
         ValueError for a non-finite mean or a non-positive σ."""
-        mean, sigma = np.asarray(mean, dtype=float).reshape(3), np.asarray(sigma, dtype=float).reshape(3)
+        mean, sigma = (
+            np.asarray(mean, dtype=float).reshape(3),
+            np.asarray(sigma, dtype=float).reshape(3),
+        )
         if not np.all(np.isfinite(mean)):
             raise ValueError(f"mean must be finite, got {mean.tolist()}")
         if not (np.all(np.isfinite(sigma)) and np.all(sigma > 0.0)):

@@ -14,6 +14,7 @@
 Both work on the (nx, ny, nθ) weight array. Mass moved off the grid is dropped and the
 rest renormalized.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -56,8 +57,12 @@ def bump(belief: Belief, direction_xy_world, params: TransitionParams = TRANSITI
     if norm > 1.0:
         d = d / norm
     a = belief.as_grid_array()
-    moved = displace(a, belief.grid, (params.bump_mean * d[0], params.bump_mean * d[1], 0.0),
-                     (params.bump_sigma_xy, params.bump_sigma_xy, params.bump_sigma_theta))
+    moved = displace(
+        a,
+        belief.grid,
+        (params.bump_mean * d[0], params.bump_mean * d[1], 0.0),
+        (params.bump_sigma_xy, params.bump_sigma_xy, params.bump_sigma_theta),
+    )
     return belief.with_weights(params.p_stay * a + (1.0 - params.p_stay) * moved)
 
 
@@ -65,7 +70,9 @@ def displace(a: np.ndarray, grid: Grid, shift, sigma) -> np.ndarray:
     """The grid array ``a`` moved by a Gaussian displacement N(shift, σ²) per axis (x [m],
     y [m], θ [rad]); mass pushed off the grid is dropped."""
     (nx, ny, nt), sp = grid.shape, grid.spacing
-    kx, ky, kt = (displacement_kernel(n, m / h, s / h) for n, m, s, h in zip((nx, ny, nt), shift, sigma, sp))
+    kx, ky, kt = (
+        displacement_kernel(n, m / h, s / h) for n, m, s, h in zip((nx, ny, nt), shift, sigma, sp)
+    )
     out = (kx @ a.reshape(nx, ny * nt)).reshape(nx, ny, nt)
     return np.matmul(ky, out) @ kt.T
 
@@ -92,11 +99,19 @@ def rotated_density(belief: Belief, grid: Grid, angle: float, center_xy=None) ->
 def sample_density(belief: Belief, poses: np.ndarray) -> np.ndarray:
     """Trilinear interpolation of the belief's weights at poses (K,3); 0 beyond the grid."""
     coords = belief.grid.fractional_index(poses)
-    return map_coordinates(belief.as_grid_array(), coords.T, order=1, mode="grid-constant", cval=0.0)
+    return map_coordinates(
+        belief.as_grid_array(), coords.T, order=1, mode="grid-constant", cval=0.0
+    )
 
 
-def reorient(belief: Belief, angle: float, params: TransitionParams = TRANSITION,
-             center_xy=None, outcome: ReorientOutcome | None = None, e=None) -> Belief:
+def reorient(
+    belief: Belief,
+    angle: float,
+    params: TransitionParams = TRANSITION,
+    center_xy=None,
+    outcome: ReorientOutcome | None = None,
+    e=None,
+) -> Belief:
     """Reorientation transition: turned by ``angle`` [rad] with p_reorient_success, by angle/2
     with p_reorient_partial, not at all otherwise, each blurred by reorient_sigma_theta.
 
@@ -113,7 +128,10 @@ def reorient(belief: Belief, angle: float, params: TransitionParams = TRANSITION
     if center_xy is not None:
         c = np.asarray(center_xy, dtype=float)
         ca, sa = np.cos(angle), np.sin(angle)
-        cx, cy = c[0] + ca * (cx - c[0]) - sa * (cy - c[1]), c[1] + sa * (cx - c[0]) + ca * (cy - c[1])
+        cx, cy = (
+            c[0] + ca * (cx - c[0]) - sa * (cy - c[1]),
+            c[1] + sa * (cx - c[0]) + ca * (cy - c[1]),
+        )
     grid = Grid((float(cx), float(cy), float(wrap_angle(ct + angle))), g.spacing, g.shape)
     p_full, p_half = params.p_reorient_success, params.p_reorient_partial
     mix = [(p_full, angle), (p_half, angle / 2.0), (1.0 - p_full - p_half, 0.0)]
@@ -121,7 +139,10 @@ def reorient(belief: Belief, angle: float, params: TransitionParams = TRANSITION
     if outcome is None or e is None:
         w = sum(p * rotated_density(belief, grid, a, center_xy) for p, a in mix if p > 0.0)
         return Belief(grid, displace(w.reshape(grid.shape), grid, (0.0, 0.0, 0.0), blur).ravel())
-    w = sum((p * rotated_density(belief, grid, a, center_xy) for p, a in mix[1:] if p > 0.0), np.zeros(grid.size))
+    w = sum(
+        (p * rotated_density(belief, grid, a, center_xy) for p, a in mix[1:] if p > 0.0),
+        np.zeros(grid.size),
+    )
     w = displace(w.reshape(grid.shape), grid, (0.0, 0.0, 0.0), blur)
     e = np.asarray(e, dtype=float).reshape(3)
     live = np.flatnonzero(belief.weights > 0.0)
@@ -132,7 +153,9 @@ def reorient(belief: Belief, angle: float, params: TransitionParams = TRANSITION
     rigid = splat(grid, compose_planar(e_turned, delta[~inside]), mass[~inside])
     moved = splat(grid, compose_planar(e_turned, outcome.mean(delta[inside])), mass[inside])
     sigma = np.hypot(outcome.sigma, blur)  # the measured spread and the transition's θ blur
-    full = displace(rigid, grid, (0.0, 0.0, 0.0), blur) + displace(moved, grid, (0.0, 0.0, 0.0), sigma)
+    full = displace(rigid, grid, (0.0, 0.0, 0.0), blur) + displace(
+        moved, grid, (0.0, 0.0, 0.0), sigma
+    )
     return Belief(grid, (w + p_full * full).ravel())
 
 

@@ -1,4 +1,5 @@
 """The belief update SE(b, τ(e), o) (design §3): transition, then likelihood, then normalization."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -8,14 +9,22 @@ from rrg_estimator.grid import Grid
 from rrg_sim.observation import Observation
 
 from .belief import Belief
-from .obs_model import (ObsFeatures, TableLike, features_from_observation, likelihood_over_table,
-                        table_indices)
+from .obs_model import (
+    ObsFeatures,
+    TableLike,
+    features_from_observation,
+    likelihood_over_table,
+    table_indices,
+)
 from .transition import bump
 
 
 def _single_features(obs_or_features: Observation | ObsFeatures, e) -> ObsFeatures:
-    feats = (obs_or_features if isinstance(obs_or_features, ObsFeatures)
-             else features_from_observation(obs_or_features, e))
+    feats = (
+        obs_or_features
+        if isinstance(obs_or_features, ObsFeatures)
+        else features_from_observation(obs_or_features, e)
+    )
     if len(feats) != 1:
         raise ValueError(f"update takes one observation, got {len(feats)} feature rows")
     return feats
@@ -28,13 +37,17 @@ def predict(belief: Belief, e, feats: ObsFeatures) -> Belief:
         return belief
     m = feats.motion_dir[0].astype(float)
     if np.isnan(m[:2]).any():
-        raise ValueError("contact observation without a motion direction: build its features "
-                         "with features_from_observation(obs, e) or from table rows")
+        raise ValueError(
+            "contact observation without a motion direction: build its features "
+            "with features_from_observation(obs, e) or from table rows"
+        )
     c, s = np.cos(e[2]), np.sin(e[2])
     return bump(belief, (c * m[0] - s * m[1], s * m[0] + c * m[1]))
 
 
-def apply_likelihood(prior: Belief, table_likelihood: np.ndarray, idx: np.ndarray) -> tuple[Belief, float]:
+def apply_likelihood(
+    prior: Belief, table_likelihood: np.ndarray, idx: np.ndarray
+) -> tuple[Belief, float]:
     """b'(w) ∝ b(w)·L[idx(w)] for a likelihood row over table entries (N_table,) and the table
     index of every belief state (N,); returns the posterior and P(o | b) = Σ_w b(w)·L[idx(w)]."""
     post = prior.weights * table_likelihood[idx]
@@ -42,12 +55,20 @@ def apply_likelihood(prior: Belief, table_likelihood: np.ndarray, idx: np.ndarra
     if not np.isfinite(z):
         raise ValueError("likelihood holds NaN or inf (check the table and the observation)")
     if z <= 0.0:
-        raise ValueError("the observation has zero probability under the belief (likelihood without floor?)")
+        raise ValueError(
+            "the observation has zero probability under the belief (likelihood without floor?)"
+        )
     return prior.with_weights(post / z), z
 
 
-def update(belief: Belief, table: TableLike, e, obs_or_features: Observation | ObsFeatures,
-           transition: bool = True, params: LikelihoodParams = LIKELIHOOD) -> Belief:
+def update(
+    belief: Belief,
+    table: TableLike,
+    e,
+    obs_or_features: Observation | ObsFeatures,
+    transition: bool = True,
+    params: LikelihoodParams = LIKELIHOOD,
+) -> Belief:
     """SE(b, τ(e), o): the belief after τ(e) (the table's WRT run relative to estimate e)
     produced observation o (an Observation, or one row of ObsFeatures); ``params``: the WRT's
     likelihood parameters (obs_model.likelihood_params)."""
@@ -61,7 +82,9 @@ def update(belief: Belief, table: TableLike, e, obs_or_features: Observation | O
     return posterior
 
 
-def goal_probability(belief: Belief, goal_indicator: np.ndarray, e, table_grid: Grid | None = None) -> float:
+def goal_probability(
+    belief: Belief, goal_indicator: np.ndarray, e, table_grid: Grid | None = None
+) -> float:
     """P_b(G) of a goal WRT executed relative to e: Σ_w b(w)·G[idx(e, w)].
 
     goal_indicator: (N_table,) P(G | Δ) (or bool) over the goal WRT's table offsets; table_grid defaults

@@ -12,6 +12,7 @@ Otherwise (a skewed belief) it is found by searching all axis-aligned runs of co
 points a box can span, taking the one holding the most mass, and placing the box as close
 to the mean as it can be while still containing that run.
 """
+
 from __future__ import annotations
 
 from collections.abc import Iterable
@@ -31,7 +32,9 @@ def _window_sums(a: np.ndarray, lengths) -> np.ndarray:
     for axis, n in enumerate(lengths):
         c = np.cumsum(a, axis=axis)
         c = np.concatenate([np.zeros_like(c.take([0], axis=axis)), c], axis=axis)
-        a = c.take(np.arange(n, c.shape[axis]), axis=axis) - c.take(np.arange(c.shape[axis] - n), axis=axis)
+        a = c.take(np.arange(n, c.shape[axis]), axis=axis) - c.take(
+            np.arange(c.shape[axis] - n), axis=axis
+        )
     return a
 
 
@@ -43,10 +46,15 @@ def refinement_center(belief: Belief, half_extent: np.ndarray, eps: float) -> np
     a = belief.as_grid_array()
     mean = belief.mean()
     mean[2] = g.center[2] + wrap_angle(mean[2] - g.center[2])  # in the grid's unwrapped θ frame
-    inside = [np.abs(ax - m) <= h + 1e-9 * s for ax, m, h, s in zip(axes, mean, half_extent, spacing)]
+    inside = [
+        np.abs(ax - m) <= h + 1e-9 * s for ax, m, h, s in zip(axes, mean, half_extent, spacing)
+    ]
     if a[np.ix_(*inside)].sum() >= 1.0 - eps:
         return mean
-    lengths = [min(int(np.floor(2 * h / s + 1e-9)) + 1, n) for h, s, n in zip(half_extent, spacing, g.shape)]
+    lengths = [
+        min(int(np.floor(2 * h / s + 1e-9)) + 1, n)
+        for h, s, n in zip(half_extent, spacing, g.shape)
+    ]
     sums = _window_sums(a, lengths)
     best = sums.max()
     if best < 1.0 - eps:
@@ -72,8 +80,9 @@ def _regrid(belief: Belief, level: UncertaintyLevel, center: np.ndarray) -> Beli
     return Belief(fine, sample_density(belief, fine.points()))
 
 
-def maybe_refine(belief: Belief, levels: Iterable[UncertaintyLevel] = LEVELS.values(),
-                 eps: float = VARRES_EPS) -> Belief | None:
+def maybe_refine(
+    belief: Belief, levels: Iterable[UncertaintyLevel] = LEVELS.values(), eps: float = VARRES_EPS
+) -> Belief | None:
     """The belief re-gridded at the finest of ``levels`` finer than its grid whose box holds
     at least 1 - eps of its mass with half a cell of margin (see the module); None when none
     does. A belief already on one of ``levels``' refined grids and on no finer one is
@@ -88,15 +97,22 @@ def maybe_refine(belief: Belief, levels: Iterable[UncertaintyLevel] = LEVELS.val
     (the ≤ eps of mass outside the box is dropped).
     """
     spacing = np.asarray(belief.grid.spacing)
-    finer = sorted((lv for lv in levels if np.all(np.asarray(lv.spacing) < spacing * (1 - 1e-9))),
-                   key=lambda lv: float(np.prod(lv.spacing)))
+    finer = sorted(
+        (lv for lv in levels if np.all(np.asarray(lv.spacing) < spacing * (1 - 1e-9))),
+        key=lambda lv: float(np.prod(lv.spacing)),
+    )
     for level in finer:
         center = refinement_center(belief, Grid.for_level(level).half_extent - spacing / 2, eps)
         if center is not None:
             return _regrid(belief, level, center)
     coarsest = max(LEVELS.values(), key=lambda lv: float(np.prod(lv.spacing)))
-    own = [lv for lv in levels if np.allclose(lv.spacing, spacing) and tuple(lv.shape) == belief.grid.shape
-           and not np.allclose(lv.spacing, coarsest.spacing)]  # HIGH's grid spans the prior: it stays
+    own = [
+        lv
+        for lv in levels
+        if np.allclose(lv.spacing, spacing)
+        and tuple(lv.shape) == belief.grid.shape
+        and not np.allclose(lv.spacing, coarsest.spacing)
+    ]  # HIGH's grid spans the prior: it stays
     if not own or not _off_centre(belief):
         return None
     return _regrid(belief, own[0], belief.mean())

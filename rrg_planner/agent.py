@@ -10,6 +10,7 @@ Strategies (paper, "Experiments"):
   user's stopping rule, and no information action can do better than stopping then.
 After the 9th action the 10th is the goal grasp, executed open-loop, then judged.
 """
+
 from __future__ import annotations
 
 import logging
@@ -41,8 +42,14 @@ class RobustGraspAgent:
     """Chooses WRTs with a strategy (the pomdp_py 'agent'); the belief it decides on is the
     estimator's, and the search remembers what ran (``executed``) and what could not (``block``)."""
 
-    def __init__(self, model: PlanningModel, strategy: str = "rrg-info", horizon: int = SEARCH.horizon,
-                 delta: float = SEARCH.delta, max_actions: int = SEARCH.max_actions):
+    def __init__(
+        self,
+        model: PlanningModel,
+        strategy: str = "rrg-info",
+        horizon: int = SEARCH.horizon,
+        delta: float = SEARCH.delta,
+        max_actions: int = SEARCH.max_actions,
+    ):
         check_choice(strategy, horizon, delta)
         self.model = model
         self.search = ForwardSearch(model)
@@ -77,7 +84,9 @@ class RobustGraspAgent:
             return res.goal_action, res
         # goal_action < 0: no goal grasp can run at w*(b) or its aim, or where one can, its
         # P_b(G) is 0 (then the most likely feasible state may be w*(b) itself)
-        if res.goal_action < 0 and self.goal_beyond_w_star(belief) >= min(1.0 - self.delta, res.value):
+        if res.goal_action < 0 and self.goal_beyond_w_star(belief) >= min(
+            1.0 - self.delta, res.value
+        ):
             return self.goal, res  # plan_step runs it at the most likely state where it can run
         return res.action, res
 
@@ -99,7 +108,9 @@ class RobustGraspAgent:
         action, res = self.choose(belief)
         return action, res, False
 
-    def plan_step(self, belief: Belief, step: int) -> tuple[int, np.ndarray, SearchResult | None, bool]:
+    def plan_step(
+        self, belief: Belief, step: int
+    ) -> tuple[int, np.ndarray, SearchResult | None, bool]:
         """next_action and the estimate e to run it at: w*(b), or, when the chosen action (or
         every action) cannot run there, the goal grasp at the most likely state where it can.
         Returns (action, or -1 when nothing can run; e; the search result, if any; last)."""
@@ -112,12 +123,17 @@ class RobustGraspAgent:
         alt = self.most_likely_feasible(belief, self.goal)
         if alt is None:
             return -1, e, res, last
-        log.info("%s infeasible at w*=%s: goal grasp at %s instead",
-                 self.model.names[action] if action >= 0 else "every action",
-                 np.round(e, 3).tolist(), np.round(alt, 3).tolist())
+        log.info(
+            "%s infeasible at w*=%s: goal grasp at %s instead",
+            self.model.names[action] if action >= 0 else "every action",
+            np.round(e, 3).tolist(),
+            np.round(alt, 3).tolist(),
+        )
         return self.goal, alt, res, last
 
-    def goal_estimate(self, belief: Belief, action: int, res: SearchResult | None = None) -> np.ndarray:
+    def goal_estimate(
+        self, belief: Belief, action: int, res: SearchResult | None = None
+    ) -> np.ndarray:
         """Where to run goal WRT ``action``: of w*(b) and its aimed estimate
         (ForwardSearch.goal_estimates), the one with the highest P_b(G); w*(b) if neither is
         feasible. Reuses the search result's when it is for this action."""
@@ -127,7 +143,9 @@ class RobustGraspAgent:
         _, g, e = self.search.best_goal(sb, goals=(action,))
         return e if g >= 0 else belief.w_star()
 
-    def most_likely_feasible(self, belief: Belief, action: int, candidates: int = MAX_FALLBACK_STATES) -> np.ndarray | None:
+    def most_likely_feasible(
+        self, belief: Belief, action: int, candidates: int = MAX_FALLBACK_STATES
+    ) -> np.ndarray | None:
         """The most likely of the belief's ``candidates`` most likely states at which
         ``action`` is feasible, or None."""
         w = belief.weights
@@ -149,7 +167,11 @@ class RobustGraspAgent:
         """v(b) without a search: P_b(G) of the goal WRT at its best estimate (goal_estimate; 0
         where it is infeasible)."""
         e = self.goal_estimate(belief, self.goal)
-        return self.grasp_probability(belief, self.goal, e) if self.model.feasible(self.goal, e) else 0.0
+        return (
+            self.grasp_probability(belief, self.goal, e)
+            if self.model.feasible(self.goal, e)
+            else 0.0
+        )
 
     def finished(self, action: int, p_exec: float, last: bool) -> bool:
         """Whether a run stops after this action: a goal grasp believed to hold, or the last one."""

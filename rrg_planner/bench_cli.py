@@ -8,6 +8,7 @@
 for the fast and the naive reference implementations, and prints their ratios. With
 ``--json`` the last line is one JSON object with the medians.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -16,7 +17,7 @@ import logging
 import statistics
 import sys
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -37,36 +38,46 @@ def _median_time(fn: Callable[[], object], repeats: int, warmup: bool = True) ->
 
 
 def bench_plan(argv: list[str]) -> int:
+    from rrg_estimator.config import LEVELS
+    from rrg_estimator.grid import Grid
     from rrg_estimator.obs_tables import build_table
     from rrg_estimator.reference_update import update_reference
     from rrg_estimator.update import update
-    from rrg_estimator.config import LEVELS
-    from rrg_sim.config import WORLD
-    from rrg_sim.geometric_sim import GeometricSimulator
-    from rrg_estimator.grid import Grid
-    from rrg_sim.poses import compose_planar
-
     from rrg_planner.agent import initial_belief
     from rrg_planner.planning_model import PlanningModel
     from rrg_planner.reference_search import ReferenceSearch
     from rrg_planner.search import ForwardSearch
+    from rrg_sim.config import WORLD
+    from rrg_sim.geometric_sim import GeometricSimulator
+    from rrg_sim.poses import compose_planar
 
-    ap = argparse.ArgumentParser(prog="rrg-bench plan", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="rrg-bench plan",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     ap.add_argument("--object", default="powerdrill")
     ap.add_argument("--level", default="high", choices=sorted(LEVELS))
     ap.add_argument("--repeats", type=int, default=5, help="timed repeats per figure (median)")
-    ap.add_argument("--reference-horizons", default="1,2",
-                    help="horizons to also time with the naive reference search (H=3 takes ~hours)")
+    ap.add_argument(
+        "--reference-horizons",
+        default="1,2",
+        help="horizons to also time with the naive reference search (H=3 takes ~hours)",
+    )
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--json", action="store_true", help="print the medians as JSON on the last line")
+    ap.add_argument(
+        "--json", action="store_true", help="print the medians as JSON on the last line"
+    )
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
     level = LEVELS[args.level]
     rng = np.random.default_rng(args.seed)
 
-    print(f"[plan] object={args.object} level={args.level} grid={level.shape} "
-          f"({int(np.prod(level.shape))} points)", flush=True)
+    print(
+        f"[plan] object={args.object} level={args.level} grid={level.shape} "
+        f"({int(np.prod(level.shape))} points)",
+        flush=True,
+    )
     model = PlanningModel(args.object, levels=(args.level,), progress=True)
     print(f"[plan] {len(model.actions)} WRTs: {', '.join(model.names)}", flush=True)
 
@@ -84,11 +95,16 @@ def bench_plan(argv: list[str]) -> int:
 
     rows: dict[str, tuple[float, float | None]] = {}
     for h in (1, 2, 3):
-        t_fast = _median_time(lambda: fast.select(belief, h), args.repeats if h < 3 else max(1, args.repeats // 2))
+        t_fast = _median_time(
+            lambda: fast.select(belief, h), args.repeats if h < 3 else max(1, args.repeats // 2)
+        )
         t_ref = _median_time(lambda: ref.select(belief, h), 1, warmup=False) if h in ref_h else None
         rows[f"select H={h}"] = (t_fast, t_ref)
-        print(f"[plan] select H={h}: fast {t_fast * 1e3:.1f} ms"
-              + (f", reference {t_ref:.2f} s" if t_ref else ""), flush=True)
+        print(
+            f"[plan] select H={h}: fast {t_fast * 1e3:.1f} ms"
+            + (f", reference {t_ref:.2f} s" if t_ref else ""),
+            flush=True,
+        )
 
     # Belief update with an observation simulated at a random true pose.
     true = compose_planar(mean, rng.normal(0.0, level.sigma))
@@ -112,7 +128,9 @@ def bench_plan(argv: list[str]) -> int:
         "select_ms_h3": rows["select H=3"][0] * 1e3,
         "update_ms": t_upd * 1e3,
         "table_s_per_wrt": table_s,
-        "ref_speedup_h1": (rows["select H=1"][1] / rows["select H=1"][0]) if rows["select H=1"][1] else None,
+        "ref_speedup_h1": (rows["select H=1"][1] / rows["select H=1"][0])
+        if rows["select H=1"][1]
+        else None,
         "ref_speedup_update": t_upd_ref / t_upd,
     }
     if args.json:

@@ -34,13 +34,12 @@ import numpy as np
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import LEVELS, UncertaintyLevel
 from rrg_estimator.tracker import BeliefTracker
-from rrg_sim.config import SENSOR_NAMES
-from rrg_sim.observation import Observation
-from rrg_sim.wrt import WRT, InfeasibleWRT
-
 from rrg_planner.agent import MAX_BLOCKED, RobustGraspAgent, initial_belief
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.search import SearchResult
+from rrg_sim.config import SENSOR_NAMES
+from rrg_sim.observation import Observation
+from rrg_sim.wrt import WRT, InfeasibleWRT
 
 log = logging.getLogger(__name__)
 
@@ -145,7 +144,9 @@ def decide(agent: RobustGraspAgent, belief: Belief, number: int) -> Decision:
     else:
         p_goal, value = res.p_goal, float(res.action_values[action])
         values = {name: float(v) for name, v in zip(agent.model.names, res.action_values)}
-    return Decision(number, action, act.name, act.kind, e, last, value, p_goal, planning_time, res, values)
+    return Decision(
+        number, action, act.name, act.kind, e, last, value, p_goal, planning_time, res, values
+    )
 
 
 class ClosedLoop:
@@ -156,11 +157,16 @@ class ClosedLoop:
     is asked before every decision and stops the run with GraspCanceled.
     """
 
-    def __init__(self, agent: RobustGraspAgent, world: World, estimator: Estimator,
-                 on_decision: Callable[[Decision], None] | None = None,
-                 on_infeasible: Callable[[Decision, str], None] | None = None,
-                 on_step: Callable[[Step, Belief], None] | None = None,
-                 canceled: Callable[[], bool] | None = None):
+    def __init__(
+        self,
+        agent: RobustGraspAgent,
+        world: World,
+        estimator: Estimator,
+        on_decision: Callable[[Decision], None] | None = None,
+        on_infeasible: Callable[[Decision, str], None] | None = None,
+        on_step: Callable[[Step, Belief], None] | None = None,
+        canceled: Callable[[], bool] | None = None,
+    ):
         self.agent, self.world, self.estimator = agent, world, estimator
         self.on_decision, self.on_infeasible, self.on_step = on_decision, on_infeasible, on_step
         self.canceled = canceled or (lambda: False)
@@ -186,32 +192,51 @@ class ClosedLoop:
         decision = decide(agent, belief, len(self.steps) + 1)
         self.planning_time += decision.planning_time
         if decision.action < 0:
-            return self._end(False, belief, f"no feasible action at w*={np.round(decision.estimate, 3).tolist()}"), belief
+            return self._end(
+                False, belief, f"no feasible action at w*={np.round(decision.estimate, 3).tolist()}"
+            ), belief
         if self.on_decision:
             self.on_decision(decision)
         e = decision.estimate
         try:
             obs = self.world.execute(agent.model.actions[decision.action].wrt, e)
         except InfeasibleWRT as exc:  # nothing moved: rule it out at e and choose again
-            log.warning("%s infeasible at %s (%s): replanning", decision.wrt, np.round(e, 3).tolist(), exc)
+            log.warning(
+                "%s infeasible at %s (%s): replanning", decision.wrt, np.round(e, 3).tolist(), exc
+            )
             if self.on_infeasible:
                 self.on_infeasible(decision, str(exc))
             agent.search.block(decision.action, e)
             if len(agent.search.blocked) > MAX_BLOCKED:
-                return self._end(False, belief, f"{len(agent.search.blocked)} infeasible executions"), belief
+                return self._end(
+                    False, belief, f"{len(agent.search.blocked)} infeasible executions"
+                ), belief
             return None, belief
         agent.executed(decision.action, e)
         posterior = self.estimator.update(decision.wrt, e, obs)
         p_exec = agent.grasp_probability(posterior, decision.action, e)
         search_p_goal = decision.search.p_goal if decision.search is not None else float("nan")
-        step = Step(wrt=decision.wrt, kind=decision.kind, estimate=e, contact=bool(obs.contact),
-                    sensors=[s for s, on in zip(SENSOR_NAMES, obs.sensors) if on],
-                    p_goal=float(p_exec if decision.kind == "goal" else search_p_goal),
-                    planning_time=decision.planning_time, action_values=decision.action_values)
+        step = Step(
+            wrt=decision.wrt,
+            kind=decision.kind,
+            estimate=e,
+            contact=bool(obs.contact),
+            sensors=[s for s, on in zip(SENSOR_NAMES, obs.sensors) if on],
+            p_goal=float(p_exec if decision.kind == "goal" else search_p_goal),
+            planning_time=decision.planning_time,
+            action_values=decision.action_values,
+        )
         self.steps.append(step)
-        log.info("action %d: %s at %s → contact=%s sensors=%s P(goal)=%.3f (%.1f ms)", decision.number,
-                 decision.wrt, np.round(e, 3).tolist(), obs.contact, step.sensors, step.p_goal,
-                 decision.planning_time * 1e3)
+        log.info(
+            "action %d: %s at %s → contact=%s sensors=%s P(goal)=%.3f (%.1f ms)",
+            decision.number,
+            decision.wrt,
+            np.round(e, 3).tolist(),
+            obs.contact,
+            step.sensors,
+            step.p_goal,
+            decision.planning_time * 1e3,
+        )
         if self.on_step:
             self.on_step(step, posterior)
         self.p_goal = step.p_goal
@@ -226,19 +251,30 @@ class ClosedLoop:
         return GraspRun(declared, self.steps, self.p_goal, self.planning_time, belief, error)
 
 
-def in_process_estimator(model: PlanningModel, level: UncertaintyLevel | str, mean,
-                         variable_resolution: bool = True) -> BeliefTracker:
+def in_process_estimator(
+    model: PlanningModel, level: UncertaintyLevel | str, mean, variable_resolution: bool = True
+) -> BeliefTracker:
     """The estimator of an in-process run: the level's Gaussian belief about ``mean``, updated
     with the planning model's own tables, re-gridded over the model's levels (when it has the
     finest, ``low``)."""
     level = LEVELS[level] if isinstance(level, str) else level
-    return BeliefTracker(model.obj, initial_belief(level, mean), tables=model, levels=model.levels.values(),
-                         variable_resolution=variable_resolution and "low" in model.levels)
+    return BeliefTracker(
+        model.obj,
+        initial_belief(level, mean),
+        tables=model,
+        levels=model.levels.values(),
+        variable_resolution=variable_resolution and "low" in model.levels,
+    )
 
 
-def run_in_process(agent: RobustGraspAgent, env: Environment, level: UncertaintyLevel | str, mean,
-                   on_step: Callable[[Step, Belief], None] | None = None,
-                   variable_resolution: bool = True) -> GraspRun:
+def run_in_process(
+    agent: RobustGraspAgent,
+    env: Environment,
+    level: UncertaintyLevel | str,
+    mean,
+    on_step: Callable[[Step, Belief], None] | None = None,
+    variable_resolution: bool = True,
+) -> GraspRun:
     """One robust grasp in an in-process environment, judged there at the end."""
     estimator = in_process_estimator(agent.model, level, mean, variable_resolution)
     run = ClosedLoop(agent, env, estimator, on_step=on_step).run()

@@ -6,15 +6,16 @@ hand stopped (binned) and how far each finger closed (binned). Groups whose aggr
 prior probability is below ``SEARCH.offline_prune`` are pruned. Each kept group is
 represented by one canonical observation: its most probable member.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
 
+from rrg_estimator.config import LIKELIHOOD, LikelihoodParams, UncertaintyLevel
 from rrg_estimator.obs_model import features_from_table_rows, likelihood_over_table
 from rrg_estimator.obs_tables import ObservationTable
-from rrg_estimator.config import LIKELIHOOD, LikelihoodParams, UncertaintyLevel
 from rrg_planner.config import SEARCH
 
 #: Signature bin widths (chosen: about two σ of the likelihood's progress and closure terms).
@@ -51,7 +52,11 @@ def signature_keys(table: ObservationTable, closure: bool = True) -> np.ndarray:
     closure False: the closure angles do not split clusters (the likelihood ignores them)."""
     bits = table.sensors.astype(np.int64) @ (1 << np.arange(table.sensors.shape[1], dtype=np.int64))
     prog = np.rint(table.progress / PROGRESS_BIN).astype(np.int64)
-    clos = np.rint(table.closure / CLOSURE_BIN).astype(np.int64) if closure else np.zeros((len(table), 0), np.int64)
+    clos = (
+        np.rint(table.closure / CLOSURE_BIN).astype(np.int64)
+        if closure
+        else np.zeros((len(table), 0), np.int64)
+    )
     cols = np.column_stack([table.contact.astype(np.int64), bits, prog, clos])
     _, inverse = np.unique(cols, axis=0, return_inverse=True)
     return inverse.ravel()
@@ -65,8 +70,12 @@ def offset_prior(table: ObservationTable, level: UncertaintyLevel) -> np.ndarray
     return p / p.sum()
 
 
-def cluster_table(table: ObservationTable, level: UncertaintyLevel,
-                  prune: float = SEARCH.offline_prune, params: LikelihoodParams = LIKELIHOOD) -> ObservationClusters:
+def cluster_table(
+    table: ObservationTable,
+    level: UncertaintyLevel,
+    prune: float = SEARCH.offline_prune,
+    params: LikelihoodParams = LIKELIHOOD,
+) -> ObservationClusters:
     """Group a table's predicted observations and precompute their likelihood rows
     (``params``: the WRT's likelihood parameters, obs_model.likelihood_params)."""
     keys = signature_keys(table, closure=bool(np.isfinite(params.sigma_closure)))
@@ -85,5 +94,11 @@ def cluster_table(table: ObservationTable, level: UncertaintyLevel,
     reps = np.array([reps_by_cluster[c] for c in range(len(kept))], dtype=np.int64)
     feats = features_from_table_rows(table, reps)
     like = likelihood_over_table(table, feats, params).astype(np.float32)
-    return ObservationClusters(assign=assign, representatives=reps, prior=mass[kept],
-                               likelihood=like, l_log_l=like * np.log(like), contact=table.contact[reps].astype(bool))
+    return ObservationClusters(
+        assign=assign,
+        representatives=reps,
+        prior=mass[kept],
+        likelihood=like,
+        l_log_l=like * np.log(like),
+        contact=table.contact[reps].astype(bool),
+    )

@@ -20,7 +20,6 @@ GOAL_AIM_FRACTION = 0.98
 GOAL_MIN_PROBABILITY = 1e-4
 
 
-
 # ------------------------------------------------------------------ search
 @dataclass(frozen=True)
 class SearchParams:

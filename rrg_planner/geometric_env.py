@@ -6,10 +6,12 @@ it turns it about the hand's axis (fully, to where the WRT's measured outcome pu
 Physics trials (rrg_sim.physics) are the honest test of bumps; this environment tests the
 estimator and planner against their own geometry.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
+from rrg_planner.planning_model import goal_holds
 from rrg_sim.config import N_SENSORS, REORIENT_MIN_FINGERS, SENSING, SensingParams
 from rrg_sim.geometric_sim import GeometricSimulator
 from rrg_sim.objects import ObjectModel
@@ -17,11 +19,12 @@ from rrg_sim.observation import Observation, holds_object
 from rrg_sim.poses import relative_planar
 from rrg_sim.wrt import WRT
 
-from rrg_planner.planning_model import goal_holds
 from .search import full_turn
 
 
-def add_sensor_noise(obs: Observation, rng: np.random.Generator, noise: SensingParams = SENSING) -> Observation:
+def add_sensor_noise(
+    obs: Observation, rng: np.random.Generator, noise: SensingParams = SENSING
+) -> Observation:
     """A noisy copy of an observation: Gaussian on the continuous parts, random flips of binary sensors."""
     flips = rng.random(N_SENSORS) < noise.sensor_flip
     tips = obs.tip_points + rng.normal(0.0, noise.tip_point_noise, (3, 3))
@@ -55,7 +58,9 @@ class GeometricEnvironment:
     def execute(self, wrt: WRT, e: np.ndarray) -> Observation:
         obs = self._sim(wrt).simulate(self.true_pose, e)
         if wrt.kind == "reorient" and holds_object(obs.contact, obs.sensors, REORIENT_MIN_FINGERS):
-            self.true_pose = full_turn(self.true_pose[None], e, wrt.reorient_angle, wrt.reorient_outcome)[0]
+            self.true_pose = full_turn(
+                self.true_pose[None], e, wrt.reorient_angle, wrt.reorient_outcome
+            )[0]
         return add_sensor_noise(obs, self.rng, self.noise)
 
     def retreat(self) -> None:
@@ -65,4 +70,6 @@ class GeometricEnvironment:
         """The goal holds for the true pose (noise-free geometric outcome of the grasp)."""
         obs = self._sim(wrt).simulate(self.true_pose, e)
         delta = relative_planar(e, self.true_pose)
-        return bool(goal_holds(self.obj, delta[None], np.array([obs.contact]), obs.sensors[None])[0])
+        return bool(
+            goal_holds(self.obj, delta[None], np.array([obs.contact]), obs.sensors[None])[0]
+        )

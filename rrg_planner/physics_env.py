@@ -1,5 +1,6 @@
 """MuJoCo physics as the agent's Environment: the object really moves when bumped, and a
 goal grasp is judged by lifting it (rrg_sim.physics)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -19,7 +20,7 @@ class PhysicsEnvironment:
         self.last_judgement: dict = {}
 
     @classmethod
-    def for_object(cls, object_name: str, seed: int = 0) -> "PhysicsEnvironment":
+    def for_object(cls, object_name: str, seed: int = 0) -> PhysicsEnvironment:
         return cls(PhysicsWorld(object_name, seed=seed))
 
     def reset(self, true_pose, seed: int) -> None:

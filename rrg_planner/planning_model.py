@@ -4,6 +4,7 @@ clusters, goal indicators and feasibility maps, at one or more grid resolutions.
 This is the "models" part of the pomdp_py split: everything the search needs, computed
 offline (or loaded from the on-disk cache) once per object.
 """
+
 from __future__ import annotations
 
 import logging
@@ -11,22 +12,20 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from rrg_estimator.config import LEVELS, UncertaintyLevel
+from rrg_estimator.grid import Grid
 from rrg_estimator.obs_model import likelihood_params
 from rrg_estimator.obs_tables import ObservationTable, load_or_build
+from rrg_planner.clustering import ObservationClusters, cluster_table
 from rrg_planner.config import GOAL_AIM_FRACTION, GOAL_MIN_PROBABILITY
-from rrg_estimator.config import LEVELS, UncertaintyLevel
 from rrg_sim.config import REORIENT_MIN_FINGERS, SENSOR_NAMES
 from rrg_sim.executor.wrt_executor import executed_poses
-from rrg_sim.observation import holds_object
-from rrg_estimator.grid import Grid
 from rrg_sim.objects import ObjectModel, get_object
+from rrg_sim.observation import holds_object
 from rrg_sim.wam_feasibility import FeasibilityMap
 from rrg_sim.wrt import WRT
 
-from rrg_planner.clustering import ObservationClusters, cluster_table
-
 log = logging.getLogger(__name__)
-
 
 
 def _grasp_made(obj: ObjectModel, contact: np.ndarray, sensors: np.ndarray) -> np.ndarray:
@@ -38,15 +37,22 @@ def _grasp_made(obj: ObjectModel, contact: np.ndarray, sensors: np.ndarray) -> n
     return ok
 
 
-def goal_holds(obj: ObjectModel, delta: np.ndarray, contact: np.ndarray, sensors: np.ndarray) -> np.ndarray:
+def goal_holds(
+    obj: ObjectModel, delta: np.ndarray, contact: np.ndarray, sensors: np.ndarray
+) -> np.ndarray:
     """G for a goal grasp executed relative to an estimate, with the object really at offset
     delta (N,3) and nothing moving it: delta inside the goal region and the grasp made
     (no early contact, the required contacts)."""
     return obj.goal.contains(delta) & _grasp_made(obj, contact, sensors)
 
 
-def goal_weights(obj: ObjectModel, delta: np.ndarray, contact: np.ndarray, sensors: np.ndarray,
-                 cell: tuple[float, float, float] | np.ndarray | None = None) -> np.ndarray:
+def goal_weights(
+    obj: ObjectModel,
+    delta: np.ndarray,
+    contact: np.ndarray,
+    sensors: np.ndarray,
+    cell: tuple[float, float, float] | np.ndarray | None = None,
+) -> np.ndarray:
     """P(G | Δ) (N,) for a goal grasp executed relative to an estimate, the object really at
     offset delta (N,3): the grasp made (as in goal_holds), and the object, moved by the
     closing as the settling study measured it (Settling.outcome: Δ_closed ~ N(μ(Δ),
@@ -72,7 +78,7 @@ def goal_weights(obj: ObjectModel, delta: np.ndarray, contact: np.ndarray, senso
         near = np.flatnonzero(settling.inside(delta))
         mean, sigma = settling.outcome(delta[near], "closed")
         # a uniform offset u in the cell moves the closed Δ by A u: variance Σ_j A_kj² g_j²/12
-        sigma = np.sqrt(sigma ** 2 + (settling.closed.A ** 2) @ spread2)
+        sigma = np.sqrt(sigma**2 + (settling.closed.A**2) @ spread2)
         p[near] = made[near] * obj.goal.probability(mean, sigma)
     p[p < GOAL_MIN_PROBABILITY] = 0.0
     return p
@@ -82,7 +88,9 @@ def goal_indicator(obj: ObjectModel, table: ObservationTable) -> np.ndarray:
     """P(G | Δ) over the goal WRT's table offsets (the static evaluation's precomputed weights).
     The table's outermost entries stand for every offset beyond them (indices are clamped), so
     they get 0, except along a θ the goal ignores."""
-    p = goal_weights(obj, table.grid.points(), table.contact, table.sensors, cell=table.grid.spacing)
+    p = goal_weights(
+        obj, table.grid.points(), table.contact, table.sensors, cell=table.grid.spacing
+    )
     shape = table.grid.shape
     edge = np.zeros(shape, dtype=bool)
     edge[[0, -1], :, :] = edge[:, [0, -1], :] = True
@@ -134,9 +142,15 @@ class ActionModel:
 class PlanningModel:
     """All offline models of one object for the given uncertainty levels."""
 
-    def __init__(self, object_name: str, levels: tuple[str | UncertaintyLevel, ...] = tuple(LEVELS),
-                 workers: int = 2, progress: bool = True, wrt_names: tuple[str, ...] | None = None,
-                 closures_as_predicted: bool = False):
+    def __init__(
+        self,
+        object_name: str,
+        levels: tuple[str | UncertaintyLevel, ...] = tuple(LEVELS),
+        workers: int = 2,
+        progress: bool = True,
+        wrt_names: tuple[str, ...] | None = None,
+        closures_as_predicted: bool = False,
+    ):
         """levels: level names from config.LEVELS, or UncertaintyLevel objects (e.g. small test grids).
         wrt_names: restrict the actions to these WRTs (default: all of the object's WRTs).
         closures_as_predicted: the world reads every WRT's closures exactly as the geometric
@@ -145,35 +159,50 @@ class PlanningModel:
         self.obj = get_object(object_name)
         resolved = [LEVELS[n] if isinstance(n, str) else n for n in levels]
         self.levels: dict[str, UncertaintyLevel] = {lv.name: lv for lv in resolved}
-        wrts = [replace(w, closure_informative=True) if closures_as_predicted else w
-                for w in self.obj.wrts() if wrt_names is None or w.name in wrt_names]
+        wrts = [
+            replace(w, closure_informative=True) if closures_as_predicted else w
+            for w in self.obj.wrts()
+            if wrt_names is None or w.name in wrt_names
+        ]
         self.actions: list[ActionModel] = []
         for wrt in wrts:
             act = ActionModel(wrt=wrt, feasibility=FeasibilityMap(executed_poses(wrt)))
             for name, level in self.levels.items():
-                table = load_or_build(self.obj, wrt, Grid.for_level(level), workers=workers, progress=progress)
+                table = load_or_build(
+                    self.obj, wrt, Grid.for_level(level), workers=workers, progress=progress
+                )
                 act.tables[name] = table
                 act.clusters[name] = cluster_table(table, level, params=likelihood_params(wrt))
                 if wrt.kind == "goal":
                     act.goal[name] = goal_indicator(self.obj, table)
                 if wrt.kind == "reorient":
                     rep = act.clusters[name].representatives
-                    act.turns[name] = holds_object(table.contact[rep], table.sensors[rep], REORIENT_MIN_FINGERS)
+                    act.turns[name] = holds_object(
+                        table.contact[rep], table.sensors[rep], REORIENT_MIN_FINGERS
+                    )
             if wrt.kind == "goal":  # a physical offset: from the finest table, for every level
                 finest = min(self.levels, key=lambda n: np.prod(act.tables[n].grid.spacing))
                 aim = goal_aim(self.obj, act.tables[finest], act.goal[finest])
                 act.aim = {name: aim for name in self.levels}
             self.actions.append(act)
-            log.info("%s/%s: %s clusters", object_name, wrt.name,
-                     {n: c.count for n, c in act.clusters.items()})
+            log.info(
+                "%s/%s: %s clusters",
+                object_name,
+                wrt.name,
+                {n: c.count for n, c in act.clusters.items()},
+            )
         self.goal_actions = [i for i, a in enumerate(self.actions) if a.kind == "goal"]
         if not self.goal_actions:
             raise ValueError(f"object {object_name!r} has no goal WRT")
         #: per level, (3,) the largest |Δ| [m, m, rad] with P(G | Δ) > 0 for some goal WRT
         self.goal_reach: dict[str, np.ndarray] = {}
         for name in self.levels:
-            offsets = np.concatenate([self.actions[g].tables[name].grid.points()[self.actions[g].goal[name] > 0]
-                                      for g in self.goal_actions])
+            offsets = np.concatenate(
+                [
+                    self.actions[g].tables[name].grid.points()[self.actions[g].goal[name] > 0]
+                    for g in self.goal_actions
+                ]
+            )
             self.goal_reach[name] = np.abs(offsets).max(axis=0) if len(offsets) else np.zeros(3)
 
     @property
@@ -192,7 +221,9 @@ class PlanningModel:
         for name, level in self.levels.items():
             if np.allclose(grid.spacing, level.spacing):
                 return name
-        raise ValueError(f"no tables for grid spacing {grid.spacing}; loaded levels: {list(self.levels)}")
+        raise ValueError(
+            f"no tables for grid spacing {grid.spacing}; loaded levels: {list(self.levels)}"
+        )
 
     def wrt(self, name: str) -> WRT:
         """The WRT called ``name`` as this model plans with it (KeyError with the valid names)."""

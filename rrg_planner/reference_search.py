@@ -2,6 +2,7 @@
 Python" would be written. Same semantics as search.ForwardSearch; tests compare the two on
 small grids, and ``rrg-bench plan`` uses this as the speed baseline.
 """
+
 from __future__ import annotations
 
 import math
@@ -10,11 +11,11 @@ import time
 import numpy as np
 
 from rrg_estimator.belief import Belief
-from rrg_planner.config import SEARCH, SearchParams
 from rrg_estimator.config import TRANSITION
+from rrg_planner.config import SEARCH, SearchParams
+from rrg_planner.planning_model import PlanningModel
 from rrg_sim.poses import compose_planar, relative_planar
 
-from rrg_planner.planning_model import PlanningModel
 from .search import BLUR_NODES, TIE_DECIMALS, TIE_RTOL, SearchResult, merge_branches
 
 Points = list[tuple[float, float, float]]
@@ -39,8 +40,11 @@ class ReferenceSearch:
         flat = 0
         for k in range(3):
             n = grid.shape[k]
-            i = round(_wrap(rel[k] - grid.center[k]) / grid.spacing[k] + (n - 1) / 2) if k == 2 else \
-                round((rel[k] - grid.center[k]) / grid.spacing[k] + (n - 1) / 2)
+            i = (
+                round(_wrap(rel[k] - grid.center[k]) / grid.spacing[k] + (n - 1) / 2)
+                if k == 2
+                else round((rel[k] - grid.center[k]) / grid.spacing[k] + (n - 1) / 2)
+            )
             i = min(max(int(i), 0), n - 1)
             flat = flat * n + i
         return flat
@@ -59,7 +63,11 @@ class ReferenceSearch:
         for g in self.model.goal_actions:
             ax, ay, at = (float(v) for v in self.model.actions[g].aim[level])
             c, s = math.cos(w_star[2] - at), math.sin(w_star[2] - at)
-            aimed = (w_star[0] - c * ax + s * ay, w_star[1] - s * ax - c * ay, _wrap(w_star[2] - at))
+            aimed = (
+                w_star[0] - c * ax + s * ay,
+                w_star[1] - s * ax - c * ay,
+                _wrap(w_star[2] - at),
+            )
             for e in (w_star, aimed):  # w* and the estimate that puts w* at the aim
                 if self.model.feasible(g, np.asarray(e)):
                     best = max(best, self._goal_probability(points, weights, level, g, e))
@@ -115,11 +123,14 @@ class ReferenceSearch:
             ents.append(ent)
             covs.append(cov)
         branches = []
-        for k, p in merge_branches(np.array([pc[c] for c in cand]), np.array(ents), np.array(covs), self.params):
+        for k, p in merge_branches(
+            np.array([pc[c] for c in cand]), np.array(ents), np.array(covs), self.params
+        ):
             child_pts, child_w = points, posts[k]
             if act.kind == "reorient" and act.turns[level][cand[k]]:
-                child_pts, child_w = self._reorient(child_pts, child_w, e, act.wrt.reorient_angle,
-                                                    act.wrt.reorient_outcome)
+                child_pts, child_w = self._reorient(
+                    child_pts, child_w, e, act.wrt.reorient_angle, act.wrt.reorient_outcome
+                )
             branches.append((p, *self._compact(child_pts, child_w)))
         return branches
 
@@ -135,39 +146,66 @@ class ReferenceSearch:
     def _reorient(points: Points, weights: list[float], e, angle: float, outcome=None):
         outs_p, outs_w = [], []
         blur = TRANSITION.reorient_sigma_theta
-        for frac, prob in ((1.0, TRANSITION.p_reorient_success), (0.5, TRANSITION.p_reorient_partial),
-                           (0.0, 1.0 - TRANSITION.p_reorient_success - TRANSITION.p_reorient_partial)):
+        for frac, prob in (
+            (1.0, TRANSITION.p_reorient_success),
+            (0.5, TRANSITION.p_reorient_partial),
+            (0.0, 1.0 - TRANSITION.p_reorient_success - TRANSITION.p_reorient_partial),
+        ):
             c, s = math.cos(angle * frac), math.sin(angle * frac)
             for p, w in zip(points, weights):
-                delta = relative_planar(e, np.array(p)) if frac == 1.0 and outcome is not None else None
+                delta = (
+                    relative_planar(e, np.array(p)) if frac == 1.0 and outcome is not None else None
+                )
                 if delta is not None and outcome.inside(delta):
-                    moved = compose_planar(np.array([e[0], e[1], e[2] + angle]), outcome.mean(delta))
+                    moved = compose_planar(
+                        np.array([e[0], e[1], e[2] + angle]), outcome.mean(delta)
+                    )
                     turned = tuple(float(v) for v in moved)
                     sigma = math.hypot(float(outcome.sigma[2]), blur)
                 else:
                     dx, dy = p[0] - e[0], p[1] - e[1]
-                    turned = (e[0] + c * dx - s * dy, e[1] + s * dx + c * dy, _wrap(p[2] + angle * frac))
+                    turned = (
+                        e[0] + c * dx - s * dy,
+                        e[1] + s * dx + c * dy,
+                        _wrap(p[2] + angle * frac),
+                    )
                     sigma = blur
                 for z, q in BLUR_NODES:  # the turn's spread in θ
                     outs_p.append((turned[0], turned[1], _wrap(turned[2] + z * sigma)))
                     outs_w.append(w * prob * q)
         return outs_p, outs_w
 
-    def _goal_probability(self, points: Points, weights: list[float], level: str, goal: int, e) -> float:
+    def _goal_probability(
+        self, points: Points, weights: list[float], level: str, goal: int, e
+    ) -> float:
         """P_b(G) of goal WRT ``goal`` run at e, under the belief (points, weights)."""
         table_g = self.model.actions[goal].goal[level]
-        return sum(w * float(table_g[self._table_index(level, e, p)]) for p, w in zip(points, weights))
+        return sum(
+            w * float(table_g[self._table_index(level, e, p)]) for p, w in zip(points, weights)
+        )
 
-    def action_values(self, points: Points, weights: list[float], level: str, horizon: int,
-                      delta: float = SEARCH.delta) -> np.ndarray:
+    def action_values(
+        self,
+        points: Points,
+        weights: list[float],
+        level: str,
+        horizon: int,
+        delta: float = SEARCH.delta,
+    ) -> np.ndarray:
         e = np.asarray(self._argmax(points, weights))
         q = np.full(len(self.model.actions), -np.inf)
         for a in range(len(self.model.actions)):
             if not self.model.feasible(a, e):
                 continue
             outcome = self.model.actions[a].wrt.reorient_outcome
-            if outcome is not None:  # a turn only where it is measured (SearchParams.reorient_min_in_box)
-                inside = sum(w for p, w in zip(points, weights) if outcome.inside(relative_planar(e, np.array(p))))
+            if (
+                outcome is not None
+            ):  # a turn only where it is measured (SearchParams.reorient_min_in_box)
+                inside = sum(
+                    w
+                    for p, w in zip(points, weights)
+                    if outcome.inside(relative_planar(e, np.array(p)))
+                )
                 if inside < self.params.reorient_min_in_box:
                     continue
             branches = self.expand(points, weights, level, a)
@@ -175,26 +213,47 @@ class ReferenceSearch:
                 continue
             total = 0.0
             for p, pts, w in branches:
-                held = self._goal_probability(pts, w, level, a, e) if self.model.actions[a].kind == "goal" else 0.0
+                held = (
+                    self._goal_probability(pts, w, level, a, e)
+                    if self.model.actions[a].kind == "goal"
+                    else 0.0
+                )
                 # a goal grasp the agent would declare ends the run with its P_b(G)
-                total += p * (held if held > 1.0 - delta else self.value(pts, w, level, horizon - 1, delta))
+                total += p * (
+                    held if held > 1.0 - delta else self.value(pts, w, level, horizon - 1, delta)
+                )
             q[a] = total - self.params.cost_per_delta * delta
         return q
 
-    def value(self, points: Points, weights: list[float], level: str, horizon: int,
-              delta: float = SEARCH.delta) -> float:
+    def value(
+        self,
+        points: Points,
+        weights: list[float],
+        level: str,
+        horizon: int,
+        delta: float = SEARCH.delta,
+    ) -> float:
         if horizon > 0:
             q = self.action_values(points, weights, level, horizon, delta)
             if np.isfinite(q).any():
                 return float(q.max())
         return self.static_value(points, weights, level) - self.params.cost_per_delta * delta
 
-    def select(self, belief: Belief, horizon: int = SEARCH.horizon, delta: float = SEARCH.delta) -> SearchResult:
+    def select(
+        self, belief: Belief, horizon: int = SEARCH.horizon, delta: float = SEARCH.delta
+    ) -> SearchResult:
         t0 = time.perf_counter()
         level = self.model.level_of(belief.grid)
-        pts, w = self._compact([tuple(p) for p in belief.grid.points().tolist()], belief.weights.tolist())
+        pts, w = self._compact(
+            [tuple(p) for p in belief.grid.points().tolist()], belief.weights.tolist()
+        )
         q = self.action_values(pts, w, level, horizon, delta)
         p_goal = self.static_value(pts, w, level)
         best = int(np.argmax(q)) if np.isfinite(q).any() else -1
-        return SearchResult(action=best, value=float(q[best]) if best >= 0 else float("nan"),
-                            action_values=q, p_goal=p_goal, planning_time=time.perf_counter() - t0)
+        return SearchResult(
+            action=best,
+            value=float(q[best]) if best >= 0 else float("nan"),
+            action_values=q,
+            p_goal=p_goal,
+            planning_time=time.perf_counter() - t0,
+        )

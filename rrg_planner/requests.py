@@ -29,7 +29,9 @@ class InvalidRequest(ValueError):
 def check_choice(strategy: str, horizon: int, delta: float) -> None:
     """A strategy from STRATEGIES, H in 1–3 and δ in (0, 1)."""
     if strategy not in STRATEGIES:
-        raise InvalidRequest("UNKNOWN_STRATEGY", f"unknown strategy {strategy!r}; valid: {list(STRATEGIES)}")
+        raise InvalidRequest(
+            "UNKNOWN_STRATEGY", f"unknown strategy {strategy!r}; valid: {list(STRATEGIES)}"
+        )
     check_search(horizon, delta)
 
 
@@ -44,7 +46,9 @@ def check_search(horizon: int, delta: float) -> None:
 def check_object(object_name: str) -> None:
     """An object of the catalogue."""
     if object_name not in OBJECT_NAMES:
-        raise InvalidRequest("UNKNOWN_OBJECT", f"unknown object {object_name!r}; valid: {list(OBJECT_NAMES)}")
+        raise InvalidRequest(
+            "UNKNOWN_OBJECT", f"unknown object {object_name!r}; valid: {list(OBJECT_NAMES)}"
+        )
 
 
 def check_level(level: str, loaded: tuple[str, ...] = tuple(LEVELS)) -> None:
@@ -52,7 +56,9 @@ def check_level(level: str, loaded: tuple[str, ...] = tuple(LEVELS)) -> None:
     if level not in LEVELS:
         raise InvalidRequest("UNKNOWN_LEVEL", f"unknown level {level!r}; valid: {sorted(LEVELS)}")
     if level not in loaded:
-        raise InvalidRequest("UNKNOWN_LEVEL", f"level {level!r} is not loaded; loaded: {list(loaded)}")
+        raise InvalidRequest(
+            "UNKNOWN_LEVEL", f"level {level!r} is not loaded; loaded: {list(loaded)}"
+        )
 
 
 def grasp_prior(level: str, sigma_override, mean) -> tuple[np.ndarray, np.ndarray]:
@@ -60,7 +66,9 @@ def grasp_prior(level: str, sigma_override, mean) -> tuple[np.ndarray, np.ndarra
     > 0, else the level's; the mean as given. Refuses negative or non-finite values."""
     override = np.asarray(sigma_override, dtype=float).reshape(3)
     if not np.all(np.isfinite(override)) or np.any(override < 0.0):
-        raise InvalidRequest("INVALID_SIGMA", f"sigma overrides must be finite and >= 0, got {override.tolist()}")
+        raise InvalidRequest(
+            "INVALID_SIGMA", f"sigma overrides must be finite and >= 0, got {override.tolist()}"
+        )
     mean = np.asarray(mean, dtype=float).reshape(3)
     if not np.all(np.isfinite(mean)):
         raise InvalidRequest("INVALID_SIGMA", f"initial mean must be finite, got {mean.tolist()}")
@@ -70,6 +78,8 @@ def grasp_prior(level: str, sigma_override, mean) -> tuple[np.ndarray, np.ndarra
 def max_actions(requested: int) -> int:
     """The action budget: 1 to SEARCH.max_actions, 0 meaning SEARCH.max_actions."""
     if not 0 <= requested <= SEARCH.max_actions:
-        raise InvalidRequest("INVALID_MAX_ACTIONS",
-                             f"max_actions must be 1-{SEARCH.max_actions} (0: {SEARCH.max_actions}), got {requested}")
+        raise InvalidRequest(
+            "INVALID_MAX_ACTIONS",
+            f"max_actions must be 1-{SEARCH.max_actions} (0: {SEARCH.max_actions}), got {requested}",
+        )
     return requested or SEARCH.max_actions

@@ -26,6 +26,7 @@ A reorientation is valued only where half the belief (SearchParams.reorient_min_
 lies in its measured outcome's box about w*(b) (``turn_is_measured``): held from further
 off, the object turns unpredictably.
 """
+
 from __future__ import annotations
 
 import time
@@ -35,13 +36,12 @@ import numpy as np
 from threadpoolctl import ThreadpoolController
 
 from rrg_estimator.belief import Belief
-from rrg_planner.config import SEARCH, SearchParams
 from rrg_estimator.config import TRANSITION
-from rrg_sim.poses import compose_planar, relative_planar
-from rrg_sim.wrt import ReorientOutcome
-
+from rrg_planner.config import SEARCH, SearchParams
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.requests import check_search
+from rrg_sim.poses import compose_planar, relative_planar
+from rrg_sim.wrt import ReorientOutcome
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:
@@ -66,6 +66,7 @@ def _most_probable_first(probs) -> np.ndarray:
     """Indices ordering probabilities (…,) from the largest, ties (to TIE_DECIMALS) by index."""
     return np.argsort(-np.round(probs, TIE_DECIMALS), kind="stable")
 
+
 #: The search's matrices are small (K×S by S×11): multi-threaded BLAS only spins and roughly
 #: doubles the time on 2 cores, so planning runs with one BLAS thread.
 _BLAS = ThreadpoolController()
@@ -87,14 +88,15 @@ class SparseBelief:
     moments: tuple | None = None
 
     @classmethod
-    def compact(cls, points: np.ndarray, weights: np.ndarray, level: str,
-                params: SearchParams = SEARCH) -> "SparseBelief":
+    def compact(
+        cls, points: np.ndarray, weights: np.ndarray, level: str, params: SearchParams = SEARCH
+    ) -> SparseBelief:
         """Drop the points below support_rel of the max weight and renormalize."""
         keep = np.flatnonzero(weights >= params.support_rel * weights.max())
         return cls(points[keep], weights[keep] / weights[keep].sum(), level)
 
     @classmethod
-    def from_belief(cls, belief: Belief, level: str, params: SearchParams = SEARCH) -> "SparseBelief":
+    def from_belief(cls, belief: Belief, level: str, params: SearchParams = SEARCH) -> SparseBelief:
         return cls.compact(belief.grid.points(), belief.weights, level, params)
 
     @property
@@ -104,7 +106,9 @@ class SparseBelief:
         return self.points[int(np.argmax(w >= w.max() * (1.0 - TIE_RTOL)))]
 
 
-def moment_features(points: np.ndarray, weights: np.ndarray, ref: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+def moment_features(
+    points: np.ndarray, weights: np.ndarray, ref: np.ndarray, sigma: np.ndarray
+) -> np.ndarray:
     """(S,11) per-point features whose weighted sums give a posterior's mass, first and second
     moments and Σ p·log w: [1, d (3), d⊗d (6 unique), log w], with deviations d from ``ref``
     (θ wrapped) scaled by ``sigma`` so the axes compare."""
@@ -114,10 +118,14 @@ def moment_features(points: np.ndarray, weights: np.ndarray, ref: np.ndarray, si
     iu = np.triu_indices(3)
     with np.errstate(divide="ignore"):
         logw = np.log(weights)
-    return np.column_stack([np.ones(len(d)), d, d[:, iu[0]] * d[:, iu[1]], np.where(weights > 0, logw, 0.0)])
+    return np.column_stack(
+        [np.ones(len(d)), d, d[:, iu[0]] * d[:, iu[1]], np.where(weights > 0, logw, 0.0)]
+    )
 
 
-def scatter_moments(idx: np.ndarray, weights: np.ndarray, features: np.ndarray) -> tuple[int, np.ndarray]:
+def scatter_moments(
+    idx: np.ndarray, weights: np.ndarray, features: np.ndarray
+) -> tuple[int, np.ndarray]:
     """Σ over the states of each table entry of weight · moment_features, for the entries
     lo … max(idx): (lo, (m, 11) float32). The moments of every posterior b·L_c are then one
     product L_c[lo:lo+m] @ it, with no gather per cluster."""
@@ -133,7 +141,9 @@ def scatter_moments(idx: np.ndarray, weights: np.ndarray, features: np.ndarray) 
     return lo, tab.astype(np.float32, copy=False)
 
 
-def branch_statistics(moments: np.ndarray, sum_l_log_l: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def branch_statistics(
+    moments: np.ndarray, sum_l_log_l: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mass Z (K,), entropy (K,) and covariance (K,3,3) of K posteriors b·L_k, given their
     moments Σ b L_k f (K,11) over moment_features f and Σ b L_k log L_k (K,):
     H = log Z − Σ b L (log L + log b) / Z."""
@@ -149,8 +159,9 @@ def branch_statistics(moments: np.ndarray, sum_l_log_l: np.ndarray) -> tuple[np.
     return z, ent, cov
 
 
-def merge_branches(probs: np.ndarray, entropies: np.ndarray, covs: np.ndarray,
-                   params: SearchParams = SEARCH) -> list[tuple[int, float]]:
+def merge_branches(
+    probs: np.ndarray, entropies: np.ndarray, covs: np.ndarray, params: SearchParams = SEARCH
+) -> list[tuple[int, float]]:
     """Online merging (paper): branches whose posteriors have similar entropy and covariance
     are merged into the more probable one; then the most probable merged branches that
     cover ``online_keep_mass`` of the mass are kept and renormalized.
@@ -160,9 +171,10 @@ def merge_branches(probs: np.ndarray, entropies: np.ndarray, covs: np.ndarray,
     flat = covs.reshape(len(covs), -1)
     scale = np.maximum(np.linalg.norm(flat, axis=1), 1e-12)  # Frobenius norm of each covariance
     # similar[k, r]: branch k may merge into representative r (criteria of the paper)
-    similar = ((np.abs(entropies[:, None] - entropies[None, :]) < params.merge_entropy_tol)
-               & (np.linalg.norm(flat[:, None, :] - flat[None, :, :], axis=2) / scale[None, :]
-                  < params.merge_cov_tol))
+    similar = (np.abs(entropies[:, None] - entropies[None, :]) < params.merge_entropy_tol) & (
+        np.linalg.norm(flat[:, None, :] - flat[None, :, :], axis=2) / scale[None, :]
+        < params.merge_cov_tol
+    )
     reps: list[int] = []
     mass: list[float] = []
     for k in _most_probable_first(probs):
@@ -196,19 +208,24 @@ def rotate_about(points: np.ndarray, center_xy: np.ndarray, angle: float) -> np.
     return out
 
 
-def _full_turn(points: np.ndarray, e: np.ndarray, angle: float,
-               outcome: ReorientOutcome | None) -> tuple[np.ndarray, np.ndarray]:
+def _full_turn(
+    points: np.ndarray, e: np.ndarray, angle: float, outcome: ReorientOutcome | None
+) -> tuple[np.ndarray, np.ndarray]:
     """``full_turn`` and (K,) bool: which states the outcome moved (inside its box)."""
     turned = rotate_about(points, e[:2], angle)
     inside = np.zeros(len(points), dtype=bool)
     if outcome is not None:
         delta = relative_planar(e, points)
         inside = outcome.inside(delta)
-        turned[inside] = compose_planar(e + np.array([0.0, 0.0, angle]), outcome.mean(delta[inside]))
+        turned[inside] = compose_planar(
+            e + np.array([0.0, 0.0, angle]), outcome.mean(delta[inside])
+        )
     return turned, inside
 
 
-def full_turn(points: np.ndarray, e: np.ndarray, angle: float, outcome: ReorientOutcome | None = None) -> np.ndarray:
+def full_turn(
+    points: np.ndarray, e: np.ndarray, angle: float, outcome: ReorientOutcome | None = None
+) -> np.ndarray:
     """Poses (K,3) of objects at points (K,3) after a reorientation's full turn by ``angle``
     [rad] about the vertical through e: rigid, except that the states inside the WRT's
     measured ``outcome`` box move to its mean (rrg_estimator.transition.reorient, without the
@@ -221,9 +238,15 @@ def full_turn(points: np.ndarray, e: np.ndarray, angle: float, outcome: Reorient
 BLUR_NODES = ((0.0, 2.0 / 3.0), (-np.sqrt(3.0), 1.0 / 6.0), (np.sqrt(3.0), 1.0 / 6.0))
 
 
-def reorient_mixture(points: np.ndarray, weights: np.ndarray, e: np.ndarray, angle: float,
-                     support_rel: float = 0.0, outcome: ReorientOutcome | None = None,
-                     blur: float = TRANSITION.reorient_sigma_theta) -> tuple[np.ndarray, np.ndarray]:
+def reorient_mixture(
+    points: np.ndarray,
+    weights: np.ndarray,
+    e: np.ndarray,
+    angle: float,
+    support_rel: float = 0.0,
+    outcome: ReorientOutcome | None = None,
+    blur: float = TRANSITION.reorient_sigma_theta,
+) -> tuple[np.ndarray, np.ndarray]:
     """Transition of a reorientation grasp run at e: full rotation (``full_turn``, with the
     WRT's measured ``outcome``), half, or none (TRANSITION), about the vertical through e,
     each spread in θ by its σ on the three BLUR_NODES. Without the spread
@@ -241,7 +264,9 @@ def reorient_mixture(points: np.ndarray, weights: np.ndarray, e: np.ndarray, ang
     threshold = support_rel * float(weights.max()) * max(q for _, q in parts) * nodes[0][1]
     pts, ws = [], []
     for a, q in parts:
-        keep = np.flatnonzero(weights * q * nodes[0][1] >= threshold) if threshold > 0 else slice(None)
+        keep = (
+            np.flatnonzero(weights * q * nodes[0][1] >= threshold) if threshold > 0 else slice(None)
+        )
         if a == angle:
             turned, moved_by_outcome = _full_turn(points[keep], e, a, outcome)
         else:
@@ -275,7 +300,9 @@ def table_index(points: np.ndarray, e: np.ndarray, grid) -> np.ndarray:
     sx, sy, st = (np.float32(v) for v in grid.spacing)
     ix = np.rint((np.float32(c) * dx + np.float32(s_) * dy) / sx + np.float32(half[0]))
     iy = np.rint((np.float32(c) * dy - np.float32(s_) * dx) / sy + np.float32(half[1]))
-    dth = (p[:, 2] - np.float32(e[2]) + np.float32(np.pi)) % np.float32(2 * np.pi) - np.float32(np.pi)
+    dth = (p[:, 2] - np.float32(e[2]) + np.float32(np.pi)) % np.float32(2 * np.pi) - np.float32(
+        np.pi
+    )
     it = np.rint(dth / st + np.float32(half[2]))
     np.clip(ix, 0, n[0] - 1, out=ix)
     np.clip(iy, 0, n[1] - 1, out=iy)
@@ -323,7 +350,9 @@ class ForwardSearch:
         infeasible there)."""
         self.blocked.add(self._key(action, e))
         e = np.asarray(e, dtype=float).reshape(1, 3)
-        self._blocked_at[action] = np.concatenate([self._blocked_at.get(action, np.empty((0, 3))), e])
+        self._blocked_at[action] = np.concatenate(
+            [self._blocked_at.get(action, np.empty((0, 3))), e]
+        )
 
     def _near_blocked(self, action: int, e: np.ndarray) -> bool:
         at = self._blocked_at.get(action)
@@ -389,7 +418,9 @@ class ForwardSearch:
                     out.append((g, e))
         return out
 
-    def best_goal(self, sb: SparseBelief, goals: tuple[int, ...] | None = None) -> tuple[float, int, np.ndarray | None]:
+    def best_goal(
+        self, sb: SparseBelief, goals: tuple[int, ...] | None = None
+    ) -> tuple[float, int, np.ndarray | None]:
         """v(b) and where it is reached: (P_b(G), goal action or -1, estimate or None), the
         best over goal_estimates (of the ``goals`` actions only, if given). Only states whose
         offset from the estimate can have P(G | Δ) > 0 are indexed, except at w*(b) when its
@@ -422,7 +453,9 @@ class ForwardSearch:
         radius = np.hypot(reach[0], reach[1]) + np.hypot(grid.spacing[0], grid.spacing[1])
         d = points[:, :2] - e[:2]
         ok = np.einsum("ij,ij->i", d, d) <= radius * radius
-        return np.flatnonzero(ok & (np.abs(_wrap(points[:, 2] - e[2])) <= reach[2] + grid.spacing[2]))
+        return np.flatnonzero(
+            ok & (np.abs(_wrap(points[:, 2] - e[2])) <= reach[2] + grid.spacing[2])
+        )
 
     def expand(self, sb: SparseBelief, a: int) -> list[tuple[float, SparseBelief]]:
         """Observation branches of action a at w*(b): [(P(c | b, a), SE(b, a, o_c))]."""
@@ -446,15 +479,28 @@ class ForwardSearch:
         for k, p in merge_branches(pc[cand], ent, cov, self.params):
             w = clusters.likelihood[cand[k]][idx] * sb.weights
             w /= w.sum()
-            if act.kind == "reorient" and act.turns[sb.level][cand[k]]:  # the mixture comes out compact
-                child = SparseBelief(*reorient_mixture(sb.points, w, e, act.wrt.reorient_angle,
-                                                       self.params.support_rel, act.wrt.reorient_outcome), sb.level)
+            if (
+                act.kind == "reorient" and act.turns[sb.level][cand[k]]
+            ):  # the mixture comes out compact
+                child = SparseBelief(
+                    *reorient_mixture(
+                        sb.points,
+                        w,
+                        e,
+                        act.wrt.reorient_angle,
+                        self.params.support_rel,
+                        act.wrt.reorient_outcome,
+                    ),
+                    sb.level,
+                )
             else:
                 child = SparseBelief.compact(sb.points, w, sb.level, self.params)
             branches.append((p, child))
         return branches
 
-    def _posterior_moments(self, sb: SparseBelief, clusters, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _posterior_moments(
+        self, sb: SparseBelief, clusters, cand: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Σ b L_c f (K,11) over moment_features f, and Σ b L_c log L_c (K,), for clusters cand."""
         idx = sb.table_index
         if sb.moments is None:
@@ -467,14 +513,20 @@ class ForwardSearch:
         if isinstance(sb.moments[0], int):  # table space: no per-cluster gathers
             lo, tab = sb.moments
             cols = slice(lo, lo + len(tab))
-            return (clusters.likelihood[:, cols] @ tab)[cand], (clusters.l_log_l[:, cols] @ tab[:, 0])[cand]
+            return (clusters.likelihood[:, cols] @ tab)[cand], (
+                clusters.l_log_l[:, cols] @ tab[:, 0]
+            )[cand]
         features, weights32 = sb.moments
         # take on a row subset is ~3x faster than 2-D fancy indexing
-        return ((np.take(clusters.likelihood[cand], idx, axis=1) * weights32) @ features,
-                np.take(clusters.l_log_l[cand], idx, axis=1) @ weights32)
+        return (
+            (np.take(clusters.likelihood[cand], idx, axis=1) * weights32) @ features,
+            np.take(clusters.l_log_l[cand], idx, axis=1) @ weights32,
+        )
 
     # ---------------------------------------------------------------- search
-    def action_values(self, sb: SparseBelief, horizon: int, delta: float = SEARCH.delta) -> np.ndarray:
+    def action_values(
+        self, sb: SparseBelief, horizon: int, delta: float = SEARCH.delta
+    ) -> np.ndarray:
         """Q_h(b, a) for every action (−inf where infeasible at w*(b))."""
         e = sb.w_star
         q = np.full(len(self.model.actions), -np.inf)
@@ -483,8 +535,10 @@ class ForwardSearch:
                 continue
             branches = self.expand(sb, a)
             if branches:
-                q[a] = sum(p * self._outcome_value(a, e, b, horizon - 1, delta) for p, b in branches) \
+                q[a] = (
+                    sum(p * self._outcome_value(a, e, b, horizon - 1, delta) for p, b in branches)
                     - self.params.cost_per_delta * delta
+                )
         return q
 
     def held_probability(self, child: SparseBelief, goal: int, e: np.ndarray) -> float:
@@ -492,7 +546,9 @@ class ForwardSearch:
         idx = table_index(child.points, e, self._grid(child.level))
         return float(child.weights @ self.model.actions[goal].goal[child.level][idx])
 
-    def _outcome_value(self, a: int, e: np.ndarray, child: SparseBelief, horizon: int, delta: float) -> float:
+    def _outcome_value(
+        self, a: int, e: np.ndarray, child: SparseBelief, horizon: int, delta: float
+    ) -> float:
         """U(a, o): the child's value, or, after a goal grasp at e that the agent would declare
         (P_b(G) > 1 − δ: RobustGraspAgent.finished), that grasp's P_b(G), the run over."""
         if self.model.actions[a].kind == "goal":
@@ -509,7 +565,9 @@ class ForwardSearch:
                 return float(q.max())
         return self.static_value(sb) - self.params.cost_per_delta * delta
 
-    def select(self, belief: Belief, horizon: int = SEARCH.horizon, delta: float = SEARCH.delta) -> SearchResult:
+    def select(
+        self, belief: Belief, horizon: int = SEARCH.horizon, delta: float = SEARCH.delta
+    ) -> SearchResult:
         """Choose the root action for a belief (grid) with a forward search of depth horizon,
         for a run that stops at P(G) > 1 − delta."""
         check_search(horizon, delta)
@@ -519,6 +577,12 @@ class ForwardSearch:
             q = self.action_values(sb, horizon, delta)
             p_goal, g, e_goal = self.best_goal(sb)
         best = int(np.argmax(q)) if np.isfinite(q).any() else -1
-        return SearchResult(action=best, value=float(q[best]) if best >= 0 else float("nan"),
-                            action_values=q, p_goal=p_goal, planning_time=time.perf_counter() - t0,
-                            goal_action=g, goal_estimate=e_goal)
+        return SearchResult(
+            action=best,
+            value=float(q[best]) if best >= 0 else float("nan"),
+            action_values=q,
+            p_goal=p_goal,
+            planning_time=time.perf_counter() - t0,
+            goal_action=g,
+            goal_estimate=e_goal,
+        )

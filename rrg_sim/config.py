@@ -14,10 +14,11 @@ Sources are cited per block: the paper (Hsiao, Lozano-Pérez, Kaelbling,
 WAM and BarrettHand dimensions), docs/design.md, or "chosen" with the
 reason where neither gives a number.
 """
+
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -109,16 +110,23 @@ HAND = HandParams()
 #: Sensor ids (index into every sensor array): 7 binary pads and 3 Nano17 fingertips.
 SENSOR_NAMES: tuple[str, ...] = (
     "palm",
-    "prox1", "prox2", "prox3",
-    "dist1", "dist2", "dist3",
-    "tip1", "tip2", "tip3",
+    "prox1",
+    "prox2",
+    "prox3",
+    "dist1",
+    "dist2",
+    "dist3",
+    "tip1",
+    "tip2",
+    "tip3",
 )
 N_SENSORS = len(SENSOR_NAMES)
 PAD_SENSORS = tuple(range(7))
 TIP_SENSORS = (7, 8, 9)
 #: Sensor ids of each finger's links (proximal pad, distal pad, Nano17 tip), fingers 1-3.
 FINGER_SENSORS: tuple[tuple[int, int, int], ...] = tuple(
-    tuple(SENSOR_NAMES.index(f"{link}{i}") for link in ("prox", "dist", "tip")) for i in (1, 2, 3))
+    tuple(SENSOR_NAMES.index(f"{link}{i}") for link in ("prox", "dist", "tip")) for i in (1, 2, 3)
+)
 
 
 # -------------------------------------------------------------------- the world
@@ -161,6 +169,7 @@ SETTLING_KERNEL_BANDWIDTH = 0.5
 #: turned the giant teacup by 0.03 rad where the belief turned it 0.6; the pitcher's
 #: reorientation grasp holds its handle with two fingertips)
 REORIENT_MIN_FINGERS = 2
+
 
 # ----------------------------------------------------------- geometric simulator
 @dataclass(frozen=True)
@@ -223,24 +232,52 @@ class LinkInertia:
 #: "WAM Arm Inertial Specifications" (AC-02) / WAM_MassParams_AA-00; link 7 without a tool,
 #: in Barrett's tool-plate frame (α7 = 0: z along the roll axis, at d7).
 WAM_LINKS: tuple[LinkInertia, ...] = (
-    LinkInertia(10.76768767, (-0.00443422, 0.12189039, -0.00066489),
-                (0.13488033, 0.11328369, 0.09046330, -0.00213041, -0.00012485, 0.00068555)),
-    LinkInertia(3.87493756, (-0.00236983, 0.03105614, 0.01542114),
-                (0.02140958, 0.01377875, 0.01558906, 0.00027172, 0.00002461, -0.00181920)),
-    LinkInertia(1.80228141, (-0.03825858, 0.20750770, 0.00003309),
-                (0.05911077, 0.00324550, 0.05927043, -0.00249612, 0.00000738, -0.00001767)),
-    LinkInertia(2.40016804, (0.00498512, -0.00022942, 0.13271662),
-                (0.01491672, 0.01482922, 0.00294463, 0.00001741, -0.00150604, -0.00002109)),
-    LinkInertia(0.12376019, (0.00008921, 0.00511217, 0.00435824),
-                (0.00005029, 0.00007582, 0.00006270, 0.00000020, -0.00000005, -0.00000359)),
-    LinkInertia(0.41797364, (-0.00012262, -0.01703194, 0.02468336),
-                (0.00055516, 0.00024367, 0.00045358, 0.00000061, -0.00000074, -0.00004590)),
-    LinkInertia(0.06864753, (-0.00007974, 0.00016313, -0.00323552),
-                (0.00003773, 0.00003806, 0.00007408, -0.00000019, 0.0, 0.0)),
+    LinkInertia(
+        10.76768767,
+        (-0.00443422, 0.12189039, -0.00066489),
+        (0.13488033, 0.11328369, 0.09046330, -0.00213041, -0.00012485, 0.00068555),
+    ),
+    LinkInertia(
+        3.87493756,
+        (-0.00236983, 0.03105614, 0.01542114),
+        (0.02140958, 0.01377875, 0.01558906, 0.00027172, 0.00002461, -0.00181920),
+    ),
+    LinkInertia(
+        1.80228141,
+        (-0.03825858, 0.20750770, 0.00003309),
+        (0.05911077, 0.00324550, 0.05927043, -0.00249612, 0.00000738, -0.00001767),
+    ),
+    LinkInertia(
+        2.40016804,
+        (0.00498512, -0.00022942, 0.13271662),
+        (0.01491672, 0.01482922, 0.00294463, 0.00001741, -0.00150604, -0.00002109),
+    ),
+    LinkInertia(
+        0.12376019,
+        (0.00008921, 0.00511217, 0.00435824),
+        (0.00005029, 0.00007582, 0.00006270, 0.00000020, -0.00000005, -0.00000359),
+    ),
+    LinkInertia(
+        0.41797364,
+        (-0.00012262, -0.01703194, 0.02468336),
+        (0.00055516, 0.00024367, 0.00045358, 0.00000061, -0.00000074, -0.00004590),
+    ),
+    LinkInertia(
+        0.06864753,
+        (-0.00007974, 0.00016313, -0.00323552),
+        (0.00003773, 0.00003806, 0.00007408, -0.00000019, 0.0, 0.0),
+    ),
 )
 #: Reflected motor rotor inertia at each WAM joint [kg m²] (same source) → MuJoCo armature.
-WAM_ARMATURE: tuple[float, ...] = (0.20518962, 0.18885672, 0.18885672, 0.03462804,
-                                   0.00322537, 0.00322537, 0.00031753)
+WAM_ARMATURE: tuple[float, ...] = (
+    0.20518962,
+    0.18885672,
+    0.18885672,
+    0.03462804,
+    0.00322537,
+    0.00322537,
+    0.00031753,
+)
 
 
 @dataclass(frozen=True)
@@ -333,5 +370,6 @@ def as_array(t: tuple[float, ...]) -> np.ndarray:
 
 
 __all__ = [name for name in dir() if name.isupper() or name.endswith("Params")] + [
-    "UncertaintyLevel", "LinkInertia", "as_array", "field",
+    "LinkInertia",
+    "as_array",
 ]

@@ -24,10 +24,12 @@ is ``world`` itself and the object sits at Δ), which is what the observation ta
 Tip normals point from the object into the fingertip (the object's outward surface normal,
 the direction of the force on the Nano17).
 """
+
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Protocol, Sequence
+from typing import Protocol
 
 import mujoco
 import numpy as np
@@ -39,8 +41,8 @@ from .observation import Observation, grasp_arrived
 from .poses import planar_pose
 from .wrt import WRT
 
-FINE_PATH = 2 ** GEOMSIM.refine_iters  # fine path samples per coarse step
-FINE_CLOSE = 2 ** GEOMSIM.close_refine_iters  # fine closing angles per coarse step
+FINE_PATH = 2**GEOMSIM.refine_iters  # fine path samples per coarse step
+FINE_CLOSE = 2**GEOMSIM.close_refine_iters  # fine closing angles per coarse step
 FAR_AWAY_Z = 100.0  # m: object parked here when only the table matters
 PRESHAPE = [0, 0, 0]  # closing-lattice indices of the preshape
 SIM_VERSION = "1"  # bump when the simulator's results change (observation tables are keyed by it)
@@ -77,19 +79,35 @@ class ObservationArrays:
     stop_pose: np.ndarray  # (N,4,4) float32, path frame
 
     @classmethod
-    def empty(cls, n: int) -> "ObservationArrays":
-        return cls(np.zeros(n, bool), np.zeros(n, np.float32), np.zeros((n, N_SENSORS), bool),
-                   np.zeros((n, 3), np.float32), np.full((n, 3, 3), np.nan, np.float32),
-                   np.full((n, 3, 3), np.nan, np.float32), np.zeros((n, 3), np.float32),
-                   np.zeros((n, 4, 4), np.float32))
+    def empty(cls, n: int) -> ObservationArrays:
+        return cls(
+            np.zeros(n, bool),
+            np.zeros(n, np.float32),
+            np.zeros((n, N_SENSORS), bool),
+            np.zeros((n, 3), np.float32),
+            np.full((n, 3, 3), np.nan, np.float32),
+            np.full((n, 3, 3), np.nan, np.float32),
+            np.zeros((n, 3), np.float32),
+            np.zeros((n, 4, 4), np.float32),
+        )
 
     @classmethod
-    def concatenate(cls, parts: Sequence["ObservationArrays"]) -> "ObservationArrays":
-        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in cls.__dataclass_fields__))
+    def concatenate(cls, parts: Sequence[ObservationArrays]) -> ObservationArrays:
+        return cls(
+            *(np.concatenate([getattr(p, f) for p in parts]) for f in cls.__dataclass_fields__)
+        )
 
     def observation(self, i: int) -> Observation:
-        return Observation(bool(self.contact[i]), float(self.progress[i]), self.stop_pose[i], self.sensors[i],
-                           self.closure[i], self.tip_points[i], self.tip_normals[i], self.motion_dir[i])
+        return Observation(
+            bool(self.contact[i]),
+            float(self.progress[i]),
+            self.stop_pose[i],
+            self.sensors[i],
+            self.closure[i],
+            self.tip_points[i],
+            self.tip_normals[i],
+            self.motion_dir[i],
+        )
 
 
 # ------------------------------------------------------------------ the probe model
@@ -98,14 +116,28 @@ def _fmt(v) -> str:
 
 
 def _hand_body_xml(body: BodySpec, children: dict[str, list[BodySpec]]) -> str:
-    joint = "<freejoint/>" if body.parent is None else (
-        "" if body.joint is None else f'<joint name="{body.joint.name}" axis="{_fmt(body.joint.axis)}"/>')
-    inertial = "" if body.geoms else '<inertial pos="0 0 0" mass="0.01" diaginertia="1e-6 1e-6 1e-6"/>'
-    geoms = "".join(f'<geom name="{g.name}" type="{g.kind}" size="{_fmt(g.size)}" pos="{_fmt(g.pos)}" '
-                    f'quat="{_fmt(g.quat)}" contype="1" conaffinity="0"/>' for g in body.geoms)
+    joint = (
+        "<freejoint/>"
+        if body.parent is None
+        else (
+            ""
+            if body.joint is None
+            else f'<joint name="{body.joint.name}" axis="{_fmt(body.joint.axis)}"/>'
+        )
+    )
+    inertial = (
+        "" if body.geoms else '<inertial pos="0 0 0" mass="0.01" diaginertia="1e-6 1e-6 1e-6"/>'
+    )
+    geoms = "".join(
+        f'<geom name="{g.name}" type="{g.kind}" size="{_fmt(g.size)}" pos="{_fmt(g.pos)}" '
+        f'quat="{_fmt(g.quat)}" contype="1" conaffinity="0"/>'
+        for g in body.geoms
+    )
     inner = "".join(_hand_body_xml(c, children) for c in children.get(body.name, []))
-    return (f'<body name="{body.name}" pos="{_fmt(body.pos)}" quat="{_fmt(body.quat)}">'
-            f'{joint}{inertial}{geoms}{inner}</body>')
+    return (
+        f'<body name="{body.name}" pos="{_fmt(body.pos)}" quat="{_fmt(body.quat)}">'
+        f"{joint}{inertial}{geoms}{inner}</body>"
+    )
 
 
 def probe_mjcf(parts: Sequence[PrimitiveLike]) -> str:
@@ -113,13 +145,18 @@ def probe_mjcf(parts: Sequence[PrimitiveLike]) -> str:
     children: dict[str, list[BodySpec]] = {}
     for b in hand_tree():
         children.setdefault(b.parent, []).append(b)
-    obj = "".join(f'<geom name="object_{k}" type="{p.kind}" size="{_fmt(p.size)}" pos="{_fmt(p.pos)}" '
-                  f'quat="{_fmt(p.quat)}" contype="0" conaffinity="1"/>' for k, p in enumerate(parts))
-    return ('<mujoco model="geometric_probe"><worldbody>'
-            '<geom name="table" type="plane" size="0 0 1" contype="0" conaffinity="1"/>'
-            f'<body name="object"><freejoint/>{obj}</body>'
-            f'{_hand_body_xml(children[None][0], children)}'
-            '</worldbody></mujoco>')
+    obj = "".join(
+        f'<geom name="object_{k}" type="{p.kind}" size="{_fmt(p.size)}" pos="{_fmt(p.pos)}" '
+        f'quat="{_fmt(p.quat)}" contype="0" conaffinity="1"/>'
+        for k, p in enumerate(parts)
+    )
+    return (
+        '<mujoco model="geometric_probe"><worldbody>'
+        '<geom name="table" type="plane" size="0 0 1" contype="0" conaffinity="1"/>'
+        f'<body name="object"><freejoint/>{obj}</body>'
+        f"{_hand_body_xml(children[None][0], children)}"
+        "</worldbody></mujoco>"
+    )
 
 
 # ------------------------------------------------------------------ the swept path
@@ -135,13 +172,16 @@ class SweptPath:
     progress: np.ndarray
 
     @classmethod
-    def from_wrt(cls, wrt: WRT) -> "SweptPath":
+    def from_wrt(cls, wrt: WRT) -> SweptPath:
         poses, progress = [wrt.poses[:1]], [np.zeros(1)]
         for T0, T1 in zip(wrt.poses[:-1], wrt.poses[1:]):
             dist = float(np.linalg.norm(T1[:3, 3] - T0[:3, 3]))
             rots = Rotation.from_matrix(np.stack([T0[:3, :3], T1[:3, :3]]))
             angle = float((rots[0].inv() * rots[1]).magnitude())
-            n = max(1, int(np.ceil(max(dist, angle * GEOMSIM.rotation_sample_radius) / GEOMSIM.path_step)))
+            n = max(
+                1,
+                int(np.ceil(max(dist, angle * GEOMSIM.rotation_sample_radius) / GEOMSIM.path_step)),
+            )
             t = np.linspace(0.0, 1.0, n * FINE_PATH + 1)[1:]
             seg = np.zeros((t.size, 4, 4))
             seg[:, :3, :3] = Slerp([0.0, 1.0], rots)(t).as_matrix()
@@ -198,8 +238,13 @@ def local_half_extents(p: PrimitiveLike) -> np.ndarray:
     """(3,) half extents of a primitive's bounding box in its own frame."""
     size = np.asarray(p.size, float)
     r = size[0]
-    return {"box": size, "ellipsoid": size, "sphere": np.full(3, r), "cylinder": np.array([r, r, size[-1]]),
-            "capsule": np.array([r, r, size[-1] + r])}[p.kind]
+    return {
+        "box": size,
+        "ellipsoid": size,
+        "sphere": np.full(3, r),
+        "cylinder": np.array([r, r, size[-1]]),
+        "capsule": np.array([r, r, size[-1] + r]),
+    }[p.kind]
 
 
 def box_sphere_cover(lo: np.ndarray, hi: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
@@ -223,7 +268,9 @@ def _body_spheres(cell: float) -> dict[str, tuple[np.ndarray, np.ndarray]]:
 
 
 SWEEP_CELL = 0.05  # m: sphere cover of the hand for culling the sweep (chosen: one sphere per body)
-CLOSE_CELL = 0.02  # m: cover of the finger links for culling the closing (chosen: 4 spheres per finger)
+CLOSE_CELL = (
+    0.02  # m: cover of the finger links for culling the closing (chosen: 4 spheres per finger)
+)
 
 
 # ------------------------------------------------------------------ the simulator
@@ -246,7 +293,7 @@ class GeometricSimulator:
         self.data = mujoco.MjData(self.model)
         self._qpos = self.data.qpos
         m = self.model
-        jadr = lambda name: int(m.jnt_qposadr[m.joint(name).id])  # noqa: E731
+        jadr = lambda name: int(m.jnt_qposadr[m.joint(name).id])
         self._obj_adr = int(m.jnt_qposadr[m.body("object").jntadr[0]])
         self._palm_adr = int(m.jnt_qposadr[m.body("palm").jntadr[0]])
         self._prox_qadr = [jadr(f"f{i}_prox") for i in FINGERS]
@@ -257,8 +304,12 @@ class GeometricSimulator:
         boxes = [primitive_aabb(p) for p in obj.parts]
         lo, hi = np.min([b[0] for b in boxes], axis=0), np.max([b[1] for b in boxes], axis=0)
         self._obj_centre, self._obj_half = (lo + hi) / 2, (hi - lo) / 2
-        self._part_rot = np.stack([Rotation.from_quat(np.asarray(p.quat, float), scalar_first=True).as_matrix()
-                                   for p in obj.parts])
+        self._part_rot = np.stack(
+            [
+                Rotation.from_quat(np.asarray(p.quat, float), scalar_first=True).as_matrix()
+                for p in obj.parts
+            ]
+        )
         self._part_centre = np.array([p.pos for p in obj.parts], float)
         self._part_half = np.array([local_half_extents(p) for p in obj.parts])
         self.path = SweptPath.from_wrt(wrt)
@@ -286,43 +337,62 @@ class GeometricSimulator:
         """Sphere cover of the whole hand at the preshape, in the hand frame."""
         poses = body_poses(self.wrt.spread, np.full(3, self.wrt.preclose))
         covers = _body_spheres(SWEEP_CELL)
-        self._sweep_centres = np.concatenate([c @ poses[b][:3, :3].T + poses[b][:3, 3] for b, (c, _) in covers.items()])
+        self._sweep_centres = np.concatenate(
+            [c @ poses[b][:3, :3].T + poses[b][:3, 3] for b, (c, _) in covers.items()]
+        )
         self._sweep_radii = np.concatenate([r for _, r in covers.values()])
 
     def _init_closing(self) -> None:
         """Fine lattice of closing angles and the finger link spheres at its coarse angles."""
         a0 = self.wrt.preclose
         n_coarse = max(1, int(np.ceil((GEOMSIM.close_max - a0) / GEOMSIM.close_step - 1e-9)))
-        self._angles = np.minimum(a0 + np.arange(n_coarse * FINE_CLOSE + 1) * GEOMSIM.close_step / FINE_CLOSE,
-                                  GEOMSIM.close_max)
+        self._angles = np.minimum(
+            a0 + np.arange(n_coarse * FINE_CLOSE + 1) * GEOMSIM.close_step / FINE_CLOSE,
+            GEOMSIM.close_max,
+        )
         distal = joint_angles(0.0, np.repeat(self._angles[:, None], 3, axis=1))["f1_dist"]
-        self._prox_list, self._distal_list = self._angles.tolist(), distal.tolist()  # fast scalar access
+        self._prox_list, self._distal_list = (
+            self._angles.tolist(),
+            distal.tolist(),
+        )  # fast scalar access
         coarse = self._angles[::FINE_CLOSE]
         poses = body_poses(self.wrt.spread, np.repeat(coarse[:, None], 3, axis=1))
         covers = _body_spheres(CLOSE_CELL)
         centres, radii = [], []
         for i in FINGERS:
             links = [f"f{i}_{link}" for link in LINKS]
-            centres.append(np.concatenate([covers[b][0] @ np.swapaxes(poses[b][:, :3, :3], 1, 2)
-                                           + poses[b][:, None, :3, 3] for b in links], axis=1))
+            centres.append(
+                np.concatenate(
+                    [
+                        covers[b][0] @ np.swapaxes(poses[b][:, :3, :3], 1, 2)
+                        + poses[b][:, None, :3, 3]
+                        for b in links
+                    ],
+                    axis=1,
+                )
+            )
             radii.append(np.concatenate([covers[b][1] for b in links]))
         centres = np.stack(centres, axis=1)  # (A_coarse, 3 fingers, K, 3), hand frame
         self._link_shape = centres.shape[:3]
-        self._link_coords = np.ascontiguousarray(centres.reshape(-1, 3).T)  # (3, L) coordinate-major
+        self._link_coords = np.ascontiguousarray(
+            centres.reshape(-1, 3).T
+        )  # (3, L) coordinate-major
         self._link_r = np.broadcast_to(np.stack(radii), self._link_shape).ravel()  # (L,)
 
     def _frame(self, F: np.ndarray) -> _FramedPath:
         """The path placed in path frame F, with its table-contact sample found by a sweep."""
         poses = F @ self.path.poses
         coarse = poses[::FINE_PATH]
-        centres = (np.einsum("sij,gj->sgi", coarse[:, :3, :3], self._sweep_centres)
-                   + coarse[:, None, :3, 3]).reshape(-1, 3)
+        centres = (
+            np.einsum("sij,gj->sgi", coarse[:, :3, :3], self._sweep_centres)
+            + coarse[:, None, :3, 3]
+        ).reshape(-1, 3)
         palm_qpos = _pose_to_qpos(poses)
         self._set_object((0.0, 0.0, 0.0), z=FAR_AWAY_Z)
         self._set_fingers(PRESHAPE)
         table_hit = self.path.n_coarse
         for c in range(self.path.n_coarse):
-            self._qpos[self._palm_adr:self._palm_adr + 7] = palm_qpos[c * FINE_PATH]
+            self._qpos[self._palm_adr : self._palm_adr + 7] = palm_qpos[c * FINE_PATH]
             if self._collide():
                 table_hit = c
                 break
@@ -332,7 +402,7 @@ class GeometricSimulator:
     def _set_object(self, w, z: float = 0.0) -> None:
         q = _planar_qpos(w)
         q[2] = z
-        self._qpos[self._obj_adr:self._obj_adr + 7] = q
+        self._qpos[self._obj_adr : self._obj_adr + 7] = q
 
     def _set_fingers(self, idx: list[int]) -> None:
         """Pose the fingers at fine closing-lattice indices idx (3,) (0 = the preshape)."""
@@ -359,8 +429,9 @@ class GeometricSimulator:
         gap = np.maximum(np.abs(local) - self._part_half[:, None], 0.0)
         return ((gap * gap).sum(axis=2) < r * r).any(axis=0)
 
-    def _near_object(self, x: np.ndarray, y: np.ndarray, z: np.ndarray, r: np.ndarray,
-                     per_part: bool) -> np.ndarray:
+    def _near_object(
+        self, x: np.ndarray, y: np.ndarray, z: np.ndarray, r: np.ndarray, per_part: bool
+    ) -> np.ndarray:
         """(…) bool: spheres with object-frame centres (x, y, z) and radii r (all broadcastable)
         that may touch the object. Exact sphere tests against the union box, then (per_part)
         against each part's box in its own frame (conservative: a part lies inside its box)."""
@@ -385,10 +456,15 @@ class GeometricSimulator:
         n_c, C = self.path.n_coarse, framed.centres
         c, s = np.cos(w[:, 2:3]), np.sin(w[:, 2:3])
         dx, dy = C[None, :, 0] - w[:, 0:1], C[None, :, 1] - w[:, 1:2]
-        near = self._near_object(c * dx + s * dy, c * dy - s * dx, C[None, :, 2],
-                                 np.tile(self._sweep_radii, n_c)[None], per_part=False)
+        near = self._near_object(
+            c * dx + s * dy,
+            c * dy - s * dx,
+            C[None, :, 2],
+            np.tile(self._sweep_radii, n_c)[None],
+            per_part=False,
+        )
         near = near.reshape(len(w), n_c, -1).any(axis=2)
-        near[:, framed.table_hit:] = True
+        near[:, framed.table_hit :] = True
         return near
 
     def _closing_candidates(self, T_stop: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -400,7 +476,9 @@ class GeometricSimulator:
         """
         R, t = T_stop[:, :3, :3], T_stop[:, :3, 3]
         c, s = np.cos(w[:, 2:3]), np.sin(w[:, 2:3])
-        M = np.stack([c * R[:, 0] + s * R[:, 1], c * R[:, 1] - s * R[:, 0], R[:, 2]], axis=1)  # hand → object
+        M = np.stack(
+            [c * R[:, 0] + s * R[:, 1], c * R[:, 1] - s * R[:, 0], R[:, 2]], axis=1
+        )  # hand → object
         dx, dy = t[:, 0] - w[:, 0], t[:, 1] - w[:, 1]
         b = np.stack([c[:, 0] * dx + s[:, 0] * dy, c[:, 0] * dy - s[:, 0] * dx, t[:, 2]], axis=1)
         X = M @ self._link_coords + b[:, :, None]  # (N, 3, L) object frame
@@ -418,7 +496,7 @@ class GeometricSimulator:
         qpos, kinematics, collision = self._qpos, mujoco.mj_kinematics, mujoco.mj_collision
 
         def touch(k: int) -> int:
-            qpos[a:a + 7] = q[k]
+            qpos[a : a + 7] = q[k]
             kinematics(m, d)
             collision(m, d)
             return d.ncon
@@ -529,7 +607,9 @@ class GeometricSimulator:
             normals[f] = n_sum @ R / norm
         return points, normals
 
-    def _execute(self, framed: _FramedPath, w: np.ndarray, sweep_candidates: np.ndarray) -> ObservationArrays:
+    def _execute(
+        self, framed: _FramedPath, w: np.ndarray, sweep_candidates: np.ndarray
+    ) -> ObservationArrays:
         """Sweep, then close, for objects at w (N,3); everything in the path frame of ``framed``."""
         n = len(w)
         out = ObservationArrays.empty(n)
@@ -543,12 +623,14 @@ class GeometricSimulator:
             if hit is not None:
                 geoms, pos, _, _ = self._contact_arrays()
                 out.sensors[i], contact_points[i] = self._sensors(geoms), pos.mean(axis=0)
-                out.contact[i] = not grasp_arrived(self.wrt.kind, self.path.length - self.path.progress[hit])
+                out.contact[i] = not grasp_arrived(
+                    self.wrt.kind, self.path.length - self.path.progress[hit]
+                )
         T_stop = framed.poses[stops]
         close_candidates = self._closing_candidates(T_stop, w)
         for i in range(n):
             self._set_object(w[i])
-            self._qpos[self._palm_adr:self._palm_adr + 7] = framed.palm_qpos[stops[i]]
+            self._qpos[self._palm_adr : self._palm_adr + 7] = framed.palm_qpos[stops[i]]
             final, touched = self._close(close_candidates[i])
             out.closure[i] = self._angles[final]
             if not (touched or out.contact[i]):
@@ -557,7 +639,9 @@ class GeometricSimulator:
             if self._collide():
                 geoms, pos, normal, dist = self._contact_arrays()
                 out.sensors[i] |= self._sensors(geoms)
-                out.tip_points[i], out.tip_normals[i] = self._tip_contacts(geoms, pos, normal, dist, T_stop[i])
+                out.tip_points[i], out.tip_normals[i] = self._tip_contacts(
+                    geoms, pos, normal, dist, T_stop[i]
+                )
         out.progress[:] = self.path.progress[stops]
         out.stop_pose[:] = T_stop
         out.motion_dir[:] = self._motion_dirs(framed.poses, stops, contact_points)
@@ -595,6 +679,9 @@ class GeometricSimulator:
     def simulate_batch(self, deltas: np.ndarray, chunk: int = 256) -> ObservationArrays:
         """simulate_relative for each of the (N,3) offsets, as arrays."""
         deltas = np.asarray(deltas, dtype=float).reshape(-1, 3)
-        return ObservationArrays.concatenate([
-            self._execute(self._relative, block, self._sweep_candidates(self._relative, block))
-            for block in (deltas[s:s + chunk] for s in range(0, len(deltas), chunk))])
+        return ObservationArrays.concatenate(
+            [
+                self._execute(self._relative, block, self._sweep_candidates(self._relative, block))
+                for block in (deltas[s : s + chunk] for s in range(0, len(deltas), chunk))
+            ]
+        )

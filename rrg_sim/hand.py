@@ -14,6 +14,7 @@ Finger 1's spread hinge turns about -z and finger 2's about +z, so one spread an
 them symmetrically: at s = 0 both sit on +y closing toward -y; at s = π/2 finger 1 is on +x
 and finger 2 on -x, closing toward each other.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -83,11 +84,22 @@ def _palm_body() -> BodySpec:
     box_top = h.palm_surface_z - h.palm_pad_thickness
     box_bottom = h.palm_surface_z - h.palm_depth
     geoms = (
-        GeomSpec("palm", "box", (hx, hy, (box_top - box_bottom) / 2),
-                 (0.0, 0.0, (box_top + box_bottom) / 2)),
-        GeomSpec("palm_pad", "box", (hx, hy, h.palm_pad_thickness / 2), (0.0, 0.0, pad_z),
-                 sensor=sensor_id("palm")),
-        GeomSpec("housing", "cylinder", (h.housing_radius, box_bottom / 2), (0.0, 0.0, box_bottom / 2)),
+        GeomSpec(
+            "palm",
+            "box",
+            (hx, hy, (box_top - box_bottom) / 2),
+            (0.0, 0.0, (box_top + box_bottom) / 2),
+        ),
+        GeomSpec(
+            "palm_pad",
+            "box",
+            (hx, hy, h.palm_pad_thickness / 2),
+            (0.0, 0.0, pad_z),
+            sensor=sensor_id("palm"),
+        ),
+        GeomSpec(
+            "housing", "cylinder", (h.housing_radius, box_bottom / 2), (0.0, 0.0, box_bottom / 2)
+        ),
     )
     return BodySpec("palm", None, (0.0, 0.0, 0.0), IDENTITY_QUAT, None, geoms)
 
@@ -109,24 +121,62 @@ def _finger_bodies(i: int) -> list[BodySpec]:
         knuckle = (0.0, h.knuckle_radius, h.knuckle_z - h.spread_axis_z)
     w, t = h.finger_width / 2, h.finger_thickness / 2
     dist_box = h.distal_length - h.tip_length
-    tip_half = (h.tip_length - h.tip_radius) / 2  # half the cylinder part (the near cap sits inside the link)
+    tip_half = (
+        h.tip_length - h.tip_radius
+    ) / 2  # half the cylinder part (the near cap sits inside the link)
     prox = BodySpec(
-        f"{f}_prox", f"{f}_base", knuckle, IDENTITY_QUAT,
+        f"{f}_prox",
+        f"{f}_base",
+        knuckle,
+        IDENTITY_QUAT,
         JointSpec(f"{f}_prox", (1.0, 0.0, 0.0), h.proximal_range),
-        (GeomSpec(f"{f}_prox", "box", (w, t, h.proximal_length / 2), (0.0, 0.0, h.proximal_length / 2),
-                  sensor=sensor_id(f"prox{i}")),),
+        (
+            GeomSpec(
+                f"{f}_prox",
+                "box",
+                (w, t, h.proximal_length / 2),
+                (0.0, 0.0, h.proximal_length / 2),
+                sensor=sensor_id(f"prox{i}"),
+            ),
+        ),
     )
     dist = BodySpec(
-        f"{f}_dist", f"{f}_prox", (0.0, 0.0, h.proximal_length), IDENTITY_QUAT,
-        JointSpec(f"{f}_dist", (1.0, 0.0, 0.0), h.distal_range, coupled_to=(f"{f}_prox", h.distal_coupling)),
-        (GeomSpec(f"{f}_dist", "box", (w, t, dist_box / 2), (0.0, 0.0, dist_box / 2),
-                  sensor=sensor_id(f"dist{i}")),),
+        f"{f}_dist",
+        f"{f}_prox",
+        (0.0, 0.0, h.proximal_length),
+        IDENTITY_QUAT,
+        JointSpec(
+            f"{f}_dist",
+            (1.0, 0.0, 0.0),
+            h.distal_range,
+            coupled_to=(f"{f}_prox", h.distal_coupling),
+        ),
+        (
+            GeomSpec(
+                f"{f}_dist",
+                "box",
+                (w, t, dist_box / 2),
+                (0.0, 0.0, dist_box / 2),
+                sensor=sensor_id(f"dist{i}"),
+            ),
+        ),
     )
     # The Nano17 tip: a capsule whose far cap ends exactly at the distal link's length.
     tip = BodySpec(
-        f"{f}_tip", f"{f}_dist", (0.0, 0.0, dist_box), IDENTITY_QUAT, None,
-        (GeomSpec(f"{f}_tip", "capsule", (h.tip_radius, tip_half),
-                  (0.0, 0.0, h.tip_length - h.tip_radius - tip_half), sensor=sensor_id(f"tip{i}")),),
+        f"{f}_tip",
+        f"{f}_dist",
+        (0.0, 0.0, dist_box),
+        IDENTITY_QUAT,
+        None,
+        (
+            GeomSpec(
+                f"{f}_tip",
+                "capsule",
+                (h.tip_radius, tip_half),
+                (0.0, 0.0, h.tip_length - h.tip_radius - tip_half),
+                sensor=sensor_id(f"tip{i}"),
+            ),
+        ),
     )
     return [base, prox, dist, tip]
 
@@ -181,7 +231,11 @@ def body_poses(spread, proximal) -> dict[str, np.ndarray]:
     q = joint_angles(spread, proximal)
     poses: dict[str, np.ndarray] = {}
     for body in hand_tree():
-        parent = np.broadcast_to(np.eye(4), batch + (4, 4)) if body.parent is None else poses[body.parent]
+        parent = (
+            np.broadcast_to(np.eye(4), batch + (4, 4))
+            if body.parent is None
+            else poses[body.parent]
+        )
         T = parent @ _offset(body)
         if body.joint is not None:
             T = T @ _axis_rotation(body.joint.axis, q[body.joint.name])
@@ -195,7 +249,9 @@ def finger_link_poses(spread, proximal) -> np.ndarray:
     spread: (…) or scalar [rad]; proximal: (…,3) proximal angles [rad] (distal coupled).
     """
     poses = body_poses(spread, proximal)
-    return np.stack([np.stack([poses[f"f{i}_{link}"] for link in LINKS], axis=-3) for i in FINGERS], axis=-4)
+    return np.stack(
+        [np.stack([poses[f"f{i}_{link}"] for link in LINKS], axis=-3) for i in FINGERS], axis=-4
+    )
 
 
 def geom_local_pose(g: GeomSpec) -> np.ndarray:
@@ -221,6 +277,8 @@ def fingertip_points(spread, proximal) -> np.ndarray:
 
 def geom_mjcf(g: GeomSpec, extra: str = "") -> str:
     """A MuJoCo ``<geom>`` element for g (``extra``: more attributes, e.g. contype/rgba)."""
-    f = lambda v: " ".join(f"{x:.6g}" for x in v)  # noqa: E731
-    return (f'<geom name="{g.name}" type="{g.kind}" size="{f(g.size)}" pos="{f(g.pos)}" '
-            f'quat="{f(g.quat)}" {extra}/>')
+    f = lambda v: " ".join(f"{x:.6g}" for x in v)
+    return (
+        f'<geom name="{g.name}" type="{g.kind}" size="{f(g.size)}" pos="{f(g.pos)}" '
+        f'quat="{f(g.quat)}" {extra}/>'
+    )

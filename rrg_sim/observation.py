@@ -1,4 +1,5 @@
 """The observation o of one WRT execution, shared by the geometric and physics simulators."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field

@@ -2,6 +2,7 @@
 
 Rotations go through scipy's ``Rotation``; everything is vectorized over leading axes.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -66,9 +67,14 @@ def compose_planar(e, d) -> np.ndarray:
     e = np.asarray(e, dtype=float)
     d = np.asarray(d, dtype=float)
     c, s = np.cos(e[..., 2]), np.sin(e[..., 2])
-    return np.stack([e[..., 0] + c * d[..., 0] - s * d[..., 1],
-                     e[..., 1] + s * d[..., 0] + c * d[..., 1],
-                     wrap_angle(e[..., 2] + d[..., 2])], axis=-1)
+    return np.stack(
+        [
+            e[..., 0] + c * d[..., 0] - s * d[..., 1],
+            e[..., 1] + s * d[..., 0] + c * d[..., 1],
+            wrap_angle(e[..., 2] + d[..., 2]),
+        ],
+        axis=-1,
+    )
 
 
 def raised(T: np.ndarray, dz: float) -> np.ndarray:

@@ -21,6 +21,7 @@ resolved by choosing, among the solutions within joint limits with the arm clear
 table, the one nearest the preferred posture in unweighted joint space (Σ (q - q_pref)²).
 Including q_pref's J3 makes paths from ``ik_path`` keep J3 constant wherever possible.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -40,7 +41,9 @@ N_JOINTS = 7
 IK_REDUNDANCY_SAMPLES = 32
 
 _LIMIT_TOL = 1e-9  # rad, slack on the joint limits for round-off
-_RESIDUAL_TOL = 1e-6  # m and rad: an analytic solution farther than this from its target is rejected
+_RESIDUAL_TOL = (
+    1e-6  # m and rad: an analytic solution farther than this from its target is rejected
+)
 _UPPER_ARM = DH[2, 2]  # d3 [m], shoulder to elbow along the upper arm
 _FOREARM = DH[4, 2]  # d5 [m], elbow to wrist centre
 _A3, _A4 = DH[2, 1], DH[3, 1]  # elbow offsets [m] (+0.045, -0.045)
@@ -51,7 +54,9 @@ CLEARANCE_Z = WORLD.table_top_z + WAM.link_radius + WAM.table_clearance
 
 def dh_transform(alpha, a, d, theta) -> np.ndarray:
     """Standard DH link transform Rz(θ) Tz(d) Tx(a) Rx(α), broadcast over all arguments → (…,4,4)."""
-    alpha, a, d, theta = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (alpha, a, d, theta)))
+    alpha, a, d, theta = np.broadcast_arrays(
+        *(np.asarray(v, dtype=float) for v in (alpha, a, d, theta))
+    )
     ca, sa, ct, st = np.cos(alpha), np.sin(alpha), np.cos(theta), np.sin(theta)
     T = np.zeros(theta.shape + (4, 4))
     T[..., 0, 0], T[..., 0, 1], T[..., 0, 2], T[..., 0, 3] = ct, -st * ca, st * sa, a * ct
@@ -64,7 +69,9 @@ def dh_transform(alpha, a, d, theta) -> np.ndarray:
 #: world → frame 0 (J1's axis is frame 0's z).
 BASE_TRANSFORM = dh_transform(0.0, 0.0, WAM.base_height, 0.0)
 #: frame 7 → hand frame: undo J7's α (the tool plate), then the hand mount along J7's axis.
-TOOL_TRANSFORM = dh_transform(-DH[6, 0], 0.0, 0.0, 0.0) @ dh_transform(0.0, 0.0, WAM.hand_mount, WAM.hand_mount_yaw)
+TOOL_TRANSFORM = dh_transform(-DH[6, 0], 0.0, 0.0, 0.0) @ dh_transform(
+    0.0, 0.0, WAM.hand_mount, WAM.hand_mount_yaw
+)
 #: J7's rotating body (frame 6 ⊕ Rz(q7), origin at the wrist centre) → hand frame.
 HAND_MOUNT = dh_transform(DH[6, 0], 0.0, DH[6, 2], 0.0) @ TOOL_TRANSFORM
 _HAND_TO_J7 = np.linalg.inv(HAND_MOUNT)
@@ -97,7 +104,12 @@ def arm_points(q) -> np.ndarray:
 def point_clear_of_table(x, y, z) -> np.ndarray:
     """Arm point coordinates [m] (broadcast) → True unless the point lies over the table's
     x/y extent lower than ``CLEARANCE_Z`` (points beside the table are unconstrained)."""
-    over = (x >= WORLD.table_x[0]) & (x <= WORLD.table_x[1]) & (y >= WORLD.table_y[0]) & (y <= WORLD.table_y[1])
+    over = (
+        (x >= WORLD.table_x[0])
+        & (x <= WORLD.table_x[1])
+        & (y >= WORLD.table_y[0])
+        & (y <= WORLD.table_y[1])
+    )
     return ~(over & (z < CLEARANCE_Z))
 
 
@@ -125,7 +137,9 @@ def _into_limits(q: np.ndarray, joint: int) -> np.ndarray:
     return np.where(q < LOWER[joint] - _LIMIT_TOL, q + 2 * np.pi, q)
 
 
-def _in_range(c: np.ndarray, s: np.ndarray, joint: int, norm: float | np.ndarray = 1.0) -> np.ndarray:
+def _in_range(
+    c: np.ndarray, s: np.ndarray, joint: int, norm: float | np.ndarray = 1.0
+) -> np.ndarray:
     """Joint angle given as (c, s) = norm·(cos, sin) within its limits: cos(q - mid) ≥
     cos(half range) (every WAM range spans less than 2π)."""
     mid, half = (UPPER[joint] + LOWER[joint]) / 2, (UPPER[joint] - LOWER[joint]) / 2
@@ -168,7 +182,11 @@ class IkSolutions:
     def clear_of_table(self) -> np.ndarray:
         """(2,2,S,M): the elbow points and the wrist centre clear the table."""
         e3, e4 = self.elbows
-        return point_clear_of_table(*e3) & point_clear_of_table(*e4) & point_clear_of_table(*self.wrist)
+        return (
+            point_clear_of_table(*e3)
+            & point_clear_of_table(*e4)
+            & point_clear_of_table(*self.wrist)
+        )
 
     def usable(self) -> np.ndarray:
         """(2,2,2,S,M): within the joint limits and clear of the table."""
@@ -178,7 +196,9 @@ class IkSolutions:
         """(7,2,2,2,S,M) joint angles [rad] of every solution (meaningful where ``valid``)."""
         c1, s1, c2, s2 = self.cs12
         W02, W12, W22, W20, W21 = self.w
-        flip = np.array([0.0, np.pi])[:, None, None, None, None]  # 2nd wrist branch: q5 + π, -q6, q7 + π
+        flip = np.array([0.0, np.pi])[
+            :, None, None, None, None
+        ]  # 2nd wrist branch: q5 + π, -q6, q7 + π
         q = np.empty((N_JOINTS,) + self.valid.shape)
         q[0], q[1] = np.arctan2(s1, c1), np.arctan2(s2, c2)
         q[2], q[3] = self.q3, self.q4[:, None, :]
@@ -197,7 +217,9 @@ def ik_solutions(T, q_pref=None, check_j1: bool = True) -> IkSolutions:
     """
     T = np.asarray(T, dtype=float)
     M = T.shape[0]
-    T_j7 = T @ _HAND_TO_J7  # J7's body: origin at the wrist centre, rotation R04 Rz(q5) Ry(q6) Rz(q7)
+    T_j7 = (
+        T @ _HAND_TO_J7
+    )  # J7's body: origin at the wrist centre, rotation R04 Rz(q5) Ry(q6) Rz(q7)
     wrist = np.ascontiguousarray(T_j7[:, :3, 3].T)  # (3,M)
     px, py, pz = wrist - SHOULDER[:, None]
     X7, Y7, Z7 = (np.ascontiguousarray(T_j7[:, :3, j].T) for j in range(3))  # hand axes (3,M)
@@ -223,7 +245,13 @@ def ik_solutions(T, q_pref=None, check_j1: bool = True) -> IkSolutions:
     c1, s1 = (px * P + py * y) / r2_safe, (py * P - px * y) / r2_safe
     d2 = x**2 + z4**2
     c2, s2 = (x * P + z4 * pz) / d2, (z4 * P - x * pz) / d2
-    ok = (np.abs(ratio) <= 1.0) & (p_sq >= 0.0) & (r2 > 1e-12) & _in_range(c2, s2, 1) & _in_range(c4, s4, 3)
+    ok = (
+        (np.abs(ratio) <= 1.0)
+        & (p_sq >= 0.0)
+        & (r2 > 1e-12)
+        & _in_range(c2, s2, 1)
+        & _in_range(c4, s4, 3)
+    )
     if check_j1:
         ok = ok & _in_range(c1, s1, 0)
 
@@ -249,10 +277,24 @@ def ik_solutions(T, q_pref=None, check_j1: bool = True) -> IkSolutions:
     ok &= s6 > 1e-9
     # Wrist branches ±: (q5, q6, q7) = (atan2(W12, W02), atan2(s6, W22), atan2(W21, -W20)),
     # or (q5 + π, -q6, q7 + π).
-    valid = np.stack([ok & _in_range(W22, sign * s6, 5) & _in_range(sign * W02, sign * W12, 4, s6)
-                      & _in_range(-sign * W20, sign * W21, 6, s6) for sign in _BRANCH])
-    return IkSolutions(valid, elbows, wrist, q3, q4, np.stack([c1, s1, c2, s2]),
-                       np.stack([W02, W12, W22, W20, W21]))
+    valid = np.stack(
+        [
+            ok
+            & _in_range(W22, sign * s6, 5)
+            & _in_range(sign * W02, sign * W12, 4, s6)
+            & _in_range(-sign * W20, sign * W21, 6, s6)
+            for sign in _BRANCH
+        ]
+    )
+    return IkSolutions(
+        valid,
+        elbows,
+        wrist,
+        q3,
+        q4,
+        np.stack([c1, s1, c2, s2]),
+        np.stack([W02, W12, W22, W20, W21]),
+    )
 
 
 #: Poses per ik_solutions call (chosen: keeps the ~ 40 temporaries cache-sized; 3x faster than 2048).
@@ -269,7 +311,9 @@ def _pose_error(T_a: np.ndarray, T_b: np.ndarray) -> np.ndarray:
 def _nearest_usable(sol: IkSolutions, q_pref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per pose, the usable solution nearest q_pref (M,7) in joint space → (q (M,7), found (M,))."""
     q = sol.angles().reshape(N_JOINTS, -1, q_pref.shape[0])
-    cost = np.where(sol.usable().reshape(q.shape[1:]), np.sum((q - q_pref.T[:, None, :]) ** 2, axis=0), np.inf)
+    cost = np.where(
+        sol.usable().reshape(q.shape[1:]), np.sum((q - q_pref.T[:, None, :]) ** 2, axis=0), np.inf
+    )
     best = np.argmin(cost, axis=0)
     poses = np.arange(q_pref.shape[0])
     return q[:, best, poses].T, np.isfinite(cost[best, poses])
@@ -284,7 +328,9 @@ def ik_batch(T, q_pref=None) -> tuple[np.ndarray, np.ndarray]:
     """
     T = np.asarray(T, dtype=float)
     M = T.shape[0]
-    q_pref = np.broadcast_to(HOME_Q if q_pref is None else np.asarray(q_pref, dtype=float), (M, N_JOINTS))
+    q_pref = np.broadcast_to(
+        HOME_Q if q_pref is None else np.asarray(q_pref, dtype=float), (M, N_JOINTS)
+    )
     q = np.empty((M, N_JOINTS))
     ok = np.empty(M, dtype=bool)
     for lo in range(0, M, BATCH_CHUNK):
@@ -323,8 +369,8 @@ def reachable(T) -> np.ndarray:
     flat = T.reshape(-1, 4, 4)
     ok = np.zeros(flat.shape[0], dtype=bool)
     for lo in range(0, flat.shape[0], BATCH_CHUNK):
-        usable = ik_solutions(flat[lo:lo + BATCH_CHUNK]).usable()
-        ok[lo:lo + BATCH_CHUNK] = usable.reshape(-1, usable.shape[-1]).any(axis=0)
+        usable = ik_solutions(flat[lo : lo + BATCH_CHUNK]).usable()
+        ok[lo : lo + BATCH_CHUNK] = usable.reshape(-1, usable.shape[-1]).any(axis=0)
     return ok.reshape(T.shape[:-2])
 
 

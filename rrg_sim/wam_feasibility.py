@@ -9,6 +9,7 @@ valid for the whole φ range (J1 far from its limits, elbow and wrist above the 
 height) settle their cell at once; only the rest are checked φ by φ. Every grid point gets
 what ``wam.feasible_path`` says there (up to round-off at the limits).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -41,13 +42,21 @@ class PolarGrid:
     npsi: int
 
     @classmethod
-    def covering(cls, center=WORLD.nominal_pose[:2], half_extent: float = 0.25, dr: float = 0.01,
-                 dphi: float = 0.015, npsi: int = 126) -> "PolarGrid":
+    def covering(
+        cls,
+        center=WORLD.nominal_pose[:2],
+        half_extent: float = 0.25,
+        dr: float = 0.01,
+        dphi: float = 0.015,
+        npsi: int = 126,
+    ) -> PolarGrid:
         """The lattice covering the square center ± half_extent [m] (which must not contain the
         base). Defaults (chosen): 1 cm in r, 0.015 rad in φ (≤ 1.4 cm at r = 0.9 m), and
         126 headings (0.05 rad)."""
         cx, cy = center
-        corners = np.array([[cx + sx * half_extent, cy + sy * half_extent] for sx in (-1, 1) for sy in (-1, 1)])
+        corners = np.array(
+            [[cx + sx * half_extent, cy + sy * half_extent] for sx in (-1, 1) for sy in (-1, 1)]
+        )
         r_min = np.hypot(max(abs(cx) - half_extent, 0.0), max(abs(cy) - half_extent, 0.0))
         r_max = np.hypot(*corners.T).max()
         phis = np.arctan2(corners[:, 1], corners[:, 0])
@@ -57,8 +66,11 @@ class PolarGrid:
 
     def axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Coordinates along r, φ and ψ (ψ from -π in steps of 2π / npsi)."""
-        return (self.r0 + self.dr * np.arange(self.nr), self.phi0 + self.dphi * np.arange(self.nphi),
-                -np.pi + 2 * np.pi / self.npsi * np.arange(self.npsi))
+        return (
+            self.r0 + self.dr * np.arange(self.nr),
+            self.phi0 + self.dphi * np.arange(self.nphi),
+            -np.pi + 2 * np.pi / self.npsi * np.arange(self.npsi),
+        )
 
     def index(self, e) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Nearest cell (ir, iφ, iψ) of object poses e (…,3), and whether e lies on the grid."""
@@ -66,7 +78,12 @@ class PolarGrid:
         phi = np.arctan2(e[..., 1], e[..., 0])
         ir = np.rint((np.hypot(e[..., 0], e[..., 1]) - self.r0) / self.dr).astype(np.int64)
         iphi = np.rint((phi - self.phi0) / self.dphi).astype(np.int64)
-        ipsi = np.rint((wrap_angle(e[..., 2] - phi) + np.pi) * self.npsi / (2 * np.pi)).astype(np.int64) % self.npsi
+        ipsi = (
+            np.rint((wrap_angle(e[..., 2] - phi) + np.pi) * self.npsi / (2 * np.pi)).astype(
+                np.int64
+            )
+            % self.npsi
+        )
         inside = (ir >= 0) & (ir < self.nr) & (iphi >= 0) & (iphi < self.nphi)
         return np.clip(ir, 0, self.nr - 1), np.clip(iphi, 0, self.nphi - 1), ipsi, inside
 
@@ -81,18 +98,22 @@ def _waypoint_feasibility(pose: np.ndarray, grid: PolarGrid) -> np.ndarray:
     # J1 + φ stays within J1's limits for every φ on the grid while J1 lies in this interval:
     j1_lo, j1_hi = wam.LOWER[0] - phi[0], wam.UPPER[0] - phi[-1]
     for lo in range(0, R.size, wam.BATCH_CHUNK):
-        sol = wam.ik_solutions(T[lo:lo + wam.BATCH_CHUNK], check_j1=False)
+        sol = wam.ik_solutions(T[lo : lo + wam.BATCH_CHUNK], check_j1=False)
         ok = sol.valid.any(axis=0)  # (2,2,S,M): some wrist branch within the limits
         q1 = np.arctan2(sol.cs12[1], sol.cs12[0])
-        high = (np.all(sol.elbows[:, 2] >= wam.CLEARANCE_Z, axis=0)
-                & (sol.wrist[2] >= wam.CLEARANCE_Z))
-        everywhere = (ok & high & (q1 >= j1_lo) & (q1 <= j1_hi)).reshape(-1, ok.shape[-1]).any(axis=0)
-        cells[lo:lo + wam.BATCH_CHUNK][everywhere] = True
+        high = np.all(sol.elbows[:, 2] >= wam.CLEARANCE_Z, axis=0) & (
+            sol.wrist[2] >= wam.CLEARANCE_Z
+        )
+        everywhere = (
+            (ok & high & (q1 >= j1_lo) & (q1 <= j1_hi)).reshape(-1, ok.shape[-1]).any(axis=0)
+        )
+        cells[lo : lo + wam.BATCH_CHUNK][everywhere] = True
         rest = np.nonzero(ok & ~everywhere)
         if rest[0].size:
             m = rest[-1]
-            points = np.concatenate([sol.elbows[(slice(None), slice(None)) + rest],
-                                     sol.wrist[None, :, m]], axis=0)  # (3 points, 3 xyz, N)
+            points = np.concatenate(
+                [sol.elbows[(slice(None), slice(None)) + rest], sol.wrist[None, :, m]], axis=0
+            )  # (3 points, 3 xyz, N)
             c, s = np.cos(phi)[:, None, None], np.sin(phi)[:, None, None]  # (nφ,1,1)
             x, y = c * points[:, 0] - s * points[:, 1], s * points[:, 0] + c * points[:, 1]
             clear = np.all(wam.point_clear_of_table(x, y, points[:, 2]), axis=1)  # (nφ, N)
@@ -105,8 +126,19 @@ def _waypoint_feasibility(pose: np.ndarray, grid: PolarGrid) -> np.ndarray:
 
 def _cache_key(poses: np.ndarray, grid: PolarGrid) -> str:
     h = hashlib.sha1(np.ascontiguousarray(poses, dtype=float).tobytes())
-    h.update(repr((MODEL_VERSION, asdict(WAM), WORLD.table_top_z, WORLD.table_x, WORLD.table_y,
-                   wam.IK_REDUNDANCY_SAMPLES, asdict(grid))).encode())
+    h.update(
+        repr(
+            (
+                MODEL_VERSION,
+                asdict(WAM),
+                WORLD.table_top_z,
+                WORLD.table_x,
+                WORLD.table_y,
+                wam.IK_REDUNDANCY_SAMPLES,
+                asdict(grid),
+            )
+        ).encode()
+    )
     return h.hexdigest()[:20]
 
 

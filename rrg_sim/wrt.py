@@ -1,4 +1,5 @@
 """World-relative trajectories (WRTs): hand poses in the object frame, a preshape and a kind."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -64,7 +65,7 @@ class WRT:
     spread: float = 0.0
     preclose: float = 0.0
     reorient_angle: float = 0.0
-    reorient_outcome: "ReorientOutcome | None" = None
+    reorient_outcome: ReorientOutcome | None = None
     description: str = ""
     closure_informative: bool = True
     meta: dict = field(default_factory=dict)

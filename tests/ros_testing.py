@@ -1,6 +1,7 @@
 """Helpers shared by the tests/test_ros_*.py files: node processes in a test's own DDS domain, and
 a test-side rclpy node with one persistent executor (the rclpy 7.1.6 spin_until_future_complete
 bug: see shared/notes/ros2-on-pip.md)."""
+
 from __future__ import annotations
 
 import os
@@ -19,13 +20,19 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def ros_env(domain_id: int) -> dict:
     """This process's environment on loopback in DDS domain ``domain_id`` (1-101)."""
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               PYTHONUNBUFFERED="1")
+    env = dict(
+        os.environ,
+        ROS_DOMAIN_ID=str(domain_id),
+        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+        PYTHONUNBUFFERED="1",
+    )
     env.pop("ROS_LOCALHOST_ONLY", None)
     return env
 
 
-def start_node(module: str, env: dict, log_path: Path, params: dict | None = None) -> subprocess.Popen:
+def start_node(
+    module: str, env: dict, log_path: Path, params: dict | None = None
+) -> subprocess.Popen:
     """``python -m module --ros-args -p k:=v ...`` with stdout and stderr in ``log_path``."""
     args = [sys.executable, "-m", module]
     if params:
@@ -95,7 +102,9 @@ def node_processes(specs: list[tuple[str, dict]], env: dict, log_dir: Path):
     procs = []
     try:
         for module, params in specs:
-            procs.append(start_node(module, env, log_dir / f"{module.rsplit('.', 1)[-1]}.log", params))
+            procs.append(
+                start_node(module, env, log_dir / f"{module.rsplit('.', 1)[-1]}.log", params)
+            )
         yield procs
     finally:
         for p in procs:

@@ -1,6 +1,7 @@
 """The agent's loop rules: the last action is the goal grasp, open-loop runs it once, and an
 execution found infeasible (nothing moved) rules that action out at that estimate without
 counting as an action."""
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -8,18 +9,20 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from rrg_estimator.config import UncertaintyLevel
 from rrg_planner.agent import RobustGraspAgent, initial_belief
 from rrg_planner.closed_loop import run_in_process
+from rrg_planner.config import SEARCH
 from rrg_planner.geometric_env import GeometricEnvironment
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.search import ForwardSearch
-from rrg_planner.config import SEARCH
 from rrg_sim.config import WORLD
-from rrg_estimator.config import UncertaintyLevel
 from rrg_sim.poses import compose_planar, relative_planar
 from rrg_sim.wrt import WRT, InfeasibleWRT
 
-SMALL = UncertaintyLevel("small", sigma=(0.02, 0.02, 0.2), spacing=(0.01, 0.01, 0.1), shape=(9, 9, 5))
+SMALL = UncertaintyLevel(
+    "small", sigma=(0.02, 0.02, 0.2), spacing=(0.01, 0.01, 0.1), shape=(9, 9, 5)
+)
 
 
 @pytest.fixture(scope="module")
@@ -54,7 +57,9 @@ def test_infeasible_execution_is_blocked_and_not_counted(model):
     # The run went on with another action at the same estimate, and the refusal was not counted.
     assert res.steps and res.steps[0].wrt != env.refused[0]
     first = res.steps[0]  # at w*, or for the goal grasp possibly at w* moved to its aim
-    aim = model.actions[model.index(first.wrt)].aim["small"] if first.kind == "goal" else np.zeros(3)
+    aim = (
+        model.actions[model.index(first.wrt)].aim["small"] if first.kind == "goal" else np.zeros(3)
+    )
     assert np.allclose(first.estimate, e0) or np.allclose(relative_planar(first.estimate, e0), aim)
     assert res.n_actions == 3 and res.steps[-1].kind == "goal"
 
@@ -77,12 +82,18 @@ def test_an_info_reading_is_spent_at_its_estimate(model):
 
 
 def test_open_loop_runs_the_goal_once_and_max_actions_ends_with_the_goal(model):
-    open_loop = run_in_process(RobustGraspAgent(model, strategy="open-loop"),
-                               GeometricEnvironment(model.obj, true_pose(), seed=2), SMALL, WORLD.nominal_pose)
+    open_loop = run_in_process(
+        RobustGraspAgent(model, strategy="open-loop"),
+        GeometricEnvironment(model.obj, true_pose(), seed=2),
+        SMALL,
+        WORLD.nominal_pose,
+    )
     assert [s.wrt for s in open_loop.steps] == ["goal"]
     # δ this small is never reached: the run ends with the goal grasp as action max_actions.
     agent = RobustGraspAgent(model, strategy="rrg-info", horizon=1, delta=1e-9, max_actions=4)
-    res = run_in_process(agent, GeometricEnvironment(model.obj, true_pose(), seed=3), SMALL, WORLD.nominal_pose)
+    res = run_in_process(
+        agent, GeometricEnvironment(model.obj, true_pose(), seed=3), SMALL, WORLD.nominal_pose
+    )
     assert res.n_actions == 4 and res.steps[-1].kind == "goal" and not res.declared
 
 
@@ -91,7 +102,9 @@ def test_goal_grasp_falls_back_to_the_most_likely_state_where_it_is_feasible(mod
     belief = initial_belief(SMALL, WORLD.nominal_pose)
     e = belief.w_star()
     assert np.array_equal(agent.most_likely_feasible(belief, agent.goal), e)  # feasible at w*
-    agent.search.block(agent.goal, e)  # now it is not, nor near it: the most likely state beyond is used
+    agent.search.block(
+        agent.goal, e
+    )  # now it is not, nor near it: the most likely state beyond is used
     alt = agent.most_likely_feasible(belief, agent.goal)
     points = belief.grid.points()
     beyond = ~np.all(np.abs(points - e) <= np.asarray(agent.search.params.block_box) + 1e-9, axis=1)
@@ -100,13 +113,19 @@ def test_goal_grasp_falls_back_to_the_most_likely_state_where_it_is_feasible(mod
     assert beyond[i] and belief.weights[i] == belief.weights[beyond & feasible].max(), (alt, e)
 
 
-@pytest.mark.parametrize("sigma, grasps", [((0.003, 0.003, 0.03), True), ((0.02, 0.02, 0.2), False)])
-def test_a_goal_grasp_that_cannot_run_at_w_star_runs_beside_it_when_that_is_worth_more(model, sigma, grasps):
+@pytest.mark.parametrize(
+    "sigma, grasps", [((0.003, 0.003, 0.03), True), ((0.02, 0.02, 0.2), False)]
+)
+def test_a_goal_grasp_that_cannot_run_at_w_star_runs_beside_it_when_that_is_worth_more(
+    model, sigma, grasps
+):
     """The goal grasp ruled out around w*(b) and its aim: the search alone values no grasp and
     would gather information. A concentrated belief is better served by the grasp one cell
     away (P_b(G) > 1 - δ there); a broad one still gathers information."""
     agent = RobustGraspAgent(model, strategy="rrg-info", horizon=1)
-    agent.search = ForwardSearch(model, replace(SEARCH, block_box=(0.009, 0.009, 0.09)))  # within a cell
+    agent.search = ForwardSearch(
+        model, replace(SEARCH, block_box=(0.009, 0.009, 0.09))
+    )  # within a cell
     belief = initial_belief(replace(SMALL, name="b", sigma=sigma), WORLD.nominal_pose)
     e = belief.w_star()
     agent.search.block(agent.goal, e)
@@ -128,14 +147,19 @@ def test_an_infeasible_execution_rules_the_action_out_around_its_estimate(model)
     agent = RobustGraspAgent(model, strategy="rrg-info")
     e = np.asarray(WORLD.nominal_pose)
     box = np.asarray(agent.search.params.block_box)
-    assert agent.search.feasible(agent.goal, e + box) and agent.search.feasible(agent.goal, e + 2 * box)
+    assert agent.search.feasible(agent.goal, e + box) and agent.search.feasible(
+        agent.goal, e + 2 * box
+    )
     agent.search.block(agent.goal, e)
     assert not agent.search.feasible(agent.goal, e + 0.9 * box)
     assert not agent.search.feasible(agent.goal, e - 0.9 * box)
     assert agent.search.feasible(agent.goal, e + [2 * box[0], 0.0, 0.0])
     assert agent.search.feasible(agent.goal, e + [0.0, 0.0, 2 * box[2]])
-    assert all(agent.search.feasible(i, e) for i in range(len(model.actions)) if i != agent.goal
-               and model.feasible(i, e))
+    assert all(
+        agent.search.feasible(i, e)
+        for i in range(len(model.actions))
+        if i != agent.goal and model.feasible(i, e)
+    )
     agent.search.clear()
     assert agent.search.feasible(agent.goal, e)
 
@@ -144,14 +168,20 @@ def test_the_goal_grasp_runs_where_the_measured_closing_leaves_the_drill_best_pl
     """The drill's closing turns it about -0.07 rad (the committed settling study), so its goal
     grasp aims at a drill turned the other way: run at w* moved by the aim, the grasp is more
     likely to succeed than at w* itself, and the agent runs it there."""
-    fine = UncertaintyLevel("fine", sigma=(0.005, 0.005, 0.05), spacing=(0.004, 0.004, 0.03), shape=(9, 9, 13))
+    fine = UncertaintyLevel(
+        "fine", sigma=(0.005, 0.005, 0.05), spacing=(0.004, 0.004, 0.03), shape=(9, 9, 13)
+    )
     drill = PlanningModel("powerdrill", levels=(fine,), progress=False, wrt_names=("goal",))
     agent = RobustGraspAgent(drill, strategy="rrg-goal")
     aim = drill.actions[agent.goal].aim["fine"]
     assert aim[2] > 0.02
     w_star = np.asarray(WORLD.nominal_pose)
-    belief = initial_belief(UncertaintyLevel("tight", sigma=(0.002, 0.002, 0.05), spacing=fine.spacing,
-                                             shape=fine.shape), w_star)
+    belief = initial_belief(
+        UncertaintyLevel(
+            "tight", sigma=(0.002, 0.002, 0.05), spacing=fine.spacing, shape=fine.shape
+        ),
+        w_star,
+    )
     e = agent.goal_estimate(belief, agent.goal)
     np.testing.assert_allclose(relative_planar(e, w_star), aim, atol=1e-9)
     p_aimed, p_w_star = (agent.grasp_probability(belief, agent.goal, x) for x in (e, w_star))

@@ -16,8 +16,19 @@ RANK = {"rrg_sim": 0, "rrg_estimator": 1, "rrg_planner": 2}
 ROS_PARTS = ("ros", "ros_common", "bringup", "bags")
 ROS_MODULES = ("rrg_sim.executor.executor_node", "rrg_sim.executor.robot_client")
 #: Bag tools that read and write MCAP without rclpy are ROS-free too, but may sit under bags/.
-ROS_LIBRARIES = ("rclpy", "rrg_msgs", "std_msgs", "sensor_msgs", "geometry_msgs", "diagnostic_msgs",
-                 "visualization_msgs", "builtin_interfaces", "rcl_interfaces", "std_srvs", "action_msgs")
+ROS_LIBRARIES = (
+    "rclpy",
+    "rrg_msgs",
+    "std_msgs",
+    "sensor_msgs",
+    "geometry_msgs",
+    "diagnostic_msgs",
+    "visualization_msgs",
+    "builtin_interfaces",
+    "rcl_interfaces",
+    "std_srvs",
+    "action_msgs",
+)
 
 
 def _modules() -> dict[str, Path]:
@@ -67,8 +78,12 @@ GRAPH = {name: _internal(_imports(name), name) for name in MODULES}
 
 def _is_ros(name: str) -> bool:
     parts = name.split(".")
-    return (any(p in ROS_PARTS for p in parts[1:]) or name in ROS_MODULES or parts[-1].endswith("_node")
-            or parts[-1].endswith("_cli"))  # command-line front ends may start ROS tools
+    return (
+        any(p in ROS_PARTS for p in parts[1:])
+        or name in ROS_MODULES
+        or parts[-1].endswith("_node")
+        or parts[-1].endswith("_cli")
+    )  # command-line front ends may start ROS tools
 
 
 def test_the_module_list_is_complete():

@@ -1,6 +1,7 @@
 """The MCAP bag recorder, end to end: a recorder process records a live graph, is stopped with
 SIGINT (or SIGTERM), and leaves a rosbag2-layout bag that rosbags and Foxglove's readers decode.
 Also the ROS-free parts: schema text, the bag writer, and ``rrg-bag info`` on a truncated bag."""
+
 from __future__ import annotations
 
 import json
@@ -27,9 +28,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from rrg_msgs.msg import BeliefGrid, Observation
-from rrg_planner.bags.bag_cli import bag_info, format_info, main as bag_cli_main
-from rrg_planner.bags.bag_writer import Rosbag2McapWriter
+from rrg_planner.bags.bag_cli import bag_info, format_info
+from rrg_planner.bags.bag_cli import main as bag_cli_main
 from rrg_planner.bags.bag_schema import SEPARATOR, full_definition
+from rrg_planner.bags.bag_writer import Rosbag2McapWriter
 
 ROOT = Path(__file__).resolve().parents[1]
 NODE_MODULES = ROOT / ".cache" / "npm" / "node_modules"
@@ -37,7 +39,12 @@ DOMAIN_ID = 37  # this file's own DDS domain (1-101)
 RECORDER = "rrg_bag_recorder"
 
 # topic: (type, number of messages published while recording)
-VOLATILE_COUNTS = {"/chatter": 5, "/rrg/joint_states": 10, "/rrg/observation": 3, "/rrg/tip_wrench": 4}
+VOLATILE_COUNTS = {
+    "/chatter": 5,
+    "/rrg/joint_states": 10,
+    "/rrg/observation": 3,
+    "/rrg/tip_wrench": 4,
+}
 LATCHED_TOPIC = "/rrg/belief"  # TRANSIENT_LOCAL, published once before the recorder starts
 
 
@@ -74,9 +81,21 @@ def spin_until(executor, condition, timeout_s: float) -> bool:
 
 def start_recorder(bag: Path, env: dict) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, "-m", "rrg_planner.bags.recorder_node", "--output", str(bag),
-         "--ros-args", "-p", "discovery_period:=0.1"],
-        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        [
+            sys.executable,
+            "-m",
+            "rrg_planner.bags.recorder_node",
+            "--output",
+            str(bag),
+            "--ros-args",
+            "-p",
+            "discovery_period:=0.1",
+        ],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
 
 
 def stop(proc: subprocess.Popen, sig: int) -> str:
@@ -101,7 +120,9 @@ def belief_message() -> BeliefGrid:
 
 
 def observation_message(i: int) -> Observation:
-    obs = Observation(object_name="box", wrt_name=f"info_{i}", contact=bool(i % 2), progress=0.1 * i)
+    obs = Observation(
+        object_name="box", wrt_name=f"info_{i}", contact=bool(i % 2), progress=0.1 * i
+    )
     obs.header.frame_id = "world"
     obs.sensors = [j == i for j in range(Observation.NUM_SENSORS)]
     obs.closure = np.array([0.5, 0.6, 0.7]) + i
@@ -118,14 +139,22 @@ def recorded_bag(ros_node, ros_env, tmp_path_factory):
     latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
     belief_pub = node.create_publisher(BeliefGrid, LATCHED_TOPIC, latched)
     belief_pub.publish(belief_message())
-    pubs = {"/chatter": node.create_publisher(String, "/chatter", 10),
-            "/rrg/joint_states": node.create_publisher(JointState, "/rrg/joint_states", 10),
-            "/rrg/observation": node.create_publisher(Observation, "/rrg/observation", 10),
-            "/rrg/tip_wrench": node.create_publisher(WrenchStamped, "/rrg/tip_wrench", 10)}
+    pubs = {
+        "/chatter": node.create_publisher(String, "/chatter", 10),
+        "/rrg/joint_states": node.create_publisher(JointState, "/rrg/joint_states", 10),
+        "/rrg/observation": node.create_publisher(Observation, "/rrg/observation", 10),
+        "/rrg/tip_wrench": node.create_publisher(WrenchStamped, "/rrg/tip_wrench", 10),
+    }
     proc = start_recorder(bag, ros_env)
     try:
-        matched = spin_until(executor, lambda: all(p.get_subscription_count() > 0 for p in pubs.values())
-                             and belief_pub.get_subscription_count() > 0, timeout_s=20)
+        matched = spin_until(
+            executor,
+            lambda: (
+                all(p.get_subscription_count() > 0 for p in pubs.values())
+                and belief_pub.get_subscription_count() > 0
+            ),
+            timeout_s=20,
+        )
         assert matched, "the recorder did not subscribe to every topic"
         for i in range(VOLATILE_COUNTS["/chatter"]):
             pubs["/chatter"].publish(String(data=f"hello {i}"))
@@ -154,8 +183,13 @@ def recorded_bag(ros_node, ros_env, tmp_path_factory):
 
 
 def test_bag_has_rosbag2_layout_and_metadata(recorded_bag):
-    assert sorted(p.name for p in recorded_bag.iterdir()) == ["metadata.yaml", "recorder_test_0.mcap"]
-    info = yaml.safe_load((recorded_bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert sorted(p.name for p in recorded_bag.iterdir()) == [
+        "metadata.yaml",
+        "recorder_test_0.mcap",
+    ]
+    info = yaml.safe_load((recorded_bag / "metadata.yaml").read_text())[
+        "rosbag2_bagfile_information"
+    ]
     assert info["version"] == 9 and info["storage_identifier"] == "mcap"
     assert info["relative_file_paths"] == ["recorder_test_0.mcap"]
     topics = {t["topic_metadata"]["name"]: t for t in info["topics_with_message_count"]}
@@ -163,7 +197,10 @@ def test_bag_has_rosbag2_layout_and_metadata(recorded_bag):
         assert topics[name]["message_count"] == n
     assert topics[LATCHED_TOPIC]["message_count"] == 1
     assert topics[LATCHED_TOPIC]["topic_metadata"]["type"] == "rrg_msgs/msg/BeliefGrid"
-    assert topics[LATCHED_TOPIC]["topic_metadata"]["offered_qos_profiles"][0]["durability"] == "transient_local"
+    assert (
+        topics[LATCHED_TOPIC]["topic_metadata"]["offered_qos_profiles"][0]["durability"]
+        == "transient_local"
+    )
     assert topics["/chatter"]["topic_metadata"]["type_description_hash"].startswith("RIHS01_")
     assert info["message_count"] == sum(t["message_count"] for t in topics.values())
     assert info["duration"]["nanoseconds"] > 0
@@ -191,14 +228,19 @@ def test_mcap_is_finalized_with_ros2_schemas_and_qos(recorded_bag):
 
 def test_rosbags_decodes_every_message(recorded_bag):
     decoded: dict[str, list] = {}
-    with AnyReader([recorded_bag]) as reader:  # types come from the bag's own schemas (hash-checked)
+    with AnyReader(
+        [recorded_bag]
+    ) as reader:  # types come from the bag's own schemas (hash-checked)
         for conn, _, raw in reader.messages():
             decoded.setdefault(conn.topic, []).append(reader.deserialize(raw, conn.msgtype))
     assert {t: len(decoded[t]) for t in VOLATILE_COUNTS} == VOLATILE_COUNTS
     assert [m.data for m in decoded["/chatter"]] == [f"hello {i}" for i in range(5)]
     obs = decoded["/rrg/observation"][2]
     assert (obs.wrt_name, obs.contact, obs.sensors.tolist()) == (
-        "info_2", False, [j == 2 for j in range(10)])
+        "info_2",
+        False,
+        [j == 2 for j in range(10)],
+    )
     np.testing.assert_allclose(obs.closure, [2.5, 2.6, 2.7])
     belief = decoded[LATCHED_TOPIC][0]
     np.testing.assert_array_equal(belief.weights, belief_message().weights)
@@ -208,9 +250,16 @@ def test_rosbags_decodes_every_message(recorded_bag):
 
 def test_foxglove_readers_decode_every_message(recorded_bag):
     out = subprocess.run(
-        ["node", str(ROOT / "tests" / "foxglove_bag_reader.cjs"), str(NODE_MODULES),
-         str(recorded_bag / "recorder_test_0.mcap")],
-        capture_output=True, text=True, timeout=60)
+        [
+            "node",
+            str(ROOT / "tests" / "foxglove_bag_reader.cjs"),
+            str(NODE_MODULES),
+            str(recorded_bag / "recorder_test_0.mcap"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout)
     assert result["profile"] == "ros2"
@@ -256,8 +305,13 @@ def test_sigterm_also_finalizes_the_bag(ros_node, ros_env, tmp_path):
 
 
 def test_recorder_refuses_an_existing_bag_folder(tmp_path, ros_env):
-    out = subprocess.run([sys.executable, "-m", "rrg_planner.bags.recorder_node", "--output", str(tmp_path)],
-                         env=ros_env, capture_output=True, text=True, timeout=30)
+    out = subprocess.run(
+        [sys.executable, "-m", "rrg_planner.bags.recorder_node", "--output", str(tmp_path)],
+        env=ros_env,
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
     assert out.returncode == 1 and "already exists" in out.stderr
 
 
@@ -265,9 +319,15 @@ def test_recorder_refuses_an_existing_bag_folder(tmp_path, ros_env):
 def test_schema_lists_each_nested_type_once_depth_first():
     text = full_definition("rrg_msgs/msg/Observation")
     headers = [line for line in text.splitlines() if line.startswith("MSG: ")]
-    assert headers == ["MSG: std_msgs/Header", "MSG: builtin_interfaces/Time", "MSG: rrg_msgs/PlanarPose",
-                       "MSG: geometry_msgs/Pose", "MSG: geometry_msgs/Point", "MSG: geometry_msgs/Quaternion",
-                       "MSG: geometry_msgs/Vector3"]
+    assert headers == [
+        "MSG: std_msgs/Header",
+        "MSG: builtin_interfaces/Time",
+        "MSG: rrg_msgs/PlanarPose",
+        "MSG: geometry_msgs/Pose",
+        "MSG: geometry_msgs/Point",
+        "MSG: geometry_msgs/Quaternion",
+        "MSG: geometry_msgs/Vector3",
+    ]
     assert text.count(SEPARATOR) == len(headers)
     assert text.startswith("# The observation o of one world-relative trajectory")
 

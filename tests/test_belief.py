@@ -1,4 +1,5 @@
 """Belief: Gaussian initial beliefs, statistics, immutability and validation."""
+
 import math
 
 import numpy as np
@@ -6,8 +7,8 @@ import pytest
 
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import HIGH, LOW
-from rrg_sim.config import WORLD
 from rrg_estimator.grid import Grid
+from rrg_sim.config import WORLD
 from rrg_sim.poses import wrap_angle
 
 
@@ -21,7 +22,7 @@ def test_gaussian_has_the_right_mean_and_covariance():
     mean, sigma = np.array([0.61, -0.03, 0.4]), np.array([0.02, 0.01, 0.2])
     b = Belief.gaussian(wide_grid(mean + [0.004, -0.002, 0.03], sigma), mean, sigma)
     np.testing.assert_allclose(b.mean(), mean, atol=1e-6)
-    np.testing.assert_allclose(b.cov(), np.diag(sigma ** 2), rtol=2e-3, atol=1e-9)
+    np.testing.assert_allclose(b.cov(), np.diag(sigma**2), rtol=2e-3, atol=1e-9)
     assert abs(b.weights.sum() - 1.0) < 1e-12
 
 
@@ -35,8 +36,9 @@ def test_level_belief_is_centred_on_the_mean(level):
     np.testing.assert_allclose(b.mean(), mean, atol=1e-9)
     # truncated at the grid border: variances at most σ², and within 25 % of it
     var = np.diag(b.cov())
-    assert np.all(var <= np.square(level.sigma) * 1.001) and np.all(var >= 0.75 * np.square(level.sigma))
-
+    assert np.all(var <= np.square(level.sigma) * 1.001) and np.all(
+        var >= 0.75 * np.square(level.sigma)
+    )
 
 
 @pytest.mark.parametrize("level", [HIGH, LOW])
@@ -46,9 +48,12 @@ def test_level_grid_spans_three_sigma_of_the_prior_on_every_axis(level):
     half_extent = (np.array(level.shape) - 1) / 2 * np.array(level.spacing)
     assert np.all(half_extent >= 2.95 * np.array(level.sigma)), half_extent / np.array(level.sigma)
 
+
 def test_theta_statistics_wrap_across_pi():
     sigma = np.array([0.01, 0.01, 0.1])
-    near_pi = Belief.gaussian(wide_grid((0.6, 0.0, math.pi - 0.05), sigma), (0.6, 0.0, math.pi - 0.02), sigma)
+    near_pi = Belief.gaussian(
+        wide_grid((0.6, 0.0, math.pi - 0.05), sigma), (0.6, 0.0, math.pi - 0.02), sigma
+    )
     near_zero = Belief.gaussian(wide_grid((0.6, 0.0, -0.05), sigma), (0.6, 0.0, -0.02), sigma)
     assert abs(wrap_angle(near_pi.mean()[2] - (math.pi - 0.02))) < 1e-6
     np.testing.assert_allclose(near_pi.cov(), near_zero.cov(), rtol=1e-6, atol=1e-12)

@@ -6,16 +6,17 @@ The agent is told that this world reads closures as the geometric model predicts
 (PlanningModel(closures_as_predicted=True)): here nothing moves, so the goal grasp's closures
 are as informative as predicted, while in physics the closing drags the object and the agent
 ignores them (WRT.closure_informative). Ignoring them here too, the drill scores 19/24."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from rrg_estimator.config import HIGH
 from rrg_planner.agent import RobustGraspAgent
 from rrg_planner.closed_loop import run_in_process
 from rrg_planner.geometric_env import GeometricEnvironment
 from rrg_planner.planning_model import PlanningModel
-from rrg_estimator.config import HIGH
 from rrg_sim.config import WORLD
 from rrg_sim.poses import compose_planar
 
@@ -28,7 +29,9 @@ def true_poses(seed: int, n: int) -> np.ndarray:
     return compose_planar(np.asarray(WORLD.nominal_pose), rng.normal(0.0, HIGH.sigma, (n, 3)))
 
 
-def success_rate(model: PlanningModel, strategy: str, poses: np.ndarray, seed: int) -> tuple[float, list]:
+def success_rate(
+    model: PlanningModel, strategy: str, poses: np.ndarray, seed: int
+) -> tuple[float, list]:
     agent = RobustGraspAgent(model, strategy=strategy, horizon=2)
     results = []
     for i, w in enumerate(poses):
@@ -39,12 +42,16 @@ def success_rate(model: PlanningModel, strategy: str, poses: np.ndarray, seed: i
 
 @pytest.mark.parametrize("object_name", ["box", "powerdrill"])
 def test_rrg_info_beats_open_loop_at_high_uncertainty(object_name):
-    model = PlanningModel(object_name, levels=("high", "mid", "low"), progress=False, closures_as_predicted=True)
+    model = PlanningModel(
+        object_name, levels=("high", "mid", "low"), progress=False, closures_as_predicted=True
+    )
     poses = true_poses(seed=7, n=N_TRIALS)
     info, info_runs = success_rate(model, "rrg-info", poses, seed=100)
     open_loop, _ = success_rate(model, "open-loop", poses, seed=100)
-    print(f"{object_name}: rrg-info {info:.0%} (mean actions "
-          f"{np.mean([r.n_actions for r in info_runs]):.1f}), open-loop {open_loop:.0%}")
+    print(
+        f"{object_name}: rrg-info {info:.0%} (mean actions "
+        f"{np.mean([r.n_actions for r in info_runs]):.1f}), open-loop {open_loop:.0%}"
+    )
     assert info >= 0.90
     assert open_loop <= info - 0.3
     assert all(1 <= r.n_actions <= 10 for r in info_runs)

@@ -1,6 +1,7 @@
 """The executor core's timing and retreat rules (rrg_sim.executor.wrt_executor, physics.trajectory): the
 guarded move's via-point times, the servo targets that follow them, and a retreat that is
 dropped when the arm has moved since the WRT ended."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -8,9 +9,15 @@ import pytest
 
 from rrg_sim import wam
 from rrg_sim.config import PHYSICS
-from rrg_sim.executor.trajectory import SETTLE_TIME, InfeasiblePath, plan_path, sample_times, servo_targets
-from rrg_sim.physics.world import PhysicsWorld
+from rrg_sim.executor.trajectory import (
+    SETTLE_TIME,
+    InfeasiblePath,
+    plan_path,
+    sample_times,
+    servo_targets,
+)
 from rrg_sim.physics.judge import judge_grasp
+from rrg_sim.physics.world import PhysicsWorld
 
 
 def two_segment_path():
@@ -29,7 +36,9 @@ def test_sample_times_rest_at_every_waypoint():
     corner = int(np.nonzero(path.segment == 0)[0][-1])  # the last sample of segment 0
     middle = steps[corner // 2]
     assert steps[corner - 1] > 1.5 * middle and steps[corner] > 1.5 * middle  # slow in, slow out
-    cruise = np.linalg.norm(path.poses[corner // 2 + 1, :3, 3] - path.poses[corner // 2, :3, 3]) / middle
+    cruise = (
+        np.linalg.norm(path.poses[corner // 2 + 1, :3, 3] - path.poses[corner // 2, :3, 3]) / middle
+    )
     assert abs(cruise - PHYSICS.move_speed) < 0.01  # m/s between the ramps
     fast = sample_times(path, {0: (2 * PHYSICS.move_speed, PHYSICS.turn_speed)})
     assert fast[corner] < t[corner] and np.isclose(fast[-1] - fast[corner], t[-1] - t[corner])
@@ -42,8 +51,12 @@ def test_servo_targets_pass_the_via_points_at_their_times():
     dt = PHYSICS.timestep
     settle = int(round(SETTLE_TIME / dt))
     assert len(ctrl) == len(index) == int(np.ceil(t[-1] / dt)) + 1 + settle
-    assert index[0] == 0.0 and np.all(np.diff(index) >= 0.0) and np.all(index[-settle:] == len(t) - 1)
-    reached = np.searchsorted(index, np.arange(len(t)) - 1e-9) * dt  # first period commanding each via-point
+    assert (
+        index[0] == 0.0 and np.all(np.diff(index) >= 0.0) and np.all(index[-settle:] == len(t) - 1)
+    )
+    reached = (
+        np.searchsorted(index, np.arange(len(t)) - 1e-9) * dt
+    )  # first period commanding each via-point
     assert np.abs(reached - t).max() <= dt + 1e-9
     np.testing.assert_allclose(ctrl[-1], path.q[-1], atol=1e-6)  # at rest on the last via-point
 
@@ -72,7 +85,9 @@ def test_a_reorientation_the_arm_cannot_finish_is_refused_before_anything_moves(
     e = np.array([0.54, 0.0, 2.4])
     world.reset(e)
     wrt = world.obj.wrt("reorient_ccw")
-    plan_path(wrt.world_poses(e), world.arm_q(), rigid_from=1, reconfigure=True)  # the approach alone is fine
+    plan_path(
+        wrt.world_poses(e), world.arm_q(), rigid_from=1, reconfigure=True
+    )  # the approach alone is fine
     w0, q0 = world.true_object_pose(), world.arm_q()
     with pytest.raises(InfeasiblePath):
         world.execute_wrt(wrt, e)
@@ -116,9 +131,9 @@ def test_planned_paths_keep_clear_of_the_joint_limits_where_they_can():
     overshoot pressed the limit stop and the collision detection read a contact at progress 0.
     Paths now keep LIMIT_MARGIN inside the limits when some chain does, and still pass
     through the margin when none does (the cooler's grasp at x = 0.75 touches J6's limit)."""
+    from rrg_sim.executor.trajectory import LIMIT_MARGIN
     from rrg_sim.executor.wrt_executor import wrt_path
     from rrg_sim.objects import get_object
-    from rrg_sim.executor.trajectory import LIMIT_MARGIN
 
     def plan(name, e):
         return wrt_path(get_object(name).goal_wrt, np.array(e), wam.HOME_Q)
@@ -197,7 +212,9 @@ def test_a_feasibility_map_over_the_executed_path_agrees_with_the_executor():
     has_chain = np.array([chain(e) for e in poses])
     wrong_old = int(np.sum(old.lookup(poses) & ~has_chain))
     wrong_new = int(np.sum(new.lookup(poses) & ~has_chain))
-    print(f"feasible by the map but no chain, of {len(poses)}: waypoints {wrong_old}, executed path {wrong_new}")
+    print(
+        f"feasible by the map but no chain, of {len(poses)}: waypoints {wrong_old}, executed path {wrong_new}"
+    )
     assert wrong_old >= 10 and 4 * wrong_new <= wrong_old
 
 

@@ -1,4 +1,5 @@
 """Geometric simulator: head-on contacts hit the right sensors, culling is exact, table, no contact."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -16,7 +17,7 @@ from rrg_sim.wrt import WRT
 DOWN = Rotation.from_rotvec([np.pi, 0.0, 0.0])  # hand z = world -z
 FORWARD = Rotation.from_rotvec([0.0, np.pi / 2, 0.0])  # hand z = world +x
 TIP_REACH = HAND.knuckle_z + HAND.proximal_length + HAND.distal_length
-STEP_TOL = GEOMSIM.path_step / 2 ** GEOMSIM.refine_iters + 1e-6
+STEP_TOL = GEOMSIM.path_step / 2**GEOMSIM.refine_iters + 1e-6
 
 
 @dataclass(frozen=True)
@@ -26,18 +27,30 @@ class Obj:
 
 
 BOX = Obj("box", (Primitive("box", (0.1, 0.05, 0.075), (0.0, 0.0, 0.075)),))  # 20 x 10 x 15 cm
-PEG = Obj("peg", (Primitive("box", (0.02, 0.02, 0.1), (0.0, 0.0, 0.1)),))  # fits between the fingers
+PEG = Obj(
+    "peg", (Primitive("box", (0.02, 0.02, 0.1), (0.0, 0.0, 0.1)),)
+)  # fits between the fingers
 
 
 def top_down(z_end: float, spread: float = 0.0, preclose: float = 0.0) -> WRT:
-    return WRT("top_down", "goal", make_pose(np.array([[0.0, 0.0, 0.5], [0.0, 0.0, z_end]]), DOWN),
-               spread=spread, preclose=preclose)
+    return WRT(
+        "top_down",
+        "goal",
+        make_pose(np.array([[0.0, 0.0, 0.5], [0.0, 0.0, z_end]]), DOWN),
+        spread=spread,
+        preclose=preclose,
+    )
 
 
 def side_approach() -> WRT:
     """Horizontal approach along +x at mid height of BOX, palm facing it."""
-    return WRT("side", "info", make_pose(np.array([[-0.45, 0.0, 0.075], [-0.2, 0.0, 0.075]]), FORWARD),
-               spread=0.0, preclose=0.3)
+    return WRT(
+        "side",
+        "info",
+        make_pose(np.array([[-0.45, 0.0, 0.075], [-0.2, 0.0, 0.075]]), FORWARD),
+        spread=0.0,
+        preclose=0.3,
+    )
 
 
 def names(sensors: np.ndarray) -> set[str]:
@@ -87,7 +100,10 @@ def test_side_approach_hits_the_near_face_with_the_fingertips():
     o = sim.simulate_relative((0.0, 0.0, 0.0))
     assert o.contact and names(o.sensors) & {"tip1", "tip2", "tip3"}
     np.testing.assert_allclose(o.motion_dir, [1.0, 0.0, 0.0], atol=1e-9)
-    tip_x = o.hand_pose[:3, :3] @ o.tip_points[np.flatnonzero(~np.isnan(o.tip_points[:, 0]))].T + o.hand_pose[:3, 3:4]
+    tip_x = (
+        o.hand_pose[:3, :3] @ o.tip_points[np.flatnonzero(~np.isnan(o.tip_points[:, 0]))].T
+        + o.hand_pose[:3, 3:4]
+    )
     np.testing.assert_allclose(tip_x[0], -0.1, atol=2e-3)  # on the box's -x face
 
 
@@ -110,27 +126,47 @@ def test_descent_onto_the_table_stops_on_it():
     np.testing.assert_allclose(o.tip_normals, np.tile([0.0, 0.0, -1.0], (3, 1)), atol=1e-6)
 
 
-@pytest.mark.parametrize("wrt", [top_down(0.235, preclose=0.2), side_approach()], ids=["top_down", "side"])
+@pytest.mark.parametrize(
+    "wrt", [top_down(0.235, preclose=0.2), side_approach()], ids=["top_down", "side"]
+)
 def test_culling_never_changes_the_result(wrt):
     rng = np.random.default_rng(7)
-    deltas = np.column_stack([rng.uniform(-0.15, 0.15, 150), rng.uniform(-0.15, 0.15, 150),
-                              rng.uniform(-1.2, 1.2, 150)])
-    fast, brute = GeometricSimulator(BOX, wrt).simulate_batch(deltas), BruteForce(BOX, wrt).simulate_batch(deltas)
+    deltas = np.column_stack(
+        [rng.uniform(-0.15, 0.15, 150), rng.uniform(-0.15, 0.15, 150), rng.uniform(-1.2, 1.2, 150)]
+    )
+    fast, brute = (
+        GeometricSimulator(BOX, wrt).simulate_batch(deltas),
+        BruteForce(BOX, wrt).simulate_batch(deltas),
+    )
     assert 0.2 < fast.contact.mean() < 0.95  # a mix of outcomes
-    for field in ("contact", "sensors", "progress", "closure", "tip_points", "tip_normals", "motion_dir"):
-        np.testing.assert_allclose(getattr(fast, field), getattr(brute, field), atol=1e-6, err_msg=field)
+    for field in (
+        "contact",
+        "sensors",
+        "progress",
+        "closure",
+        "tip_points",
+        "tip_normals",
+        "motion_dir",
+    ):
+        np.testing.assert_allclose(
+            getattr(fast, field), getattr(brute, field), atol=1e-6, err_msg=field
+        )
 
 
 @pytest.mark.parametrize("name", ["cup", "powerdrill"])
 def test_culling_is_exact_on_catalogue_composites(name):
     obj = get_object(name)
     rng = np.random.default_rng(11)
-    deltas = np.column_stack([rng.uniform(-0.1, 0.1, 80), rng.uniform(-0.1, 0.1, 80), rng.uniform(-1.2, 1.2, 80)])
+    deltas = np.column_stack(
+        [rng.uniform(-0.1, 0.1, 80), rng.uniform(-0.1, 0.1, 80), rng.uniform(-1.2, 1.2, 80)]
+    )
     fast = GeometricSimulator(obj, obj.goal_wrt).simulate_batch(deltas)
     brute = BruteForce(obj, obj.goal_wrt).simulate_batch(deltas)
     assert fast.contact.any()
     for field in ("contact", "sensors", "progress", "closure", "tip_points", "tip_normals"):
-        np.testing.assert_allclose(getattr(fast, field), getattr(brute, field), atol=1e-6, err_msg=field)
+        np.testing.assert_allclose(
+            getattr(fast, field), getattr(brute, field), atol=1e-6, err_msg=field
+        )
 
 
 def test_world_simulation_of_a_shifted_pair_matches_the_relative_one():
@@ -138,7 +174,9 @@ def test_world_simulation_of_a_shifted_pair_matches_the_relative_one():
     e = np.array([0.6, -0.1, 0.7])
     c, s = np.cos(e[2]), np.sin(e[2])
     delta = np.array([0.02, -0.03, 0.2])
-    w = np.array([e[0] + c * delta[0] - s * delta[1], e[1] + s * delta[0] + c * delta[1], e[2] + delta[2]])
+    w = np.array(
+        [e[0] + c * delta[0] - s * delta[1], e[1] + s * delta[0] + c * delta[1], e[2] + delta[2]]
+    )
     rel, world = sim.simulate_relative(delta), sim.simulate(w, e)
     assert rel.contact == world.contact and (rel.sensors == world.sensors).all()
     assert world.progress == pytest.approx(rel.progress, abs=1e-6)
@@ -154,7 +192,9 @@ def test_a_grasp_stopped_in_its_last_centimetre_has_arrived(kind):
     same stop ends an information WRT early. The sensors that stopped it fire either way."""
     z_end = 0.15 + TIP_REACH - 0.01
     wrt = top_down(z_end)
-    sim = GeometricSimulator(BOX, WRT(wrt.name, kind, wrt.poses, spread=wrt.spread, preclose=wrt.preclose))
+    sim = GeometricSimulator(
+        BOX, WRT(wrt.name, kind, wrt.poses, spread=wrt.spread, preclose=wrt.preclose)
+    )
     o = sim.simulate_relative((0.0, 0.0, 0.0))
     assert o.contact == (kind == "info")
     assert o.progress == pytest.approx(sim.path.length - 0.01, abs=STEP_TOL)

@@ -1,12 +1,20 @@
 """BarrettHand geometry: symmetry, reach, coupling, closing direction, sensor ids, MuJoCo agreement."""
+
 from __future__ import annotations
 
 import mujoco
 import numpy as np
 
 from rrg_sim.config import HAND, N_SENSORS
-from rrg_sim.hand import (body_poses, finger_link_poses, fingertip_points, geom_mjcf, hand_geoms,
-                          hand_geoms_world, hand_tree)
+from rrg_sim.hand import (
+    body_poses,
+    finger_link_poses,
+    fingertip_points,
+    geom_mjcf,
+    hand_geoms,
+    hand_geoms_world,
+    hand_tree,
+)
 
 MIRROR_X = np.diag([-1.0, 1.0, 1.0])
 
@@ -25,13 +33,19 @@ def test_straight_fingertip_reach_along_z():
     reach = HAND.knuckle_z + HAND.proximal_length + HAND.distal_length
     np.testing.assert_allclose(tips[:, 2], reach, atol=1e-12)
     assert abs(reach - (0.0754 + 0.07 + 0.057)) < 1e-12
-    np.testing.assert_allclose(tips[:, :2], [[0.025, 0.05], [-0.025, 0.05], [0.0, -0.05]], atol=1e-12)
+    np.testing.assert_allclose(
+        tips[:, :2], [[0.025, 0.05], [-0.025, 0.05], [0.0, -0.05]], atol=1e-12
+    )
 
 
 def test_spread_pi_over_2_puts_fingers_1_2_on_plus_minus_x():
     tips = fingertip_points(np.pi / 2, np.zeros(3))
-    np.testing.assert_allclose(tips[0, :2], [HAND.spread_axis_x + HAND.knuckle_radius, 0.0], atol=1e-12)
-    np.testing.assert_allclose(tips[1, :2], [-HAND.spread_axis_x - HAND.knuckle_radius, 0.0], atol=1e-12)
+    np.testing.assert_allclose(
+        tips[0, :2], [HAND.spread_axis_x + HAND.knuckle_radius, 0.0], atol=1e-12
+    )
+    np.testing.assert_allclose(
+        tips[1, :2], [-HAND.spread_axis_x - HAND.knuckle_radius, 0.0], atol=1e-12
+    )
 
 
 def test_distal_is_coupled_to_proximal():
@@ -48,8 +62,10 @@ def test_closing_moves_fingertips_inward():
     for spread in (0.0, np.pi / 3, np.pi / 2):
         outward = body_poses(spread, np.zeros(3))
         out_dirs = np.stack([outward[f"f{i}_base"][:3, 1] for i in (1, 2, 3)])
-        radial = [np.einsum("fk,fk->f", fingertip_points(spread, np.full(3, a)), out_dirs)
-                  for a in np.linspace(0.0, 1.2, 7)]
+        radial = [
+            np.einsum("fk,fk->f", fingertip_points(spread, np.full(3, a)), out_dirs)
+            for a in np.linspace(0.0, 1.2, 7)
+        ]
         assert np.all(np.diff(radial, axis=0) < 0)
 
 
@@ -76,17 +92,24 @@ def test_world_geoms_follow_the_hand_pose():
 
 def _articulated_mjcf() -> str:
     """The tree as an MJCF with hinge joints (what the physics simulator builds)."""
-    f = lambda v: " ".join(f"{x:.6g}" for x in v)  # noqa: E731
+    f = lambda v: " ".join(f"{x:.6g}" for x in v)
     children: dict[str | None, list] = {}
     for b in hand_tree():
         children.setdefault(b.parent, []).append(b)
 
     def body(b) -> str:
         mass = "" if b.geoms else '<inertial pos="0 0 0" mass="0.01" diaginertia="1e-6 1e-6 1e-6"/>'
-        joint = "" if b.joint is None else (
-            f'<joint name="{b.joint.name}" type="hinge" axis="{f(b.joint.axis)}"/>')
-        inner = "".join(geom_mjcf(g) for g in b.geoms) + "".join(body(c) for c in children.get(b.name, []))
-        return f'<body name="{b.name}" pos="{f(b.pos)}" quat="{f(b.quat)}">{mass}{joint}{inner}</body>'
+        joint = (
+            ""
+            if b.joint is None
+            else (f'<joint name="{b.joint.name}" type="hinge" axis="{f(b.joint.axis)}"/>')
+        )
+        inner = "".join(geom_mjcf(g) for g in b.geoms) + "".join(
+            body(c) for c in children.get(b.name, [])
+        )
+        return (
+            f'<body name="{b.name}" pos="{f(b.pos)}" quat="{f(b.quat)}">{mass}{joint}{inner}</body>'
+        )
 
     return f"<mujoco><worldbody>{body(children[None][0])}</worldbody></mujoco>"
 

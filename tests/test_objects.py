@@ -1,4 +1,5 @@
 """The object catalogue: geometry, concavities, goal regions and the WRTs of every object."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -13,9 +14,15 @@ from rrg_sim.objects.clearance import hand_points, scene, transform_points
 from rrg_sim.objects.composites import box, cylinder, turn_about_z
 from rrg_sim.objects.primitives import box_distance, surface_samples
 from rrg_sim.objects.wrt_generation import (
-    APPROACH_CLEARANCE, SWEEP_REACH, SWEEP_TIP_HEIGHT, _info_pinches, info_wrts, line_grasp_wrt,
-    top_down_rotation)
-from rrg_sim.poses import interpolate_poses, invert, planar_pose, home_pose
+    APPROACH_CLEARANCE,
+    SWEEP_REACH,
+    SWEEP_TIP_HEIGHT,
+    _info_pinches,
+    info_wrts,
+    line_grasp_wrt,
+    top_down_rotation,
+)
+from rrg_sim.poses import home_pose, interpolate_poses, invert, planar_pose
 
 HANDLE_OBJECTS = ("powerdrill", "brita_pitcher", "cup", "giant_teacup")
 NOMINAL = np.asarray(WORLD.nominal_pose)
@@ -98,9 +105,15 @@ def test_concavities_are_kept():
     assert signed_distance(drill.parts, canonical_point(drill, [0.03, 0.0, 0.09])) > 0.02
 
 
-@pytest.mark.parametrize("name, radius, height", [
-    ("taperoll", 0.0475, 0.024), ("cup", 0.044, 0.04),
-    ("wooden_bowl", (0.048 + 0.0765) / 2, 0.0285), ("giant_teacup", 0.057, 0.055)])
+@pytest.mark.parametrize(
+    "name, radius, height",
+    [
+        ("taperoll", 0.0475, 0.024),
+        ("cup", 0.044, 0.04),
+        ("wooden_bowl", (0.048 + 0.0765) / 2, 0.0285),
+        ("giant_teacup", 0.057, 0.055),
+    ],
+)
 def test_ring_segments_leave_no_gap(name, radius, height):
     a = np.linspace(0.0, 2 * np.pi, 1441)
     circle = np.stack([radius * np.cos(a), radius * np.sin(a), np.full_like(a, height)], axis=-1)
@@ -121,7 +134,9 @@ def test_wrt_sets(obj):
     for w in wrts:
         assert w.poses.ndim == 3 and w.poses.shape[0] >= 2 and w.poses.shape[1:] == (4, 4)
         R = w.poses[:, :3, :3]
-        np.testing.assert_allclose(R @ np.swapaxes(R, 1, 2), np.broadcast_to(np.eye(3), R.shape), atol=1e-9)
+        np.testing.assert_allclose(
+            R @ np.swapaxes(R, 1, 2), np.broadcast_to(np.eye(3), R.shape), atol=1e-9
+        )
     with pytest.raises(KeyError, match="valid"):
         obj.wrt("nope")
 
@@ -148,7 +163,11 @@ def test_grasp_paths_reach_final_poses_without_touching(obj):
 def test_goal_palm_does_not_penetrate_and_fingers_close_on_object(obj):
     w = obj.goal_wrt
     final = w.poses[-1]
-    palm = [(g, T) for g, T in hand.hand_geoms_world(final, w.spread, np.zeros(3)) if g.name == "palm_pad"]
+    palm = [
+        (g, T)
+        for g, T in hand.hand_geoms_world(final, w.spread, np.zeros(3))
+        if g.name == "palm_pad"
+    ]
     geom, T = palm[0]
     pad = surface_samples(geom.kind, geom.size, 0.002) @ T[:3, :3].T + T[:3, 3]
     assert signed_distance(obj.parts, pad).min() >= 0.004
@@ -159,8 +178,10 @@ def test_goal_palm_does_not_penetrate_and_fingers_close_on_object(obj):
 def test_goal_grasp_closes_evenly_at_the_true_pose(obj):
     obs = GeometricSimulator(obj, obj.goal_wrt).simulate_relative(np.zeros(3))
     assert not obs.contact
-    assert all(obs.sensors[[hand.sensor_id(f"{link}{i}") for link in ("prox", "dist", "tip")]].any()
-               for i in (1, 2, 3))
+    assert all(
+        obs.sensors[[hand.sensor_id(f"{link}{i}") for link in ("prox", "dist", "tip")]].any()
+        for i in (1, 2, 3)
+    )
     assert np.ptp(obs.closure) <= MAX_GOAL_CLOSURE_SPREAD, obs.closure
 
 
@@ -171,11 +192,17 @@ def test_wrts_are_feasible_at_the_nominal_pose(obj):
 
 def test_goal_feasibility_needs_reorientation_only_for_handle_objects(obj):
     thetas = np.linspace(-1.2, 1.2, 9)
-    feasible = [wam.feasible_path(obj.goal_wrt.with_home([NOMINAL[0], NOMINAL[1], t])) for t in thetas]
+    feasible = [
+        wam.feasible_path(obj.goal_wrt.with_home([NOMINAL[0], NOMINAL[1], t])) for t in thetas
+    ]
     if obj.name in ("powerdrill", "brita_pitcher", "giant_teacup"):
         assert not all(feasible)
-        assert any(wam.feasible_path(w.with_home([NOMINAL[0], NOMINAL[1], t]))
-                   for w in obj.wrts() if w.kind == "reorient" for t in thetas[~np.array(feasible)])
+        assert any(
+            wam.feasible_path(w.with_home([NOMINAL[0], NOMINAL[1], t]))
+            for w in obj.wrts()
+            if w.kind == "reorient"
+            for t in thetas[~np.array(feasible)]
+        )
     if obj.name in ("cooler", "taperoll", "wooden_bowl", "teabox", "box"):
         assert all(feasible)
 
@@ -204,8 +231,10 @@ def test_info_generation_is_deterministic_and_works_for_new_objects():
     for a, b in zip(first, second):
         np.testing.assert_array_equal(a, b)
     # A new object from primitives only: an L of two boxes, turned.
-    parts = turn_about_z((box((0.03, 0.08, 0.04), (0.0, 0.0, 0.04)),
-                          box((0.06, 0.025, 0.04), (0.07, 0.055, 0.04))), 0.3)
+    parts = turn_about_z(
+        (box((0.03, 0.08, 0.04), (0.0, 0.0, 0.04)), box((0.06, 0.025, 0.04), (0.07, 0.055, 0.04))),
+        0.3,
+    )
     goal = line_grasp_wrt(parts, top_down_rotation(0.3), (0.0, 0.0, 0.08))
     generated = info_wrts(parts)
     assert len(generated) >= 2 and goal.poses.shape == (2, 4, 4)
@@ -215,32 +244,50 @@ def test_info_generation_is_deterministic_and_works_for_new_objects():
 
 def test_goal_region_contains():
     region = GoalRegion((0.015, 0.05, np.radians(10)))
-    delta = np.array([[0.0, 0.0, 0.0], [0.014, -0.049, 0.17], [0.016, 0.0, 0.0],
-                      [0.0, 0.051, 0.0], [0.0, 0.0, 0.18], [0.0, 0.0, 2 * np.pi + 0.1]])
+    delta = np.array(
+        [
+            [0.0, 0.0, 0.0],
+            [0.014, -0.049, 0.17],
+            [0.016, 0.0, 0.0],
+            [0.0, 0.051, 0.0],
+            [0.0, 0.0, 0.18],
+            [0.0, 0.0, 2 * np.pi + 0.1],
+        ]
+    )
     np.testing.assert_array_equal(region.contains(delta), [True, True, False, False, False, True])
     assert region.contains(np.zeros((4, 5, 3))).shape == (4, 5)
     for name in OBJECT_NAMES:
         o = get_object(name)
-        assert o.goal.contains(np.zeros(3)) and o.symmetric == (name in ("can", "cup", "wooden_bowl", "taperoll"))
+        assert o.goal.contains(np.zeros(3)) and o.symmetric == (
+            name in ("can", "cup", "wooden_bowl", "taperoll")
+        )
         assert bool(o.goal.contains([0.0, 0.0, 2.0])) == o.symmetric
         # boxes are the same object turned half round; handles are not
-        assert bool(o.goal.contains([0.0, 0.0, np.pi])) == (o.symmetric or name in ("box", "teabox", "cooler"))
+        assert bool(o.goal.contains([0.0, 0.0, np.pi])) == (
+            o.symmetric or name in ("box", "teabox", "cooler")
+        )
     with pytest.raises(ValueError):
         GoalRegion((0.01, 0.01, 0.1), required_sensors=("thumb",))
 
 
 def test_signed_distance_of_primitives():
     turned = Rotation.from_euler("z", np.pi / 2).as_quat(scalar_first=True)
-    parts = (Primitive("box", (0.1, 0.05, 0.02), (0.0, 0.0, 0.0), tuple(turned)),
-             Primitive("cylinder", (0.02, 0.05), (1.0, 0.0, 0.0)),
-             Primitive("capsule", (0.01, 0.05), (0.0, 1.0, 0.0)),
-             Primitive("sphere", (0.03,), (0.0, 0.0, 1.0)))
-    points = np.array([[0.0, 0.15, 0.0],  # beyond the turned box's long side
-                       [0.0, 0.0, 0.0],  # box centre
-                       [1.05, 0.0, 0.0],  # beside the cylinder
-                       [1.0, 0.0, 0.08],  # above it
-                       [0.0, 1.0, 0.1],  # above the capsule's cap
-                       [0.0, 0.0, 1.1]])  # above the sphere
+    parts = (
+        Primitive("box", (0.1, 0.05, 0.02), (0.0, 0.0, 0.0), tuple(turned)),
+        Primitive("cylinder", (0.02, 0.05), (1.0, 0.0, 0.0)),
+        Primitive("capsule", (0.01, 0.05), (0.0, 1.0, 0.0)),
+        Primitive("sphere", (0.03,), (0.0, 0.0, 1.0)),
+    )
+    points = np.array(
+        [
+            [0.0, 0.15, 0.0],  # beyond the turned box's long side
+            [0.0, 0.0, 0.0],  # box centre
+            [1.05, 0.0, 0.0],  # beside the cylinder
+            [1.0, 0.0, 0.08],  # above it
+            [0.0, 1.0, 0.1],  # above the capsule's cap
+            [0.0, 0.0, 1.1],
+        ]
+    )  # above the sphere
     expected = [0.05, -0.02, 0.03, 0.03, 0.04, 0.07]
     np.testing.assert_allclose(signed_distance(parts, points), expected, atol=1e-12)
     rng = np.random.default_rng(0)

@@ -1,4 +1,5 @@
 """Observation tables: the relative-transform invariance, no-contact rows, the disk cache."""
+
 from __future__ import annotations
 
 import time
@@ -8,10 +9,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rrg_estimator.obs_tables import ObservationTable, build_table, load_or_build
 from rrg_estimator.config import HIGH
-from rrg_sim.geometric_sim import GeometricSimulator
 from rrg_estimator.grid import Grid
+from rrg_estimator.obs_tables import ObservationTable, build_table, load_or_build
+from rrg_sim.geometric_sim import GeometricSimulator
 from rrg_sim.objects.primitives import Primitive
 from rrg_sim.poses import compose_planar, make_pose
 from rrg_sim.wrt import WRT
@@ -26,12 +27,22 @@ class Obj:
 
 
 BOX = Obj("testbox", (Primitive("box", (0.1, 0.05, 0.075), (0.0, 0.0, 0.075)),))
-TOP_DOWN = WRT("top_down", "goal",
-               make_pose(np.array([[0.0, 0.0, 0.5], [0.0, 0.0, 0.235]]), Rotation.from_rotvec([np.pi, 0, 0])),
-               spread=0.0, preclose=0.2)
-SIDE = WRT("side", "info",
-           make_pose(np.array([[-0.45, 0.0, 0.075], [-0.2, 0.0, 0.075]]), Rotation.from_rotvec([0, np.pi / 2, 0])),
-           spread=0.0, preclose=0.3)
+TOP_DOWN = WRT(
+    "top_down",
+    "goal",
+    make_pose(np.array([[0.0, 0.0, 0.5], [0.0, 0.0, 0.235]]), Rotation.from_rotvec([np.pi, 0, 0])),
+    spread=0.0,
+    preclose=0.2,
+)
+SIDE = WRT(
+    "side",
+    "info",
+    make_pose(
+        np.array([[-0.45, 0.0, 0.075], [-0.2, 0.0, 0.075]]), Rotation.from_rotvec([0, np.pi / 2, 0])
+    ),
+    spread=0.0,
+    preclose=0.3,
+)
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +55,9 @@ def test_world_simulation_equals_the_table_row_of_its_relative_offset(side_table
     rng = np.random.default_rng(3)
     rows = rng.choice(len(side_table), 24, replace=False)
     deltas = COARSE.points()[rows]
-    es = np.column_stack([rng.uniform(0.4, 0.9, 24), rng.uniform(-0.3, 0.3, 24), rng.uniform(-np.pi, np.pi, 24)])
+    es = np.column_stack(
+        [rng.uniform(0.4, 0.9, 24), rng.uniform(-0.3, 0.3, 24), rng.uniform(-np.pi, np.pi, 24)]
+    )
     assert 0 < side_table.contact[rows].sum() < len(rows)
     for j, d, e in zip(rows, deltas, es):
         o = sim.simulate(compose_planar(e, d), e)
@@ -81,8 +94,16 @@ def test_cache_round_trip_and_rebuild_when_stale(tmp_path):
     load_s = time.perf_counter() - t0
     assert load_s < build_s / 3
     assert (second.grid, second.object_name, second.wrt_name) == (COARSE, "testbox", "top_down")
-    for field in ("contact", "progress", "sensors", "closure", "tip_points", "tip_normals", "motion_dir",
-                  "stop_pose"):
+    for field in (
+        "contact",
+        "progress",
+        "sensors",
+        "closure",
+        "tip_points",
+        "tip_normals",
+        "motion_dir",
+        "stop_pose",
+    ):
         np.testing.assert_array_equal(getattr(second, field), getattr(first, field))
     assert len(list(tmp_path.glob("*.npz"))) == 1
     changed = replace(TOP_DOWN, preclose=0.4)  # same name, different WRT → stale

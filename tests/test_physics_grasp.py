@@ -1,6 +1,7 @@
 """Judged grasps in physics: each catalogue object's goal WRT at its true pose succeeds (lifted
 and held 2 s, inside its goal region); the same grasp 5 cm off fails. Also reorientation,
 retreat and seeded sensor noise."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -56,7 +57,9 @@ def test_a_reorientation_that_stopped_early_turns_neither_the_object_nor_the_bel
     from rrg_estimator.config import LOW
     from rrg_estimator.grid import Grid
 
-    monkeypatch.setattr(tracker, "update", lambda belief, *_, **__: belief)  # only the turn is under test
+    monkeypatch.setattr(
+        tracker, "update", lambda belief, *_, **__: belief
+    )  # only the turn is under test
 
     world = PhysicsWorld("giant_teacup", seed=1)
     wrt = world.obj.wrt("reorient_ccw")

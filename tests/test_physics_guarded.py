@@ -1,5 +1,6 @@
 """Guarded moves in physics: the hand stops on the first contact, within one control period,
 barely moving the object, and the sensor that stops it sits on the side that was hit."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -32,9 +33,21 @@ CASES = [
     ("box", _sweep((0.0, 0.0, 0.45), (0.0, 0.0, 0.25), "down_onto_box"), TIPS),
     ("can", _sweep((0.0, 0.18, 0.25), (0.0, -0.18, 0.25), "can_sweep_minus_y"), FINGERS_1_2),
     ("can", _sweep((0.0, -0.18, 0.25), (0.0, 0.18, 0.25), "can_sweep_plus_y"), FINGER_3),
-    ("box", _sweep((0.22, 0.0, 0.27), (-0.22, 0.0, 0.27), "box_sweep_minus_x"), FINGERS_1_2 | FINGER_3),
-    ("cooler", _sweep((0.0, 0.30, 0.40), (0.0, -0.30, 0.40), "cooler_sweep_minus_y", above=0.55), FINGERS_1_2),
-    ("cooler", _sweep((0.0, -0.30, 0.40), (0.0, 0.30, 0.40), "cooler_sweep_plus_y", above=0.55), FINGER_3),
+    (
+        "box",
+        _sweep((0.22, 0.0, 0.27), (-0.22, 0.0, 0.27), "box_sweep_minus_x"),
+        FINGERS_1_2 | FINGER_3,
+    ),
+    (
+        "cooler",
+        _sweep((0.0, 0.30, 0.40), (0.0, -0.30, 0.40), "cooler_sweep_minus_y", above=0.55),
+        FINGERS_1_2,
+    ),
+    (
+        "cooler",
+        _sweep((0.0, -0.30, 0.40), (0.0, 0.30, 0.40), "cooler_sweep_plus_y", above=0.55),
+        FINGER_3,
+    ),
 ]
 
 
@@ -44,7 +57,9 @@ def test_guarded_move_stops_on_first_contact(name, wrt, side):
     w0 = world.true_object_pose()
     path, timed, stop = world.move_through(wrt.world_poses(w0), guard=True)
     assert stop is not None, "the move must be stopped by a contact"
-    assert path.segment[int(np.ceil(timed.index[stop]))] == len(wrt.poses) - 1, "stopped on the last segment"
+    assert path.segment[int(np.ceil(timed.index[stop]))] == len(wrt.poses) - 1, (
+        "stopped on the last segment"
+    )
     fired = world.sensors.fired()
     assert {SENSOR_NAMES[i] for i in np.nonzero(fired)[0]} <= side and fired.any()
     world.hold(0.2)  # the arm comes to rest
@@ -61,7 +76,7 @@ def test_guard_reacts_in_the_period_the_signal_crosses():
     world.sensors.tare()
     world._run(timed.ctrl[:stop])  # one period short of the stop, unguarded
     assert not world.sensors.fired().any()
-    world._run(timed.ctrl[stop:stop + 1])
+    world._run(timed.ctrl[stop : stop + 1])
     assert world.sensors.fired().any()
 
 
@@ -72,8 +87,13 @@ def test_careful_closing_stops_each_finger_at_its_first_touch(guarded, monkeypat
     here) shoves the box on by over 2 cm."""
     world = PhysicsWorld("teabox", seed=3)
     if not guarded:
-        monkeypatch.setattr(world, "close_hand", lambda monitor=None, guarded=False:
-                            PhysicsWorld.close_hand(world, monitor, guarded=False))
+        monkeypatch.setattr(
+            world,
+            "close_hand",
+            lambda monitor=None, guarded=False: PhysicsWorld.close_hand(
+                world, monitor, guarded=False
+            ),
+        )
     world.reset(np.array([0.6137, 0.0003, -0.0418]))
     w0 = world.true_object_pose()
     sweep = next(w for w in get_object("teabox").wrts() if w.name == "sweep")
@@ -82,7 +102,9 @@ def test_careful_closing_stops_each_finger_at_its_first_touch(guarded, monkeypat
     moved = np.linalg.norm(world.true_object_pose()[:2] - w0[:2])
     if guarded:
         assert moved < 0.01
-        assert obs.closure[2] == pytest.approx(sweep.preclose, abs=0.02)  # finger 3 touched first: it stayed
+        assert obs.closure[2] == pytest.approx(
+            sweep.preclose, abs=0.02
+        )  # finger 3 touched first: it stayed
     else:
         assert moved > 0.02
 

@@ -1,5 +1,6 @@
 """The MuJoCo robot and scenes: agreement with the core's kinematics and hand model, mass
 properties, couplings, sensors, generated assets, and a menagerie-style smoke test."""
+
 from __future__ import annotations
 
 import mujoco
@@ -10,8 +11,15 @@ from rrg_sim import wam
 from rrg_sim.config import HAND, PHYSICS, WAM_LINKS
 from rrg_sim.hand import body_poses
 from rrg_sim.objects import OBJECT_NAMES
-from rrg_sim.physics.mjcf_robot import (ARM_JOINTS, PAD_TOUCH, PALM_BODY, ROBOT_FILE, TIP_FORCE, TIP_TORQUE,
-                                        robot_xml)
+from rrg_sim.physics.mjcf_robot import (
+    ARM_JOINTS,
+    PAD_TOUCH,
+    PALM_BODY,
+    ROBOT_FILE,
+    TIP_FORCE,
+    TIP_TORQUE,
+    robot_xml,
+)
 from rrg_sim.physics.scene import ASSETS_DIR, asset_files, build_model
 from rrg_sim.physics.sensing import TIP_RADIUS, TIP_Z0, TIP_Z1, contact_from_wrench
 
@@ -60,7 +68,9 @@ def test_arm_mass_is_barretts(robot):
     model, _ = robot
     arm = sum(model.body_mass[model.body(f"wam/link{i}").id] for i in range(1, 8))
     assert arm == pytest.approx(sum(link.mass for link in WAM_LINKS))
-    hand = sum(model.body_mass[b] for b in range(model.nbody) if model.body(b).name.startswith("bh/"))
+    hand = sum(
+        model.body_mass[b] for b in range(model.nbody) if model.body(b).name.startswith("bh/")
+    )
     assert 1.0 < hand < 1.3  # BH8-282: 1.18 kg
 
 
@@ -83,12 +93,14 @@ def test_spread_and_distal_couplings(robot):
     data.ctrl[7] = 1.0  # spread
     data.ctrl[8:11] = [0.5, 1.0, 1.5]
     mujoco.mj_step(model, data, nstep=750)
-    q = lambda j: data.qpos[_qadr(model, j)]  # noqa: E731
+    q = lambda j: data.qpos[_qadr(model, j)]
     assert q("bh/f1_spread") == pytest.approx(1.0, abs=0.02)
     assert q("bh/f2_spread") == pytest.approx(q("bh/f1_spread"), abs=2e-3)
     for i, target in enumerate((0.5, 1.0, 1.5), start=1):
         assert q(f"bh/f{i}_prox") == pytest.approx(target, abs=0.03)
-        assert q(f"bh/f{i}_dist") == pytest.approx(HAND.distal_coupling * q(f"bh/f{i}_prox"), abs=5e-3)
+        assert q(f"bh/f{i}_dist") == pytest.approx(
+            HAND.distal_coupling * q(f"bh/f{i}_prox"), abs=5e-3
+        )
 
 
 def test_sensors_are_named_and_sized(robot):
@@ -98,12 +110,18 @@ def test_sensors_are_named_and_sized(robot):
     assert len(PAD_TOUCH) == 7
 
 
-@pytest.mark.parametrize("point, normal", [
-    ((TIP_RADIUS, 0.0, (TIP_Z0 + TIP_Z1) / 2), (-1.0, 0.0, 0.0)),  # side of the cylinder
-    ((0.0, -TIP_RADIUS, TIP_Z0 + 0.001), (0.0, 1.0, 0.0)),
-    ((0.0, 0.0, TIP_Z1 + TIP_RADIUS), (0.0, 0.0, -1.0)),  # apex of the cap
-    ((TIP_RADIUS * np.sqrt(0.5), 0.0, TIP_Z1 + TIP_RADIUS * np.sqrt(0.5)), (-np.sqrt(0.5), 0.0, -np.sqrt(0.5))),
-])
+@pytest.mark.parametrize(
+    "point, normal",
+    [
+        ((TIP_RADIUS, 0.0, (TIP_Z0 + TIP_Z1) / 2), (-1.0, 0.0, 0.0)),  # side of the cylinder
+        ((0.0, -TIP_RADIUS, TIP_Z0 + 0.001), (0.0, 1.0, 0.0)),
+        ((0.0, 0.0, TIP_Z1 + TIP_RADIUS), (0.0, 0.0, -1.0)),  # apex of the cap
+        (
+            (TIP_RADIUS * np.sqrt(0.5), 0.0, TIP_Z1 + TIP_RADIUS * np.sqrt(0.5)),
+            (-np.sqrt(0.5), 0.0, -np.sqrt(0.5)),
+        ),
+    ],
+)
 def test_nano17_contact_point_from_wrench(point, normal):
     """A force pressing into the tip at a surface point is located there from (F, p × F)."""
     rng = np.random.default_rng(1)
@@ -131,7 +149,10 @@ def _smoke(model: mujoco.MjModel, seed: int) -> mujoco.MjData:
     mujoco.mj_forward(model, data)
     low = np.where(model.actuator_ctrllimited, model.actuator_ctrlrange[:, 0], -np.inf)
     high = np.where(model.actuator_ctrllimited, model.actuator_ctrlrange[:, 1], np.inf)
-    low[:7], high[:7] = wam.HOME_Q - 0.3, wam.HOME_Q + 0.3  # arm servos: around home, above the table
+    low[:7], high[:7] = (
+        wam.HOME_Q - 0.3,
+        wam.HOME_Q + 0.3,
+    )  # arm servos: around home, above the table
     for _ in range(10):
         data.ctrl[:] = rng.uniform(low, high)
         mujoco.mj_step(model, data, nstep=int(0.1 / PHYSICS.timestep))

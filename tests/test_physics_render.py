@@ -1,4 +1,5 @@
 """Headless PNG snapshots of the physics world (MUJOCO_GL=egl on the CPU)."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -11,6 +11,7 @@ predicted) 0.02, |Δclosure| mean 0.013 rad (90 %: 0.022 rad), Nano17 contact po
 median 1.0 mm (90 %: 4.1 mm). A firm goal grasp is the exception: it pulls the object as it
 closes (last test).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -34,7 +35,9 @@ MAX_TIP_MEDIAN, MAX_TIP_P90 = 0.012, 0.025  # m
 
 @pytest.fixture(scope="module")
 def stats():
-    diffs = measure(names=("cooler", "cup", "teabox", "box", "wooden_bowl", "giant_teacup"), offsets=2, seed=5)
+    diffs = measure(
+        names=("cooler", "cup", "teabox", "box", "wooden_bowl", "giant_teacup"), offsets=2, seed=5
+    )
     return agreement_stats(diffs)
 
 
@@ -54,7 +57,10 @@ def test_fired_sensors_agree(stats):
 
 
 def test_closure_and_fingertip_contacts_agree(stats):
-    assert stats["closure_abs_mean"] <= MAX_CLOSURE_MEAN and stats["closure_abs_p90"] <= MAX_CLOSURE_P90
+    assert (
+        stats["closure_abs_mean"] <= MAX_CLOSURE_MEAN
+        and stats["closure_abs_p90"] <= MAX_CLOSURE_P90
+    )
     assert stats["tip_dist_median"] <= MAX_TIP_MEDIAN and stats["tip_dist_p90"] <= MAX_TIP_P90
 
 

@@ -1,5 +1,6 @@
 """Belief, grid, observation and pose ↔ ROS message conversions: exact round trips, and the
 validation that turns a malformed belief message into InvalidGrid / InvalidBelief."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -9,13 +10,30 @@ from rclpy.serialization import deserialize_message, serialize_message
 from scipy.spatial.transform import Rotation
 
 from rrg_estimator.belief import Belief
-from rrg_estimator.ros.belief_msgs import InvalidBelief, InvalidGrid, belief_from_msg, belief_markers, belief_to_msg, grid_from_metadata, grid_to_metadata
-from rrg_msgs.msg import Observation as ObservationMsg
 from rrg_estimator.config import HIGH, LOW
 from rrg_estimator.grid import Grid
+from rrg_estimator.ros.belief_msgs import (
+    InvalidBelief,
+    InvalidGrid,
+    belief_from_msg,
+    belief_markers,
+    belief_to_msg,
+    grid_from_metadata,
+    grid_to_metadata,
+)
+from rrg_msgs.msg import Observation as ObservationMsg
 from rrg_sim.observation import Observation
 from rrg_sim.poses import make_pose
-from rrg_sim.ros_common.msg_conversions import observation_from_msg, observation_to_msg, planar_from_msg, planar_to_msg, pose_from_msg, pose_to_msg, tip_contacts_from_msg, tip_contacts_to_msg
+from rrg_sim.ros_common.msg_conversions import (
+    observation_from_msg,
+    observation_to_msg,
+    planar_from_msg,
+    planar_to_msg,
+    pose_from_msg,
+    pose_to_msg,
+    tip_contacts_from_msg,
+    tip_contacts_to_msg,
+)
 
 
 def random_belief(seed: int, level=HIGH, center=(0.62, -0.01, 0.3)) -> Belief:
@@ -52,10 +70,15 @@ def test_weights_are_c_ordered_over_x_y_theta():
     assert grid_from_metadata(grid_to_metadata(grid)) == grid
 
 
-@pytest.mark.parametrize("field, value, words", [
-    ("resolution_x", 0.0, "resolution"), ("resolution_theta", -0.1, "resolution"),
-    ("resolution_y", float("inf"), "resolution"), ("size_y", 0, "size"),
-])
+@pytest.mark.parametrize(
+    "field, value, words",
+    [
+        ("resolution_x", 0.0, "resolution"),
+        ("resolution_theta", -0.1, "resolution"),
+        ("resolution_y", float("inf"), "resolution"),
+        ("size_y", 0, "size"),
+    ],
+)
 def test_invalid_grid(field, value, words):
     msg = belief_to_msg(random_belief(1), Time())
     setattr(msg.metadata, field, value)
@@ -63,12 +86,16 @@ def test_invalid_grid(field, value, words):
         belief_from_msg(msg)
 
 
-@pytest.mark.parametrize("edit, words", [
-    (lambda w: w[:-3], "weights"), (lambda w: np.r_[w, 1.0], "weights"),
-    (lambda w: np.where(np.arange(w.size) == 7, np.nan, w), "NaN"),
-    (lambda w: np.where(np.arange(w.size) == 7, -0.5, w), "non-negative"),
-    (lambda w: np.zeros_like(w), "zero"),
-])
+@pytest.mark.parametrize(
+    "edit, words",
+    [
+        (lambda w: w[:-3], "weights"),
+        (lambda w: np.r_[w, 1.0], "weights"),
+        (lambda w: np.where(np.arange(w.size) == 7, np.nan, w), "NaN"),
+        (lambda w: np.where(np.arange(w.size) == 7, -0.5, w), "non-negative"),
+        (lambda w: np.zeros_like(w), "zero"),
+    ],
+)
 def test_invalid_belief(edit, words):
     msg = belief_to_msg(random_belief(2), Time())
     msg.weights = edit(np.asarray(msg.weights)).tolist()
@@ -81,7 +108,9 @@ def test_pose_and_planar_round_trip():
     for _ in range(10):
         T = make_pose(rng.normal(size=3), Rotation.random(random_state=rng))
         np.testing.assert_allclose(pose_from_msg(roundtrip(pose_to_msg(T))), T, atol=1e-12)
-    np.testing.assert_array_equal(planar_from_msg(planar_to_msg([0.1, -0.2, 3.0])), [0.1, -0.2, 3.0])
+    np.testing.assert_array_equal(
+        planar_from_msg(planar_to_msg([0.1, -0.2, 3.0])), [0.1, -0.2, 3.0]
+    )
     bad = pose_to_msg(np.eye(4))
     bad.orientation.w = 0.0
     with pytest.raises(ValueError):
@@ -93,11 +122,22 @@ def test_observation_round_trip_keeps_nan_rows():
     points = rng.normal(size=(3, 3)) * 0.02
     normals = rng.normal(size=(3, 3))
     points[1] = normals[1] = np.nan  # finger 2's Nano17 did not fire
-    obs = Observation(contact=True, progress=0.137, hand_pose=make_pose([0.6, 0.1, 0.2], Rotation.random(random_state=rng)),
-                      sensors=rng.random(10) < 0.5, closure=[0.4, 1.2, 2.0], tip_points=points,
-                      tip_normals=normals, motion_dir=[0.0, 0.6, -0.8])
+    obs = Observation(
+        contact=True,
+        progress=0.137,
+        hand_pose=make_pose([0.6, 0.1, 0.2], Rotation.random(random_state=rng)),
+        sensors=rng.random(10) < 0.5,
+        closure=[0.4, 1.2, 2.0],
+        tip_points=points,
+        tip_normals=normals,
+        motion_dir=[0.0, 0.6, -0.8],
+    )
     msg = roundtrip(observation_to_msg(obs, "powerdrill", "info2", [0.62, 0.01, -0.2], Time(sec=4)))
-    assert (msg.object_name, msg.wrt_name, list(msg.tip_valid)) == ("powerdrill", "info2", [True, False, True])
+    assert (msg.object_name, msg.wrt_name, list(msg.tip_valid)) == (
+        "powerdrill",
+        "info2",
+        [True, False, True],
+    )
     np.testing.assert_allclose(planar_from_msg(msg.estimate), [0.62, 0.01, -0.2])
     back = observation_from_msg(msg)
     assert back.contact and back.progress == pytest.approx(0.137)
@@ -130,6 +170,8 @@ def test_markers_show_the_heaviest_points():
     spheres = arr.markers[1:]
     assert len(spheres) == 50
     heaviest = b.grid.points()[np.argmax(b.weights)]
-    assert (spheres[0].pose.position.x, spheres[0].pose.position.y) == pytest.approx(tuple(heaviest[:2]))
+    assert (spheres[0].pose.position.x, spheres[0].pose.position.y) == pytest.approx(
+        tuple(heaviest[:2])
+    )
     assert spheres[0].scale.x == pytest.approx(0.02)
     assert all(a.scale.x >= c.scale.x for a, c in zip(spheres, spheres[1:]))

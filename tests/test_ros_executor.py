@@ -2,23 +2,25 @@
 executor core as the physics world in-process (same observation, noiseless sensors), publishes
 its observation, and every bad request to ExecuteWrt, GuardedMove, HandCommand and ResetSim
 gets its error code and a message while the nodes keep serving."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Duration
 from rclpy.action import ActionClient
+from ros_testing import RosClient, node_processes, ros_env
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from rrg_msgs.action import ExecuteWrt, GuardedMove
-from rrg_msgs.msg import Observation as ObservationMsg, Retreated
+from rrg_msgs.msg import Observation as ObservationMsg
+from rrg_msgs.msg import Retreated
 from rrg_msgs.srv import HandCommand, ResetSim, Retreat
 from rrg_sim import wam
+from rrg_sim.physics.judge import judge_grasp
 from rrg_sim.physics.world import PhysicsWorld
 from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES, observation_from_msg, planar_to_msg
-from rrg_sim.physics.judge import judge_grasp
-from ros_testing import RosClient, node_processes, ros_env
 
 DOMAIN_ID = 45
 TRUE_POSE = np.array([0.625, 0.004, 0.05])
@@ -27,19 +29,25 @@ TRUE_POSE = np.array([0.625, 0.004, 0.05])
 @pytest.fixture(scope="module")
 def graph(tmp_path_factory):
     env = ros_env(DOMAIN_ID)
-    specs = [("rrg_sim.ros.sim_node", {"object_name": "box", "sensor_noise": 0.0}),
-             ("rrg_sim.executor.executor_node", {})]
+    specs = [
+        ("rrg_sim.ros.sim_node", {"object_name": "box", "sensor_noise": 0.0}),
+        ("rrg_sim.executor.executor_node", {}),
+    ]
     with node_processes(specs, env, tmp_path_factory.mktemp("logs")) as procs:
         client = RosClient(env)
         n = client.node
-        c = {"reset": n.create_client(ResetSim, "/rrg/reset_sim"),
-             "hand": n.create_client(HandCommand, "/rrg/hand_command"),
-             "retreat": n.create_client(Retreat, "/rrg/retreat"),
-             "judge": n.create_client(Trigger, "/rrg/eval/judge_grasp")}
+        c = {
+            "reset": n.create_client(ResetSim, "/rrg/reset_sim"),
+            "hand": n.create_client(HandCommand, "/rrg/hand_command"),
+            "retreat": n.create_client(Retreat, "/rrg/retreat"),
+            "judge": n.create_client(Trigger, "/rrg/eval/judge_grasp"),
+        }
         client.wait_for_services(c.values(), procs, timeout_s=60.0)
         c["execute"] = ActionClient(n, ExecuteWrt, "/rrg/execute_wrt")
         c["move"] = ActionClient(n, GuardedMove, "/rrg/guarded_move")
-        assert c["execute"].wait_for_server(timeout_sec=30.0) and c["move"].wait_for_server(timeout_sec=30.0)
+        assert c["execute"].wait_for_server(timeout_sec=30.0) and c["move"].wait_for_server(
+            timeout_sec=30.0
+        )
         observations, retreats = [], []
         n.create_subscription(ObservationMsg, "/rrg/observation", observations.append, 10)
         n.create_subscription(Retreated, "/rrg/retreated", retreats.append, 10)
@@ -66,8 +74,11 @@ def test_execute_wrt_over_ros_matches_the_in_process_execution(graph):
     world = PhysicsWorld("box", sensor_noise=0.0)
     world.reset(TRUE_POSE)
     for name, e in [("goal", np.array([0.62, 0.0, 0.0])), ("sweep", np.array([0.61, 0.01, 0.0]))]:
-        res = run_action(client, c["execute"], ExecuteWrt.Goal(object_name="box", wrt_name=name,
-                                                               estimate=planar_to_msg(e)))
+        res = run_action(
+            client,
+            c["execute"],
+            ExecuteWrt.Goal(object_name="box", wrt_name=name, estimate=planar_to_msg(e)),
+        )
         assert res.error_code == ExecuteWrt.Result.NONE, res.error_msg
         assert client.spin_until(lambda: observations and observations[-1].wrt_name == name, 10.0)
         assert observations[-1].header.stamp == res.observation.header.stamp
@@ -92,7 +103,11 @@ def test_goal_grasp_is_left_closed_for_the_judge(graph):
     client, c, _ = graph
     assert reset(client, c).error_code == ResetSim.Response.NONE
     e = np.array([0.62, 0.0, 0.0])
-    res = run_action(client, c["execute"], ExecuteWrt.Goal(object_name="box", wrt_name="goal", estimate=planar_to_msg(e)))
+    res = run_action(
+        client,
+        c["execute"],
+        ExecuteWrt.Goal(object_name="box", wrt_name="goal", estimate=planar_to_msg(e)),
+    )
     assert res.error_code == ExecuteWrt.Result.NONE, res.error_msg
     judged = client.call(c["judge"], Trigger.Request(), timeout_s=60.0)
     world = PhysicsWorld("box", sensor_noise=0.0)
@@ -105,14 +120,19 @@ def test_goal_grasp_is_left_closed_for_the_judge(graph):
 def arm_q(client: RosClient, c) -> np.ndarray:
     """The arm's joint angles [rad], read from the hand command's joint state (opening the hand)."""
     hand = client.call(c["hand"], HandCommand.Request(mode=HandCommand.Request.MODE_OPEN))
-    return np.array([hand.joint_state.position[hand.joint_state.name.index(n)] for n in ARM_JOINT_NAMES])
+    return np.array(
+        [hand.joint_state.position[hand.joint_state.name.index(n)] for n in ARM_JOINT_NAMES]
+    )
 
 
 def test_an_info_wrt_stays_where_it_stopped_until_the_retreat_it_announces(graph):
     client, c, _ = graph
     assert reset(client, c).error_code == ResetSim.Response.NONE
-    res = run_action(client, c["execute"], ExecuteWrt.Goal(object_name="box", wrt_name="info1",
-                                                           estimate=planar_to_msg(TRUE_POSE)))
+    res = run_action(
+        client,
+        c["execute"],
+        ExecuteWrt.Goal(object_name="box", wrt_name="info1", estimate=planar_to_msg(TRUE_POSE)),
+    )
     assert res.error_code == ExecuteWrt.Result.NONE, res.error_msg
     assert np.abs(arm_q(client, c) - wam.HOME_Q).max() > 0.1  # still at the box
     c["retreats"].clear()
@@ -120,10 +140,15 @@ def test_an_info_wrt_stays_where_it_stopped_until_the_retreat_it_announces(graph
     assert answer.error_code == Retreat.Response.NONE, answer.error_msg
     assert client.spin_until(lambda: len(c["retreats"]) == 1, 10.0)
     event = c["retreats"][0]
-    assert (event.header.stamp, event.observation_stamp) == (answer.header.stamp, res.observation.header.stamp)
+    assert (event.header.stamp, event.observation_stamp) == (
+        answer.header.stamp,
+        res.observation.header.stamp,
+    )
     assert (event.object_name, event.wrt_name) == ("box", "info1")
     np.testing.assert_allclose(arm_q(client, c), wam.HOME_Q, atol=0.02)
-    again = client.call(c["retreat"], Retreat.Request())  # nothing pending: announced, nothing moves
+    again = client.call(
+        c["retreat"], Retreat.Request()
+    )  # nothing pending: announced, nothing moves
     assert again.error_code == Retreat.Response.NONE
     assert client.spin_until(lambda: len(c["retreats"]) == 2, 10.0)
     assert c["retreats"][1].wrt_name == "" and c["retreats"][1].header.stamp == again.header.stamp
@@ -132,8 +157,14 @@ def test_an_info_wrt_stays_where_it_stopped_until_the_retreat_it_announces(graph
 BAD_EXECUTIONS = {
     "unknown object": (dict(object_name="teapot"), ExecuteWrt.Result.UNKNOWN_OBJECT),
     "unknown WRT": (dict(wrt_name="wave"), ExecuteWrt.Result.UNKNOWN_WRT),
-    "unreachable estimate": (dict(estimate=planar_to_msg([2.5, 1.5, 0.0])), ExecuteWrt.Result.INFEASIBLE),
-    "NaN estimate": (dict(estimate=planar_to_msg([np.nan, 0.0, 0.0])), ExecuteWrt.Result.INFEASIBLE),
+    "unreachable estimate": (
+        dict(estimate=planar_to_msg([2.5, 1.5, 0.0])),
+        ExecuteWrt.Result.INFEASIBLE,
+    ),
+    "NaN estimate": (
+        dict(estimate=planar_to_msg([np.nan, 0.0, 0.0])),
+        ExecuteWrt.Result.INFEASIBLE,
+    ),
 }
 
 
@@ -149,23 +180,42 @@ def test_execute_wrt_rejects_bad_goals(graph, case):
 
 
 def trajectory(q: np.ndarray, names=ARM_JOINT_NAMES, seconds: float = 1.0) -> JointTrajectory:
-    return JointTrajectory(joint_names=list(names), points=[
-        JointTrajectoryPoint(positions=qk.tolist(), time_from_start=Duration(sec=int(seconds * (k + 1))))
-        for k, qk in enumerate(q)])
+    return JointTrajectory(
+        joint_names=list(names),
+        points=[
+            JointTrajectoryPoint(
+                positions=qk.tolist(), time_from_start=Duration(sec=int(seconds * (k + 1)))
+            )
+            for k, qk in enumerate(q)
+        ],
+    )
 
 
 def test_guarded_move_runs_timed_via_points_and_rejects_bad_ones(graph):
     client, c, _ = graph
     assert reset(client, c).error_code == ResetSim.Response.NONE
     target = wam.HOME_Q + np.array([0.1, 0.0, 0.0, -0.1, 0.0, 0.0, 0.0])
-    ok = run_action(client, c["move"], GuardedMove.Goal(trajectory=trajectory(target[None]), stop_on_contact=True))
-    assert ok.error_code == GuardedMove.Result.NONE and not ok.stopped_on_contact and ok.path_fraction == 1.0
-    q = np.array([ok.final_joint_state.position[ok.final_joint_state.name.index(n)] for n in ARM_JOINT_NAMES])
+    ok = run_action(
+        client,
+        c["move"],
+        GuardedMove.Goal(trajectory=trajectory(target[None]), stop_on_contact=True),
+    )
+    assert (
+        ok.error_code == GuardedMove.Result.NONE
+        and not ok.stopped_on_contact
+        and ok.path_fraction == 1.0
+    )
+    q = np.array(
+        [ok.final_joint_state.position[ok.final_joint_state.name.index(n)] for n in ARM_JOINT_NAMES]
+    )
     np.testing.assert_allclose(q, target, atol=0.01)
     R = GuardedMove.Result
     bad = {
-        R.INVALID_TRAJECTORY: [trajectory(target[None], names=["j1"] * 7), trajectory(np.zeros((0, 7))),
-                               trajectory(np.full((1, 7), np.nan))],
+        R.INVALID_TRAJECTORY: [
+            trajectory(target[None], names=["j1"] * 7),
+            trajectory(np.zeros((0, 7))),
+            trajectory(np.full((1, 7), np.nan)),
+        ],
         R.JOINT_LIMITS: [trajectory((wam.HOME_Q + np.array([0, 0, 0, 0, 0, 0, 9.0]))[None])],
     }
     for code, trajs in bad.items():
@@ -177,14 +227,22 @@ def test_guarded_move_runs_timed_via_points_and_rejects_bad_ones(graph):
 def test_hand_command_and_reset_sim_reject_bad_requests(graph):
     client, c, _ = graph
     H = HandCommand
-    for req, code in [(H.Request(mode=7), H.Response.INVALID_MODE),
-                      (H.Request(mode=H.Request.MODE_OPEN, spread=4.0), H.Response.OUT_OF_RANGE),
-                      (H.Request(mode=H.Request.MODE_POSITION, proximal=[0.1, 3.0, 0.1]), H.Response.OUT_OF_RANGE)]:
+    for req, code in [
+        (H.Request(mode=7), H.Response.INVALID_MODE),
+        (H.Request(mode=H.Request.MODE_OPEN, spread=4.0), H.Response.OUT_OF_RANGE),
+        (
+            H.Request(mode=H.Request.MODE_POSITION, proximal=[0.1, 3.0, 0.1]),
+            H.Response.OUT_OF_RANGE,
+        ),
+    ]:
         resp = client.call(c["hand"], req)
         assert resp.error_code == code and resp.error_msg
     closed = client.call(c["hand"], H.Request(mode=H.Request.MODE_CLOSE, spread=0.0))
     assert closed.error_code == H.Response.NONE
-    proximal = [closed.joint_state.position[closed.joint_state.name.index(f"bh_f{i}_prox")] for i in (1, 2, 3)]
+    proximal = [
+        closed.joint_state.position[closed.joint_state.name.index(f"bh_f{i}_prox")]
+        for i in (1, 2, 3)
+    ]
     assert min(proximal) > 1.0  # nothing in the way: the fingers closed far
     assert reset(client, c, name="teapot").error_code == ResetSim.Response.UNKNOWN_OBJECT
     assert reset(client, c, pose=[3.0, 0.0, 0.0]).error_code == ResetSim.Response.INVALID_POSE

@@ -1,5 +1,6 @@
 """rrg_msgs: the generated Python types import from the venv, every message, service and action
 part round-trips through CDR, and the interfaces keep the project's conventions."""
+
 from __future__ import annotations
 
 import importlib
@@ -8,30 +9,55 @@ import zlib
 import numpy as np
 import pytest
 from rclpy.serialization import deserialize_message, serialize_message
-from rosidl_parser.definition import (AbstractNestedType, AbstractSequence, AbstractString, Array,
-                                      BasicType, NamespacedType)
+from rosidl_parser.definition import (
+    AbstractNestedType,
+    AbstractSequence,
+    AbstractString,
+    Array,
+    BasicType,
+    NamespacedType,
+)
 
 import rrg_msgs.action as actions
 import rrg_msgs.msg as msgs
 import rrg_msgs.srv as srvs
 from rrg_sim.config import SENSOR_NAMES
 
-MESSAGES = ["PlanarPose", "BeliefGridMetaData", "BeliefGrid", "ContactPads", "FingertipContact",
-            "Observation", "WorldRelativeTrajectory"]
+MESSAGES = [
+    "PlanarPose",
+    "BeliefGridMetaData",
+    "BeliefGrid",
+    "ContactPads",
+    "FingertipContact",
+    "Observation",
+    "WorldRelativeTrajectory",
+]
 SERVICES = ["SelectAction", "ResetBelief", "GetBelief", "ResetSim", "HandCommand"]
 ACTIONS = ["GuardedMove", "ExecuteWrt", "RobustGrasp"]
 
 MESSAGE_TYPES = (
     [getattr(msgs, n) for n in MESSAGES]
     + [getattr(getattr(srvs, n), part) for n in SERVICES for part in ("Request", "Response")]
-    + [getattr(getattr(actions, n), part) for n in ACTIONS for part in ("Goal", "Result", "Feedback")]
+    + [
+        getattr(getattr(actions, n), part)
+        for n in ACTIONS
+        for part in ("Goal", "Result", "Feedback")
+    ]
 )
-RESULT_TYPES = ([getattr(srvs, n).Response for n in SERVICES]
-                + [getattr(actions, n).Result for n in ACTIONS])
+RESULT_TYPES = [getattr(srvs, n).Response for n in SERVICES] + [
+    getattr(actions, n).Result for n in ACTIONS
+]
 
-_INT_RANGES = {"int8": (-128, 127), "uint8": (0, 255), "int16": (-2**15, 2**15 - 1),
-               "uint16": (0, 2**16 - 1), "int32": (-2**31, 2**31 - 1), "uint32": (0, 2**32 - 1),
-               "int64": (-2**63, 2**63 - 1), "uint64": (0, 2**64 - 1)}
+_INT_RANGES = {
+    "int8": (-128, 127),
+    "uint8": (0, 255),
+    "int16": (-(2**15), 2**15 - 1),
+    "uint16": (0, 2**16 - 1),
+    "int32": (-(2**31), 2**31 - 1),
+    "uint32": (0, 2**32 - 1),
+    "int64": (-(2**63), 2**63 - 1),
+    "uint64": (0, 2**64 - 1),
+}
 
 
 def _value(t, rng: np.random.Generator):
@@ -67,7 +93,9 @@ def _filled(cls, rng: np.random.Generator):
 
 def constants(cls) -> dict:
     """The constants of a generated message class (properties of its metaclass)."""
-    return {name: getattr(cls, name) for name, v in vars(type(cls)).items() if isinstance(v, property)}
+    return {
+        name: getattr(cls, name) for name, v in vars(type(cls)).items() if isinstance(v, property)
+    }
 
 
 def nested_types(cls) -> set[str]:
@@ -123,8 +151,9 @@ def test_belief_grid_carries_a_full_grid_of_weights():
     cov = np.diag([0.05, 0.05, 0.52]) ** 2
     grid.covariance = cov.ravel()
     back = deserialize_message(serialize_message(grid), msgs.BeliefGrid)
-    weights = np.asarray(back.weights).reshape(back.metadata.size_x, back.metadata.size_y,
-                                               back.metadata.size_theta)
+    weights = np.asarray(back.weights).reshape(
+        back.metadata.size_x, back.metadata.size_y, back.metadata.size_theta
+    )
     np.testing.assert_array_equal(weights, w)  # C order over (x, y, θ), bit-exact
     np.testing.assert_array_equal(back.covariance.reshape(3, 3), cov)  # row-major 3x3
 
@@ -147,16 +176,30 @@ def test_every_service_response_and_action_result_reports_errors(cls):
     assert "UNKNOWN" in codes
     assert len(set(codes.values())) == len(codes), f"duplicate error codes in {cls.__qualname__}"
     # nav2 style: one block of a hundred per interface, UNKNOWN first
-    assert all(codes["UNKNOWN"] <= c < codes["UNKNOWN"] + 100 for n, c in codes.items() if n != "NONE")
+    assert all(
+        codes["UNKNOWN"] <= c < codes["UNKNOWN"] + 100 for n, c in codes.items() if n != "NONE"
+    )
 
 
 def test_select_action_has_the_issue_error_codes_and_fields():
     resp = srvs.SelectAction.Response
-    for code in ("UNKNOWN_OBJECT", "INVALID_BELIEF", "INVALID_HORIZON", "INVALID_DELTA",
-                 "UNKNOWN_STRATEGY", "INVALID_GRID"):
+    for code in (
+        "UNKNOWN_OBJECT",
+        "INVALID_BELIEF",
+        "INVALID_HORIZON",
+        "INVALID_DELTA",
+        "UNKNOWN_STRATEGY",
+        "INVALID_GRID",
+    ):
         assert hasattr(resp, code)
     assert set(resp.get_fields_and_field_types()) >= {
-        "wrt_name", "value", "p_goal", "action_names", "action_values", "planning_time"}
+        "wrt_name",
+        "value",
+        "p_goal",
+        "action_names",
+        "action_values",
+        "planning_time",
+    }
     req = srvs.SelectAction.Request.get_fields_and_field_types()
     assert req["horizon"] == "uint8" and req["delta"] == "double"
     assert req["belief"] == "rrg_msgs/BeliefGrid"
@@ -165,10 +208,19 @@ def test_select_action_has_the_issue_error_codes_and_fields():
 def test_interfaces_use_standard_types_where_they_fit():
     assert "std_msgs/msg/Header" in nested_types(msgs.BeliefGrid)
     assert msgs.Observation.get_fields_and_field_types()["hand_pose"] == "geometry_msgs/Pose"
-    assert "geometry_msgs/Pose" in msgs.WorldRelativeTrajectory.get_fields_and_field_types()["poses"]
+    assert (
+        "geometry_msgs/Pose" in msgs.WorldRelativeTrajectory.get_fields_and_field_types()["poses"]
+    )
     goal = actions.GuardedMove.Goal.get_fields_and_field_types()
     assert goal["trajectory"] == "trajectory_msgs/JointTrajectory"
-    assert actions.GuardedMove.Result.get_fields_and_field_types()["final_joint_state"] == \
-        "sensor_msgs/JointState"
-    assert actions.ExecuteWrt.Result.get_fields_and_field_types()["observation"] == "rrg_msgs/Observation"
-    assert actions.RobustGrasp.Feedback.get_fields_and_field_types()["belief"] == "rrg_msgs/BeliefGrid"
+    assert (
+        actions.GuardedMove.Result.get_fields_and_field_types()["final_joint_state"]
+        == "sensor_msgs/JointState"
+    )
+    assert (
+        actions.ExecuteWrt.Result.get_fields_and_field_types()["observation"]
+        == "rrg_msgs/Observation"
+    )
+    assert (
+        actions.RobustGrasp.Feedback.get_fields_and_field_types()["belief"] == "rrg_msgs/BeliefGrid"
+    )

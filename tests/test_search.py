@@ -1,5 +1,6 @@
 """Forward search: the fast implementation agrees with the naive reference; clustering,
 merging and the static evaluation behave as the paper describes."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -8,21 +9,23 @@ import numpy as np
 import pytest
 
 from rrg_estimator.belief import Belief
+from rrg_estimator.config import UncertaintyLevel
+from rrg_estimator.grid import Grid
 from rrg_estimator.update import goal_probability, update
+from rrg_planner import search as search_module
 from rrg_planner.agent import initial_belief
 from rrg_planner.clustering import PROGRESS_BIN
+from rrg_planner.config import SEARCH
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.reference_search import ReferenceSearch
-from rrg_planner import search as search_module
 from rrg_planner.search import ForwardSearch, SparseBelief, merge_branches, scatter_moments
-from rrg_planner.config import SEARCH
 from rrg_sim.config import WORLD
-from rrg_estimator.config import UncertaintyLevel
 from rrg_sim.geometric_sim import GeometricSimulator
-from rrg_estimator.grid import Grid
 from rrg_sim.poses import compose_planar
 
-SMALL = UncertaintyLevel("small", sigma=(0.02, 0.02, 0.2), spacing=(0.01, 0.01, 0.1), shape=(9, 9, 5))
+SMALL = UncertaintyLevel(
+    "small", sigma=(0.02, 0.02, 0.2), spacing=(0.01, 0.01, 0.1), shape=(9, 9, 5)
+)
 EXACT = dataclasses.replace(SEARCH, support_rel=0.0)
 
 
@@ -46,7 +49,9 @@ def beliefs(model):
 @pytest.mark.parametrize("horizon", [1, 2])
 @pytest.mark.parametrize("params", [EXACT, SEARCH], ids=["full-support", "default-support"])
 @pytest.mark.parametrize("delta", [SEARCH.delta, 0.5])
-def test_fast_search_matches_reference(model, beliefs, horizon, params, dense_fraction, delta, monkeypatch):
+def test_fast_search_matches_reference(
+    model, beliefs, horizon, params, dense_fraction, delta, monkeypatch
+):
     monkeypatch.setattr(search_module, "DENSE_FRACTION", dense_fraction)  # both moment paths
     fast, ref = ForwardSearch(model, params), ReferenceSearch(model, params)
     for b in beliefs:
@@ -54,7 +59,9 @@ def test_fast_search_matches_reference(model, beliefs, horizon, params, dense_fr
         assert f.action == r.action
         assert np.array_equal(np.isfinite(f.action_values), np.isfinite(r.action_values))
         ok = np.isfinite(f.action_values)
-        np.testing.assert_allclose(f.action_values[ok], r.action_values[ok], rtol=1e-4, atol=1e-6)  # float32 gathers
+        np.testing.assert_allclose(
+            f.action_values[ok], r.action_values[ok], rtol=1e-4, atol=1e-6
+        )  # float32 gathers
         assert f.p_goal == pytest.approx(r.p_goal, abs=1e-9)
 
 
@@ -86,16 +93,21 @@ def test_clusters_prune_small_groups_and_keep_most_mass(model):
 def test_the_goal_grasps_clusters_are_not_split_by_the_closures_it_ignores(model):
     """The goal WRT's closures are left out of its likelihood (WRT.closure_informative), so
     two of its canonical observations never differ in closure alone; an info WRT's do."""
+
     def signatures(act):
         t, reps = act.tables["small"], act.clusters["small"].representatives
         progress_bins = np.rint(t.progress[reps] / PROGRESS_BIN).astype(int)
-        return {(bool(t.contact[r]), t.sensors[r].tobytes(), b) for r, b in zip(reps, progress_bins)}, len(reps)
+        return {
+            (bool(t.contact[r]), t.sensors[r].tobytes(), b) for r, b in zip(reps, progress_bins)
+        }, len(reps)
 
     goal = model.actions[model.goal_actions[0]]
     assert not goal.wrt.closure_informative
     distinct, count = signatures(goal)
     assert len(distinct) == count
-    assert any(len(signatures(a)[0]) < signatures(a)[1] for a in model.actions if a.wrt.closure_informative)
+    assert any(
+        len(signatures(a)[0]) < signatures(a)[1] for a in model.actions if a.wrt.closure_informative
+    )
 
 
 def test_branches_are_normalized_and_informative(model, beliefs):
@@ -137,7 +149,9 @@ def test_a_goal_grasp_the_agent_would_declare_ends_its_branch(model, search_cls)
     a broader belief, where it is not declared, deeper search finds more to do after it."""
     mean = np.asarray(WORLD.nominal_pose)
     g, delta = model.goal_actions[0], 0.5
-    sharp = Belief.gaussian(Grid.for_level(SMALL, center=mean), mean, np.array([0.004, 0.004, 0.04]))
+    sharp = Belief.gaussian(
+        Grid.for_level(SMALL, center=mean), mean, np.array([0.004, 0.004, 0.04])
+    )
     search = search_cls(model, EXACT)
     q1, q2 = (search.select(sharp, h, delta) for h in (1, 2))
     assert q1.p_goal > 1 - delta
@@ -162,13 +176,19 @@ def test_scatter_moments_sums_states_per_table_entry(duplicates):
 
 #: θ steps of 0.08 rad: the teacup's aim is a whole step (on SMALL's 0.1 rad it is a half step,
 #: where the fast search's float32 table index and the reference's float64 one may tie-break apart)
-TURNS = UncertaintyLevel("turns", sigma=(0.02, 0.02, 0.2), spacing=(0.01, 0.01, 0.08), shape=(9, 9, 7))
+TURNS = UncertaintyLevel(
+    "turns", sigma=(0.02, 0.02, 0.2), spacing=(0.01, 0.01, 0.08), shape=(9, 9, 7)
+)
 
 
 @pytest.fixture(scope="module")
 def teacup_model() -> PlanningModel:
-    return PlanningModel("giant_teacup", levels=(TURNS,), progress=False,
-                         wrt_names=("goal", "info_handle", "reorient_ccw", "reorient_cw"))
+    return PlanningModel(
+        "giant_teacup",
+        levels=(TURNS,),
+        progress=False,
+        wrt_names=("goal", "info_handle", "reorient_ccw", "reorient_cw"),
+    )
 
 
 @pytest.mark.parametrize("horizon", [1, 2])
@@ -188,7 +208,9 @@ def test_fast_search_matches_reference_through_reorientations(teacup_model, hori
     spread, w = search_module.reorient_mixture(point, np.ones(1), e, 0.6, blur=0.04)
     assert len(spread) == 3 * len(sharp) and w.sum() == pytest.approx(1.0)
     full = np.abs(spread[:, 2] - sharp[0, 2]) < 0.1  # the full turn's three nodes
-    assert np.sqrt(w[full] @ (spread[full, 2] - sharp[0, 2]) ** 2 / w[full].sum()) == pytest.approx(0.04)
+    assert np.sqrt(w[full] @ (spread[full, 2] - sharp[0, 2]) ** 2 / w[full].sum()) == pytest.approx(
+        0.04
+    )
 
 
 @pytest.mark.parametrize("search_cls", [ForwardSearch, ReferenceSearch])
@@ -201,6 +223,10 @@ def test_a_reorientation_runs_only_where_its_turn_is_measured(teacup_model, sear
     inside = np.all(np.abs(b0.grid.points() - b0.w_star()) <= box, axis=1)
     p_inside = float(b0.weights[inside].sum())
     for threshold, allowed in ((p_inside + 0.01, False), (p_inside - 0.01, True)):
-        q = search_cls(teacup_model, dataclasses.replace(EXACT, reorient_min_in_box=threshold)).select(b0, 1).action_values
+        q = (
+            search_cls(teacup_model, dataclasses.replace(EXACT, reorient_min_in_box=threshold))
+            .select(b0, 1)
+            .action_values
+        )
         assert np.isfinite(q[turns]).all() == allowed
         assert np.isfinite(q[[i for i in range(len(q)) if i not in turns]]).any()

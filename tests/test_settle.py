@@ -1,14 +1,15 @@
 """The grasp-settling model: the affine fit of the settling study, the committed fits, and
 the belief moving after a firm goal grasp (agent and estimator alike)."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from rrg_estimator.belief import Belief
-from rrg_estimator.tracker import settle_after_grasp
 from rrg_estimator.config import LOW
 from rrg_estimator.grid import Grid
+from rrg_estimator.tracker import settle_after_grasp
 from rrg_sim.objects import OBJECT_NAMES, get_object
 from rrg_sim.objects.object_model import load_settling
 from rrg_sim.physics.settle import fit_affine
@@ -57,7 +58,9 @@ def test_the_estimator_settles_a_firm_goal_grasp_when_the_hand_retreats():
     from rrg_sim.geometric_sim import GeometricSimulator
 
     mean = np.array([0.62, 0.0, 0.0])
-    tracker = BeliefTracker.gaussian("powerdrill", mean, LOW.sigma, level=LOW, variable_resolution=False)
+    tracker = BeliefTracker.gaussian(
+        "powerdrill", mean, LOW.sigma, level=LOW, variable_resolution=False
+    )
     obj, goal, info = tracker.obj, tracker.obj.goal_wrt, tracker.obj.info_wrts[0]
     grasped = GeometricSimulator(obj, goal).simulate(mean, mean)
     assert not grasped.contact
@@ -69,13 +72,19 @@ def test_the_estimator_settles_a_firm_goal_grasp_when_the_hand_retreats():
     sensed = GeometricSimulator(obj, info).simulate(mean, mean)
     table = tracker.tables.table(info.name, tracker.belief.grid)
     expected = wrt_posterior(settled, table, info, mean, sensed)
-    np.testing.assert_allclose(tracker.update(info.name, mean, sensed).weights, expected.weights, atol=1e-12)
+    np.testing.assert_allclose(
+        tracker.update(info.name, mean, sensed).weights, expected.weights, atol=1e-12
+    )
     unsettled = wrt_posterior(after_goal, table, info, mean, sensed)
     assert np.abs(unsettled.weights - expected.weights).sum() > 0.05  # the settling mattered
     # Without a reported retreat, the next update applies it first.
-    lazy = BeliefTracker.gaussian("powerdrill", mean, LOW.sigma, level=LOW, variable_resolution=False)
+    lazy = BeliefTracker.gaussian(
+        "powerdrill", mean, LOW.sigma, level=LOW, variable_resolution=False
+    )
     lazy.update(goal.name, mean, grasped)
-    np.testing.assert_allclose(lazy.update(info.name, mean, sensed).weights, expected.weights, atol=1e-12)
+    np.testing.assert_allclose(
+        lazy.update(info.name, mean, sensed).weights, expected.weights, atol=1e-12
+    )
 
 
 def test_the_outcome_corrects_the_affine_map_where_the_samples_say_so():
@@ -86,16 +95,23 @@ def test_the_outcome_corrects_the_affine_map_where_the_samples_say_so():
 
     rng = np.random.default_rng(3)
     start = rng.uniform(-1, 1, (600, 3)) * (0.02, 0.02, 0.25)
-    closed = start + np.where(start[:, 2:] < 0, 0.1, 0.0) * [0, 0, 1] + rng.normal(0, 0.002, (600, 3))
+    closed = (
+        start + np.where(start[:, 2:] < 0, 0.1, 0.0) * [0, 0, 1] + rng.normal(0, 0.002, (600, 3))
+    )
     f = fit_affine(start, closed, ignores_theta=False)
     fit = AffineSettle(np.array(f["A"]), np.array(f["b"]), np.array(f["sigma"]))
     box, bandwidth = np.array([0.02, 0.02, 0.25]), np.array([0.005, 0.005, 0.03])
-    s = Settling(box, fit, fit, "test", start=start, samples={"closed": closed}, bandwidth=bandwidth)
+    s = Settling(
+        box, fit, fit, "test", start=start, samples={"closed": closed}, bandwidth=bandwidth
+    )
     q = np.array([[0.0, 0.0, -0.15], [0.0, 0.0, 0.15]])
     mean, sigma = s.outcome(q, "closed")
     np.testing.assert_allclose(mean[:, 2], [-0.05, 0.15], atol=0.02)
     assert np.all(sigma[:, 2] < 0.5 * fit.sigma[2])  # sharper than the affine residual
-    for bare in (Settling(box, fit, fit, "test", bandwidth=bandwidth), s):  # no samples of this stage
+    for bare in (
+        Settling(box, fit, fit, "test", bandwidth=bandwidth),
+        s,
+    ):  # no samples of this stage
         mean, sigma = bare.outcome(q, "retreated" if bare is s else "closed")
         np.testing.assert_allclose(mean, fit.apply(q), atol=1e-12)
         np.testing.assert_allclose(sigma, np.broadcast_to(fit.sigma, (2, 3)))

@@ -1,4 +1,5 @@
 """Transition models: the contact bump, the reorientation mixture and the grasp settling."""
+
 import dataclasses
 import time
 
@@ -6,12 +7,11 @@ import numpy as np
 import pytest
 
 from rrg_estimator.belief import Belief
-from rrg_estimator.transition import bump, displacement_kernel, reorient, settle, splat
 from rrg_estimator.config import HIGH, LOW, TRANSITION
 from rrg_estimator.grid import Grid
+from rrg_estimator.transition import bump, displacement_kernel, reorient, settle, splat
 from rrg_sim.objects.object_model import AffineSettle, Settling
 from rrg_sim.poses import relative_planar
-
 
 EXACT_TURNS = dataclasses.replace(TRANSITION, reorient_sigma_theta=0.0)
 
@@ -73,9 +73,11 @@ def test_reorient_rotates_the_mass_by_the_angle():
     np.testing.assert_allclose(after.w_star()[:2], b.w_star()[:2])
     mt, at = after.marginal_theta(), after.grid.axes()[2]
     theta0 = b.mean()[2]
-    for target, p in [(theta0 + angle, TRANSITION.p_reorient_success),
-                      (theta0 + angle / 2, TRANSITION.p_reorient_partial),
-                      (theta0, 1 - TRANSITION.p_reorient_success - TRANSITION.p_reorient_partial)]:
+    for target, p in [
+        (theta0 + angle, TRANSITION.p_reorient_success),
+        (theta0 + angle / 2, TRANSITION.p_reorient_partial),
+        (theta0, 1 - TRANSITION.p_reorient_success - TRANSITION.p_reorient_partial),
+    ]:
         assert mt[np.abs(at - target) < 0.05].sum() == pytest.approx(p, abs=1e-4)
     np.testing.assert_allclose(after.marginal_xy(), b.marginal_xy(), atol=1e-12)
 
@@ -100,7 +102,7 @@ def test_reorient_spreads_the_turn_by_its_sigma():
     b = narrow(LOW, sigma=(0.004, 0.004, 0.02))
     after = reorient(b, 1.0)  # the full turn only stays on the low grid
     var = after.cov()[2, 2] - b.cov()[2, 2]
-    assert var == pytest.approx(TRANSITION.reorient_sigma_theta ** 2, rel=0.15)
+    assert var == pytest.approx(TRANSITION.reorient_sigma_theta**2, rel=0.15)
 
 
 def test_a_measured_reorientation_moves_the_full_turn_to_its_fitted_offset():
@@ -113,11 +115,15 @@ def test_a_measured_reorientation_moves_the_full_turn_to_its_fitted_offset():
 
     g = Grid.for_level(HIGH, center=(0.62, 0.0, 0.0))
     e = np.array([0.62, 0.0, 0.0])
-    outcome = ReorientOutcome(np.array([0.02, 0.02, 0.2]), np.array([0.002, -0.004, 0.05]), np.zeros(3))
+    outcome = ReorientOutcome(
+        np.array([0.02, 0.02, 0.2]), np.array([0.002, -0.004, 0.05]), np.zeros(3)
+    )
     angle = 0.6
     e_turned = e + [0.0, 0.0, angle]
-    for delta, expected in [((0.01, -0.01, 0.1), (0.01 + 0.002, -0.01 - 0.004, 0.1 + 0.05)),
-                            ((0.05, 0.0, 0.0), (0.05, 0.0, 0.0))]:  # the second lies outside the box
+    for delta, expected in [
+        ((0.01, -0.01, 0.1), (0.01 + 0.002, -0.01 - 0.004, 0.1 + 0.05)),
+        ((0.05, 0.0, 0.0), (0.05, 0.0, 0.0)),
+    ]:  # the second lies outside the box
         start = compose_planar(e, np.array(delta))
         a = np.zeros(g.size)
         a[g.nearest_index(start[None])[0]] = 1.0
@@ -127,7 +133,11 @@ def test_a_measured_reorientation_moves_the_full_turn_to_its_fitted_offset():
         mean = outcome.mean(d) if outcome.inside(d) else d
         target = compose_planar(e_turned, mean)
         np.testing.assert_allclose(mean, expected, atol=0.011)  # Δ rounded to the grid
-        near = np.all(np.abs(relative_planar(target, after.grid.points())) <= np.array(after.grid.spacing) + 1e-9, axis=1)
+        near = np.all(
+            np.abs(relative_planar(target, after.grid.points()))
+            <= np.array(after.grid.spacing) + 1e-9,
+            axis=1,
+        )
         w = after.weights[near]
         assert w.sum() > 0.75  # the full turn, 0.8 (the sampled partial turns renormalize it)
         np.testing.assert_allclose(w @ after.grid.points()[near] / w.sum(), target, atol=1e-3)
@@ -135,7 +145,9 @@ def test_a_measured_reorientation_moves_the_full_turn_to_its_fitted_offset():
         np.testing.assert_allclose(pts[0], target, atol=1e-12)
 
 
-def settling(b=(0.0, 0.0, 0.0), A=np.eye(3), sigma=(0.0, 0.0, 0.0), box=(0.03, 0.03, 0.3)) -> Settling:
+def settling(
+    b=(0.0, 0.0, 0.0), A=np.eye(3), sigma=(0.0, 0.0, 0.0), box=(0.03, 0.03, 0.3)
+) -> Settling:
     fit = AffineSettle(np.asarray(A, float), np.asarray(b, float), np.asarray(sigma, float))
     return Settling(np.asarray(box, float), fit, fit, source="test")
 
@@ -147,17 +159,25 @@ def test_splat_keeps_the_mass_and_its_mean():
     mass = rng.uniform(0.1, 1.0, 50)
     a = splat(g, poses, mass)
     assert a.sum() == pytest.approx(mass.sum(), rel=1e-12)
-    np.testing.assert_allclose(Belief(g, a).mean(), mass @ poses / mass.sum(), atol=1e-7)  # θ: circular mean
-    assert splat(g, np.array([[0.9, 0.0, 0.0]]), np.ones(1)).sum() == 0.0  # beyond the grid: dropped
+    np.testing.assert_allclose(
+        Belief(g, a).mean(), mass @ poses / mass.sum(), atol=1e-7
+    )  # θ: circular mean
+    assert (
+        splat(g, np.array([[0.9, 0.0, 0.0]]), np.ones(1)).sum() == 0.0
+    )  # beyond the grid: dropped
 
 
 def test_identity_settling_leaves_the_belief():
     b = narrow(LOW, mean=(0.62, 0.0, 0.0), sigma=(0.004, 0.004, 0.02))
-    np.testing.assert_allclose(settle(b, settling(), (0.62, 0.0, 0.0)).weights, b.weights, atol=1e-15)
+    np.testing.assert_allclose(
+        settle(b, settling(), (0.62, 0.0, 0.0)).weights, b.weights, atol=1e-15
+    )
 
 
 def test_settling_shifts_states_in_the_box_by_the_map_in_the_estimate_frame():
-    e = np.array([0.62, 0.0, 0.5])  # shifts are in e's frame: +x of e is (cos 0.5, sin 0.5) in world
+    e = np.array(
+        [0.62, 0.0, 0.5]
+    )  # shifts are in e's frame: +x of e is (cos 0.5, sin 0.5) in world
     b = narrow(LOW, mean=e, sigma=(0.004, 0.004, 0.02))
     after = settle(b, settling(b=(0.01, 0.0, 0.03)), e)
     shift = relative_planar(e, after.mean()) - relative_planar(e, b.mean())
@@ -167,13 +187,22 @@ def test_settling_shifts_states_in_the_box_by_the_map_in_the_estimate_frame():
 def test_settling_funnels_the_box_and_leaves_the_rest():
     e = np.array([0.62, 0.0, 0.0])
     g = Grid.for_level(LOW, center=e)
-    inside, outside = np.array([0.01, -0.01, 0.05]), np.array([0.0, 0.02, 0.0])  # the box is ±1.5 cm in y
+    inside, outside = (
+        np.array([0.01, -0.01, 0.05]),
+        np.array([0.0, 0.02, 0.0]),
+    )  # the box is ±1.5 cm in y
     w = np.zeros(g.size)
     w[g.nearest_index(e + inside)] = w[g.nearest_index(e + outside)] = 0.5
-    after = settle(Belief(g, w), settling(A=np.zeros((3, 3)), sigma=(0.002, 0.002, 0.01), box=(0.015, 0.015, 0.3)), e)
+    after = settle(
+        Belief(g, w),
+        settling(A=np.zeros((3, 3)), sigma=(0.002, 0.002, 0.01), box=(0.015, 0.015, 0.3)),
+        e,
+    )
     assert after.weights[g.nearest_index(e + outside)] == pytest.approx(0.5)
     near = np.all(np.abs(relative_planar(e, g.points())) <= (0.005, 0.005, 0.03), axis=1)
-    assert after.probability(near) == pytest.approx(0.5, abs=0.02)  # the funnel's mass: at Δ = 0 ± 2.5σ
+    assert after.probability(near) == pytest.approx(
+        0.5, abs=0.02
+    )  # the funnel's mass: at Δ = 0 ± 2.5σ
     assert after.probability(near) > after.weights[g.nearest_index(e)] * 2  # and is blurred by σ
 
 
@@ -188,7 +217,11 @@ def test_the_reorientation_study_fits_the_full_turns_shift_and_the_catalogue_loa
     records = []
     for name in ("reorient_ccw", "reorient_cw"):
         for start in rng.normal(size=(12, 3)) * [0.01, 0.01, 0.1]:
-            records.append(dict(wrt=name, start=start.tolist(), after=(start + [0.003, -0.002, -0.05]).tolist()))
+            records.append(
+                dict(
+                    wrt=name, start=start.tolist(), after=(start + [0.003, -0.002, -0.05]).tolist()
+                )
+            )
         records.append(dict(wrt=name, start=[0.0, 0.0, 0.0], after=[0.0, 0.0, -0.3]))  # a half turn
     fits = fit("giant_teacup", records)
     assert fits["reorient_ccw"]["full"] == 12 and fits["reorient_ccw"]["held"] == 13

@@ -3,6 +3,7 @@
 The observation tables come from a synthetic, ObservationTable-shaped probe whose predicted
 observation varies smoothly with the offset Δ, so likelihoods are informative in x, y and θ.
 """
+
 import math
 import time
 
@@ -10,14 +11,21 @@ import numpy as np
 import pytest
 
 from rrg_estimator.belief import Belief
-from rrg_estimator.obs_tables import ObservationTable
-from rrg_estimator.obs_model import (closure_sigma, features_from_observation, features_from_table_rows, sensor_prediction,
-                                     likelihood_over_table, likelihood_params, log_likelihood_over_table,
-                                     table_indices)
-from rrg_estimator.reference_update import table_index_reference, update_reference
-from rrg_estimator.update import apply_likelihood, goal_probability, update
 from rrg_estimator.config import HIGH, LIKELIHOOD, LOW
 from rrg_estimator.grid import Grid
+from rrg_estimator.obs_model import (
+    closure_sigma,
+    features_from_observation,
+    features_from_table_rows,
+    likelihood_over_table,
+    likelihood_params,
+    log_likelihood_over_table,
+    sensor_prediction,
+    table_indices,
+)
+from rrg_estimator.obs_tables import ObservationTable
+from rrg_estimator.reference_update import table_index_reference, update_reference
+from rrg_estimator.update import apply_likelihood, goal_probability, update
 from rrg_sim.observation import Observation
 from rrg_sim.poses import compose_planar, planar_pose, relative_planar
 from rrg_sim.wrt import WRT
@@ -38,24 +46,48 @@ def synthetic_table(grid: Grid) -> ObservationTable:
     sensors[:, 3] = d[:, 1] < -0.01
     sensors[:, 7] = np.abs(d[:, 1]) < 0.04
     sensors[:, 9] = d[:, 2] > 0.0
-    closure = (1.0 + np.stack([10 * d[:, 1], -10 * d[:, 1], 3 * d[:, 2]], axis=1)).astype(np.float32)
+    closure = (1.0 + np.stack([10 * d[:, 1], -10 * d[:, 1], 3 * d[:, 2]], axis=1)).astype(
+        np.float32
+    )
     tips = np.full((n, 3, 3), np.nan, np.float32)
-    tips[:, 0] = np.where(sensors[:, 7, None], np.stack([d[:, 0], 0.05 + d[:, 1], np.full(n, 0.12)], 1), np.nan)
-    tips[:, 2] = np.where(sensors[:, 9, None],
-                          np.stack([d[:, 0] + 0.05 * d[:, 2], np.full(n, -0.05), np.full(n, 0.12)], 1), np.nan)
+    tips[:, 0] = np.where(
+        sensors[:, 7, None], np.stack([d[:, 0], 0.05 + d[:, 1], np.full(n, 0.12)], 1), np.nan
+    )
+    tips[:, 2] = np.where(
+        sensors[:, 9, None],
+        np.stack([d[:, 0] + 0.05 * d[:, 2], np.full(n, -0.05), np.full(n, 0.12)], 1),
+        np.nan,
+    )
     motion = np.where(contact[:, None], [0.6, 0.0, -0.8], [0.0, 0.0, -1.0]).astype(np.float32)
-    return ObservationTable("synthetic", "probe", grid, path, contact, progress, sensors, closure, tips,
-                          np.full((n, 3, 3), np.nan, np.float32), motion, np.tile(np.eye(4), (n, 1, 1)))
+    return ObservationTable(
+        "synthetic",
+        "probe",
+        grid,
+        path,
+        contact,
+        progress,
+        sensors,
+        closure,
+        tips,
+        np.full((n, 3, 3), np.nan, np.float32),
+        motion,
+        np.tile(np.eye(4), (n, 1, 1)),
+    )
 
 
 def observation_of_row(table: ObservationTable, row: int, e) -> Observation:
     """The Observation the robot would report for table row `row` when τ(e) ran (motion in world)."""
     m = table.motion_dir[row].astype(float)
     c, s = math.cos(e[2]), math.sin(e[2])
-    return Observation(contact=bool(table.contact[row]), progress=float(table.progress[row]),
-                       hand_pose=planar_pose(e), sensors=table.sensors[row], closure=table.closure[row],
-                       tip_points=table.tip_points[row],
-                       motion_dir=[c * m[0] - s * m[1], s * m[0] + c * m[1], m[2]])
+    return Observation(
+        contact=bool(table.contact[row]),
+        progress=float(table.progress[row]),
+        hand_pose=planar_pose(e),
+        sensors=table.sensors[row],
+        closure=table.closure[row],
+        tip_points=table.tip_points[row],
+        motion_dir=[c * m[0] - s * m[1], s * m[0] + c * m[1], m[2]],
+    )
 
 
 @pytest.fixture(scope="module")
@@ -64,12 +96,21 @@ def high_table() -> ObservationTable:
 
 
 # ----------------------------------------------------------------- table indices
-@pytest.mark.parametrize("level,e", [(HIGH, E), (HIGH, (0.55, -0.04, -2.9)), (LOW, (0.6, 0.0, 3.1)),
-                                     (LOW, (0.631, 0.0123, 0.0071))])
+@pytest.mark.parametrize(
+    "level,e",
+    [
+        (HIGH, E),
+        (HIGH, (0.55, -0.04, -2.9)),
+        (LOW, (0.6, 0.0, 3.1)),
+        (LOW, (0.631, 0.0123, 0.0071)),
+    ],
+)
 def test_table_indices_match_a_per_point_computation(level, e):
     belief_grid = Grid.for_level(level, center=np.asarray(e) + [0.004, -0.011, 0.05])
     table_grid = Grid.for_level(level)
-    expected = table_grid.nearest_index(relative_planar(np.asarray(e), belief_grid.points()), clip=True)
+    expected = table_grid.nearest_index(
+        relative_planar(np.asarray(e), belief_grid.points()), clip=True
+    )
     np.testing.assert_array_equal(table_indices(belief_grid, e, table_grid), expected)
 
 
@@ -91,8 +132,9 @@ def test_likelihood_terms(high_table):
     lp = LIKELIHOOD
     q = sensor_prediction(t)[row]  # each sensor's predicted contact within the row's cell
     p_fired = q * lp.p_detect + (1 - q) * lp.p_false_alarm
-    expected = (math.log(1 - lp.p_contact_mismatch)
-                + sum(math.log(p if s else 1 - p) for s, p in zip(t.sensors[row], p_fired)))
+    expected = math.log(1 - lp.p_contact_mismatch) + sum(
+        math.log(p if s else 1 - p) for s, p in zip(t.sensors[row], p_fired)
+    )
     assert base[row] == pytest.approx(expected, abs=1e-5)
     assert np.argmax(base) == row
 
@@ -102,16 +144,24 @@ def test_likelihood_terms(high_table):
         getattr(g, field)[(0, *np.atleast_1d(index))] = value
         return float(log_likelihood_over_table(t, g)[0, row] - base[row])
 
-    assert change("progress", (), f.progress[0] + lp.sigma_progress) == pytest.approx(-0.5, abs=1e-4)
+    assert change("progress", (), f.progress[0] + lp.sigma_progress) == pytest.approx(
+        -0.5, abs=1e-4
+    )
     sigma = float(closure_sigma(t, lp.sigma_closure)[1, row])  # the entry's own σ, ≥ the base σ
     assert sigma >= lp.sigma_closure
     assert change("closure", 1, f.closure[0, 1] + sigma) == pytest.approx(-0.5, abs=1e-4)
-    assert change("tip_points", (2, 2), f.tip_points[0, 2, 2] + 2 * lp.sigma_tip) == pytest.approx(-2.0, abs=1e-3)
+    assert change("tip_points", (2, 2), f.tip_points[0, 2, 2] + 2 * lp.sigma_tip) == pytest.approx(
+        -2.0, abs=1e-3
+    )
     # a tip point missing on one side adds no distance term (its sensor term judges it)
     assert change("tip_points", 2, np.nan) == pytest.approx(0.0, abs=1e-6)
     assert not t.sensors[row, 5] and t.sensors[row, 7]
-    assert change("sensors", 5, True) == pytest.approx(math.log(p_fired[5] / (1 - p_fired[5])), abs=1e-5)
-    assert change("sensors", 7, False) == pytest.approx(math.log((1 - p_fired[7]) / p_fired[7]), abs=1e-5)
+    assert change("sensors", 5, True) == pytest.approx(
+        math.log(p_fired[5] / (1 - p_fired[5])), abs=1e-5
+    )
+    assert change("sensors", 7, False) == pytest.approx(
+        math.log((1 - p_fired[7]) / p_fired[7]), abs=1e-5
+    )
     mismatch = math.log(lp.p_contact_mismatch / (1 - lp.p_contact_mismatch))
     assert change("contact", (), False) == pytest.approx(mismatch, abs=1e-5)
 
@@ -135,12 +185,14 @@ def test_closure_sigma_adds_each_entrys_discretization():
     table = Table(grid, closure)
     sig = closure_sigma(table, 0.05)
     assert sig.shape == (3, grid.size) and sig.dtype == np.float32
-    np.testing.assert_allclose(sig[0], math.sqrt(0.05 ** 2 + 0.12 ** 2 / 12), rtol=1e-5)
+    np.testing.assert_allclose(sig[0], math.sqrt(0.05**2 + 0.12**2 / 12), rtol=1e-5)
     np.testing.assert_allclose(sig[1], 0.05, rtol=1e-6)
     assert np.all(sig[2][(ix == 2) | (ix == 3)] > 0.6) and np.allclose(sig[2][ix == 0], 0.05)
     for j in (0, 13, 22, 44):
         for f in range(3):
-            assert closure_sigma_reference(table, j, f, 0.05) == pytest.approx(float(sig[f, j]), rel=1e-5)
+            assert closure_sigma_reference(table, j, f, 0.05) == pytest.approx(
+                float(sig[f, j]), rel=1e-5
+            )
     assert np.all(np.isinf(closure_sigma(table, math.inf)))
 
 
@@ -164,11 +216,13 @@ def test_a_sensors_predicted_contact_stands_for_the_entrys_cell():
     q = sensor_prediction(table)
     expected = np.array([0.0, 0.0, 0.125, 0.875, 1.0])[ix]
     np.testing.assert_allclose(q[:, 0], expected, atol=1e-12)
-    assert q[13, 4] == pytest.approx(0.75 ** 3) and q[:, 4].sum() == pytest.approx(1.0)
+    assert q[13, 4] == pytest.approx(0.75**3) and q[:, 4].sum() == pytest.approx(1.0)
     np.testing.assert_array_equal(q[:, 1], 0.0)
     for j in (0, 13, 22, 44):
         for s in (0, 4):
-            assert sensor_prediction_reference(table, j, s) == pytest.approx(float(q[j, s]), abs=1e-12)
+            assert sensor_prediction_reference(table, j, s) == pytest.approx(
+                float(q[j, s]), abs=1e-12
+            )
 
 
 def test_likelihood_is_floored_batched_and_float32(high_table):
@@ -178,8 +232,12 @@ def test_likelihood_is_floored_batched_and_float32(high_table):
     assert like.dtype == np.float32 and like.shape == (4, high_table.grid.size)
     assert like.min() >= np.float32(LIKELIHOOD.floor) and like.max() <= 1.0
     for i, r in enumerate(rows):
-        np.testing.assert_allclose(like[i], likelihood_over_table(high_table, feats.take(i))[0], rtol=1e-6)
-        assert like[i, r] == like[i].max()  # its own offset explains it best (ties: the same reading)
+        np.testing.assert_allclose(
+            like[i], likelihood_over_table(high_table, feats.take(i))[0], rtol=1e-6
+        )
+        assert (
+            like[i, r] == like[i].max()
+        )  # its own offset explains it best (ties: the same reading)
 
 
 def test_a_wrt_whose_closures_are_not_informative_is_updated_without_them(high_table):
@@ -193,7 +251,10 @@ def test_a_wrt_whose_closures_are_not_informative_is_updated_without_them(high_t
     other = features_from_table_rows(high_table, [row])
     other.closure[0] += np.float32(0.4)
     prior = Belief.for_level(HIGH, E)
-    ignored = [update(prior, high_table, E, f, transition=False, params=params).weights for f in (feats, other)]
+    ignored = [
+        update(prior, high_table, E, f, transition=False, params=params).weights
+        for f in (feats, other)
+    ]
     np.testing.assert_array_equal(ignored[0], ignored[1])
     used = update(prior, high_table, E, other, transition=False).weights
     assert np.abs(used - ignored[1]).max() > 1e-3 * ignored[1].max()
@@ -210,20 +271,28 @@ def test_update_is_normalized_and_keeps_the_floor(high_table):
     feats = features_from_table_rows(high_table, [row])
     post = update(prior, high_table, E, feats, transition=False)
     assert abs(post.weights.sum() - 1.0) < 1e-9
-    like = likelihood_over_table(high_table, feats)[0][table_indices(prior.grid, E, high_table.grid)]
+    like = likelihood_over_table(high_table, feats)[0][
+        table_indices(prior.grid, E, high_table.grid)
+    ]
     z = float(prior.weights @ like.astype(float))
     # every state keeps at least ε of its prior weight (relative to the evidence Z)
     assert np.all(post.weights >= LIKELIHOOD.floor * prior.weights / z * (1 - 1e-5))
     # a state whose prediction contradicts the observation keeps exactly that floor
-    raw = np.exp(log_likelihood_over_table(high_table, feats)[0])[table_indices(prior.grid, E, high_table.grid)]
+    raw = np.exp(log_likelihood_over_table(high_table, feats)[0])[
+        table_indices(prior.grid, E, high_table.grid)
+    ]
     contradicted = int(np.argmin(raw))
     assert raw[contradicted] < 1e-9  # negligible next to ε: the floor decides its weight
-    assert post.weights[contradicted] == pytest.approx(LIKELIHOOD.floor * prior.weights[contradicted] / z, rel=1e-4)
+    assert post.weights[contradicted] == pytest.approx(
+        LIKELIHOOD.floor * prior.weights[contradicted] / z, rel=1e-4
+    )
 
 
 def test_informative_observation_moves_w_star_to_the_truth(high_table):
     prior = Belief.for_level(HIGH, E)
-    true_offset = high_table.grid.points()[high_table.grid.nearest_index(np.array([0.03, -0.02, 0.3]))]
+    true_offset = high_table.grid.points()[
+        high_table.grid.nearest_index(np.array([0.03, -0.02, 0.3]))
+    ]
     truth = compose_planar(E, true_offset)
     row = high_table.grid.nearest_index(true_offset)
     post = update(prior, high_table, E, observation_of_row(high_table, row, E), transition=False)
@@ -243,20 +312,31 @@ def test_observation_and_features_give_the_same_update(high_table):
     np.testing.assert_allclose(from_obs.weights, from_feats.weights, rtol=1e-5, atol=1e-12)
 
 
-@pytest.mark.parametrize("offset,transition", [((0.03, 0.01, -0.1), True), ((0.03, 0.01, -0.1), False),
-                                               ((-0.02, 0.0, 0.2), True), ((0.02, -0.03, 0.1), True)])
+@pytest.mark.parametrize(
+    "offset,transition",
+    [
+        ((0.03, 0.01, -0.1), True),
+        ((0.03, 0.01, -0.1), False),
+        ((-0.02, 0.0, 0.2), True),
+        ((0.02, -0.03, 0.1), True),
+    ],
+)
 def test_fast_update_matches_the_reference(offset, transition):
     table_grid = Grid((0.0, 0.0, 0.0), HIGH.spacing, (7, 7, 5))
     table = synthetic_table(table_grid)
     e = np.array([0.6, -0.02, 0.4])
     # the belief grid reaches beyond the table, so clamped indices are exercised
-    belief = Belief.gaussian(Grid(tuple(e + [0.01, -0.01, 0.1]), HIGH.spacing, (7, 7, 5)), e, (0.02, 0.02, 0.2))
+    belief = Belief.gaussian(
+        Grid(tuple(e + [0.01, -0.01, 0.1]), HIGH.spacing, (7, 7, 5)), e, (0.02, 0.02, 0.2)
+    )
     row = table_grid.nearest_index(np.array(offset))
     obs = observation_of_row(table, row, e)
     fast = update(belief, table, e, obs, transition=transition)
     ref = update_reference(belief, table, e, obs, transition=transition)
     np.testing.assert_allclose(fast.weights, ref.weights, rtol=2e-5, atol=1e-12)
-    ref_feats = update_reference(belief, table, e, features_from_table_rows(table, [row]), transition=transition)
+    ref_feats = update_reference(
+        belief, table, e, features_from_table_rows(table, [row]), transition=transition
+    )
     np.testing.assert_allclose(ref_feats.weights, ref.weights, rtol=1e-6, atol=1e-12)
     idx = [table_index_reference(list(w), list(e), table) for w in belief.grid.points()]
     np.testing.assert_array_equal(table_indices(belief.grid, e, table_grid), idx)
@@ -273,11 +353,15 @@ def test_bad_inputs_raise(high_table):
         update(prior, high_table, (np.nan, 0.0, 0.0), features_from_table_rows(high_table, [row]))
     with pytest.raises(ValueError, match="one observation"):
         update(prior, high_table, E, features_from_table_rows(high_table, [row, row]))
-    no_direction = features_from_observation(observation_of_row(high_table, row, E))  # no e: motion unknown
+    no_direction = features_from_observation(
+        observation_of_row(high_table, row, E)
+    )  # no e: motion unknown
     with pytest.raises(ValueError, match="motion direction"):
         update(prior, high_table, E, no_direction)
     with pytest.raises(ValueError, match="zero probability"):
-        apply_likelihood(prior, np.zeros(high_table.grid.size, np.float32), np.zeros(prior.grid.size, np.int64))
+        apply_likelihood(
+            prior, np.zeros(high_table.grid.size, np.float32), np.zeros(prior.grid.size, np.int64)
+        )
 
 
 def test_goal_probability_is_the_belief_mass_on_the_goal_offsets(high_table):
@@ -307,5 +391,7 @@ def test_update_time_on_the_full_grid(high_table):
     t0 = time.perf_counter()
     update_reference(prior, high_table, E, obs, transition=False)
     naive = time.perf_counter() - t0
-    print(f"\nupdate of 24,025 points (contact, with bump): {fast * 1e3:.3f} ms; "
-          f"naive reference likelihood pass alone: {naive:.2f} s")
+    print(
+        f"\nupdate of 24,025 points (contact, with bump): {fast * 1e3:.3f} ms; "
+        f"naive reference likelihood pass alone: {naive:.2f} s"
+    )

@@ -1,13 +1,14 @@
 """Variable-resolution grid: refine a concentrated coarse belief onto a finer grid (HIGH → MID → LOW)."""
+
 import time
 
 import numpy as np
 import pytest
 
 from rrg_estimator.belief import Belief
-from rrg_estimator.varres import maybe_refine
 from rrg_estimator.config import HIGH, LOW, MID, VARRES_EPS
 from rrg_estimator.grid import Grid
+from rrg_estimator.varres import maybe_refine
 from rrg_sim.poses import wrap_angle
 
 COARSE = Grid.for_level(HIGH, center=(0.62, 0.0, 0.0))
@@ -15,8 +16,9 @@ COARSE = Grid.for_level(HIGH, center=(0.62, 0.0, 0.0))
 
 def test_spread_or_already_fine_beliefs_are_not_refined():
     assert maybe_refine(Belief.for_level(HIGH, (0.62, 0.0, 0.0))) is None
-    concentrated_fine = Belief.gaussian(Grid.for_level(LOW, center=(0.62, 0.0, 0.0)), (0.62, 0.0, 0.0),
-                                        (0.002, 0.002, 0.01))
+    concentrated_fine = Belief.gaussian(
+        Grid.for_level(LOW, center=(0.62, 0.0, 0.0)), (0.62, 0.0, 0.0), (0.002, 0.002, 0.01)
+    )
     assert maybe_refine(concentrated_fine) is None
 
 
@@ -33,7 +35,9 @@ def test_separated_modes_refine_only_to_a_grid_that_holds_both():
     assert fine is not None and fine.grid.spacing == LOW.spacing
 
 
-@pytest.mark.parametrize("mean", [(0.6237, -0.0141, 0.237), (0.58, 0.051, -0.96), (0.62, 0.0, 1.05)])
+@pytest.mark.parametrize(
+    "mean", [(0.6237, -0.0141, 0.237), (0.58, 0.051, -0.96), (0.62, 0.0, 1.05)]
+)
 def test_concentrated_belief_is_refined_around_its_mean(mean):
     coarse = Belief.gaussian(COARSE, mean, (0.005, 0.004, 0.04))
     fine = maybe_refine(coarse)
@@ -68,7 +72,9 @@ def test_a_run_whose_end_cells_would_stick_out_of_the_fine_box_is_not_refined_to
     refined = maybe_refine(Belief(COARSE, a))
     assert refined is not None and refined.grid.spacing == MID.spacing
     th = refined.grid.axes()[2]
-    assert th[0] <= COARSE.axes()[2][14] - 0.05 + 1e-9 and th[-1] >= COARSE.axes()[2][17] + 0.05 - 1e-9
+    assert (
+        th[0] <= COARSE.axes()[2][14] - 0.05 + 1e-9 and th[-1] >= COARSE.axes()[2][17] + 0.05 - 1e-9
+    )
 
 
 def test_refine_time():
@@ -82,7 +88,9 @@ def test_refine_time():
     for _ in range(20):
         maybe_refine(spread)
     t2 = time.perf_counter()
-    print(f"\nmaybe_refine: refine {(t1 - t0) / 20 * 1e3:.2f} ms, reject {(t2 - t1) / 20 * 1e3:.2f} ms")
+    print(
+        f"\nmaybe_refine: refine {(t1 - t0) / 20 * 1e3:.2f} ms, reject {(t2 - t1) / 20 * 1e3:.2f} ms"
+    )
 
 
 def test_a_fine_belief_that_moved_off_centre_is_recentred_on_its_mean():
@@ -90,7 +98,9 @@ def test_a_fine_belief_that_moved_off_centre_is_recentred_on_its_mean():
     moved = Belief.gaussian(fine, (0.62, 0.004, 0.09), (0.002, 0.002, 0.01))  # θ 0.09 of ±0.156 off
     out = maybe_refine(moved)
     assert out is not None and out.grid.spacing == fine.spacing and out.grid.shape == fine.shape
-    assert np.all(np.abs(np.asarray(out.grid.center) - moved.mean()) <= np.asarray(LOW.spacing) / 2 + 1e-9)
+    assert np.all(
+        np.abs(np.asarray(out.grid.center) - moved.mean()) <= np.asarray(LOW.spacing) / 2 + 1e-9
+    )
     np.testing.assert_allclose(out.mean(), moved.mean(), atol=1e-4)
     # a belief within a quarter of the half extent stays where it is
     assert maybe_refine(Belief.gaussian(fine, (0.62, 0.004, 0.03), (0.002, 0.002, 0.01))) is None
@@ -105,4 +115,6 @@ def test_a_mid_belief_refines_to_low_once_it_concentrates_and_recentres_when_it_
     moved = Belief.gaussian(mid, (0.62, 0.03, 0.3), (0.02, 0.02, 0.1))  # y 3 cm of ±7.5 cm off
     out = maybe_refine(moved)
     assert out is not None and out.grid.spacing == MID.spacing
-    assert np.all(np.abs(np.asarray(out.grid.center) - moved.mean()) <= np.asarray(MID.spacing) / 2 + 1e-9)
+    assert np.all(
+        np.abs(np.asarray(out.grid.center) - moved.mean()) <= np.asarray(MID.spacing) / 2 + 1e-9
+    )

@@ -1,4 +1,5 @@
 """WAM kinematics: FK, analytic IK with redundancy resolution, table clearance, feasibility maps."""
+
 from __future__ import annotations
 
 import time
@@ -50,14 +51,17 @@ def test_fk_hand_computed_cases():
     np.testing.assert_allclose(T0[:3, :3], np.diag([-1.0, -1.0, 1.0]), atol=1e-12)
     # J2 = π/2: the straight arm points forward along +x at shoulder height.
     T1 = wam.fk(np.array([0, np.pi / 2, 0, 0, 0, 0, 0]))
-    np.testing.assert_allclose(T1[:3, 3], [WAM.dh[2][2] + WAM.dh[4][2] + WRIST_TO_HAND, 0, WAM.base_height],
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        T1[:3, 3], [WAM.dh[2][2] + WAM.dh[4][2] + WRIST_TO_HAND, 0, WAM.base_height], atol=1e-12
+    )
     np.testing.assert_allclose(T1[:3, 2], [1, 0, 0], atol=1e-12)
     # J4 = π/2: upper arm up to the elbow (0.045 m offsets), forearm horizontal along +x.
     frames = wam.fk_frames(np.array([0, 0, 0, np.pi / 2, 0, 0, 0]))
     elbow_z = WAM.base_height + WAM.dh[2][2] + 0.045
     np.testing.assert_allclose(frames[5, :3, 3], [0.045 + WAM.dh[4][2], 0, elbow_z], atol=1e-12)
-    np.testing.assert_allclose(frames[8, :3, 3], [0.045 + WAM.dh[4][2] + WRIST_TO_HAND, 0, elbow_z], atol=1e-12)
+    np.testing.assert_allclose(
+        frames[8, :3, 3], [0.045 + WAM.dh[4][2] + WRIST_TO_HAND, 0, elbow_z], atol=1e-12
+    )
     np.testing.assert_allclose(frames[8], wam.fk(np.array([0, 0, 0, np.pi / 2, 0, 0, 0])))
 
 
@@ -78,7 +82,9 @@ def test_fk_is_vectorized_over_leading_axes():
 def test_home_q_reaches_home_pose():
     np.testing.assert_allclose(wam.fk(wam.HOME_Q), home_pose(), atol=1e-9)
     assert wam.within_limits(wam.HOME_Q) and wam.arm_clear_of_table(wam.HOME_Q)
-    assert wam.HOME_Q[0] == pytest.approx(0.0, abs=1e-9) and wam.HOME_Q[2] == pytest.approx(0.0, abs=1e-9)
+    assert wam.HOME_Q[0] == pytest.approx(0.0, abs=1e-9) and wam.HOME_Q[2] == pytest.approx(
+        0.0, abs=1e-9
+    )
 
 
 def test_ik_round_trip_on_random_reachable_poses():
@@ -89,7 +95,9 @@ def test_ik_round_trip_on_random_reachable_poses():
     assert ok.sum() >= 200
     T_back = wam.fk(q[ok])
     assert np.abs(T_back[:, :3, 3] - T[ok, :3, 3]).max() < 1e-3
-    rot_err = (Rotation.from_matrix(T_back[:, :3, :3]).inv() * Rotation.from_matrix(T[ok, :3, :3])).magnitude()
+    rot_err = (
+        Rotation.from_matrix(T_back[:, :3, :3]).inv() * Rotation.from_matrix(T[ok, :3, :3])
+    ).magnitude()
     assert rot_err.max() < 0.01
     assert wam.within_limits(q[ok]).all() and wam.arm_clear_of_table(q[ok]).all()
     assert np.isnan(q[~ok]).all()
@@ -120,7 +128,9 @@ def test_redundancy_resolution_prefers_the_seed():
     usable = sol.usable().reshape(-1, 20)
     for i in np.nonzero(ok)[0]:
         cands = Q[:, usable[:, i], i].T
-        assert np.sum((q[i] - pref[i]) ** 2) <= np.min(np.sum((cands - pref[i]) ** 2, axis=1)) + 1e-12
+        assert (
+            np.sum((q[i] - pref[i]) ** 2) <= np.min(np.sum((cands - pref[i]) ** 2, axis=1)) + 1e-12
+        )
 
 
 def test_ik_path_is_continuous():
@@ -160,8 +170,11 @@ def test_side_grasps_at_palm_height_10cm_are_feasible(approach, fingers_vertical
     x ≥ 0.66 m), so those objects sit 12-22 cm beyond the nominal pose."""
     a = np.asarray(approach, float)
     finger_axis = (0, 0, 1) if fingers_vertical else np.cross((0, 0, 1), a)
-    centres = ([(0.84, 0.0), (0.76, 0.10), (0.76, -0.10)] if a[0] > 0 else
-               [(0.62, 0.0), (0.57, 0.05), (0.57, -0.05), (0.62, 0.05), (0.62, -0.05)])
+    centres = (
+        [(0.84, 0.0), (0.76, 0.10), (0.76, -0.10)]
+        if a[0] > 0
+        else [(0.62, 0.0), (0.57, 0.05), (0.57, -0.05), (0.62, 0.05), (0.62, -0.05)]
+    )
     for cx, cy in centres:
         palm = np.array([cx, cy, 0.10]) - 0.06 * a  # a 12 cm wide object
         Ts = np.stack([hand_at_palm(palm - d * a, a, finger_axis) for d in (0.10, 0.0)])
@@ -169,14 +182,22 @@ def test_side_grasps_at_palm_height_10cm_are_feasible(approach, fingers_vertical
 
 
 def test_table_clearance():
-    low_elbow = np.array([0.0, 1.985, 0.0, np.pi / 2, 0.0, 0.0, 0.0])  # elbow 6.5 cm above the table
+    low_elbow = np.array(
+        [0.0, 1.985, 0.0, np.pi / 2, 0.0, 0.0, 0.0]
+    )  # elbow 6.5 cm above the table
     points = wam.arm_points(low_elbow)
     assert points[1, 2] < wam.CLEARANCE_Z and WORLD.table_x[0] < points[1, 0] < WORLD.table_x[1]
     assert not wam.arm_clear_of_table(low_elbow)
-    behind = low_elbow + np.array([2.5, 0, 0, 0, 0, 0, 0])  # same posture turned away from the table
+    behind = low_elbow + np.array(
+        [2.5, 0, 0, 0, 0, 0, 0]
+    )  # same posture turned away from the table
     assert wam.arm_clear_of_table(behind)
-    below = np.array([[[0.5, 0.0, -0.05], [0.5, 0.0, 0.3], [0.6, 0.0, 0.3]],  # elbow below the table
-                      [[0.1, 0.0, -0.05], [0.5, 0.0, 0.3], [0.6, 0.0, 0.3]]])  # ... but beside it
+    below = np.array(
+        [
+            [[0.5, 0.0, -0.05], [0.5, 0.0, 0.3], [0.6, 0.0, 0.3]],  # elbow below the table
+            [[0.1, 0.0, -0.05], [0.5, 0.0, 0.3], [0.6, 0.0, 0.3]],
+        ]
+    )  # ... but beside it
     np.testing.assert_array_equal(wam.points_clear_of_table(below), [False, True])
     # A horizontal hand with its wrist centre 5 cm above the table: solutions within the joint
     # limits exist, but IK and feasibility reject them all.
@@ -193,8 +214,11 @@ def test_ik_solutions_points_match_fk():
     q = sol.angles()[(slice(None),) + index].T
     np.testing.assert_allclose(wam.fk(q), T[index[-1]], atol=1e-9)
     points = wam.arm_points(q)
-    np.testing.assert_allclose(points[:, :2], np.moveaxis(sol.elbows[(slice(None), slice(None)) + index[1:]], -1, 0),
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        points[:, :2],
+        np.moveaxis(sol.elbows[(slice(None), slice(None)) + index[1:]], -1, 0),
+        atol=1e-9,
+    )
     np.testing.assert_allclose(points[:, 2], sol.wrist[:, index[-1]].T, atol=1e-9)
     assert wam.within_limits(q).all()
 
@@ -217,15 +241,23 @@ def test_feasibility_map_matches_exact_feasibility(tmp_cache):
     rng = np.random.default_rng(8)
     r, phi, psi = grid.axes()
     i = rng.integers(0, [grid.nr, grid.nphi, grid.npsi], (300, 3))
-    e = np.stack([r[i[:, 0]] * np.cos(phi[i[:, 1]]), r[i[:, 0]] * np.sin(phi[i[:, 1]]),
-                  phi[i[:, 1]] + psi[i[:, 2]]], axis=1)
+    e = np.stack(
+        [
+            r[i[:, 0]] * np.cos(phi[i[:, 1]]),
+            r[i[:, 0]] * np.sin(phi[i[:, 1]]),
+            phi[i[:, 1]] + psi[i[:, 2]],
+        ],
+        axis=1,
+    )
     exact = wam.feasible_paths(planar_pose(e)[:, None] @ poses)
     assert 0.2 < exact.mean() < 1.0
     assert (fmap.lookup(e) == exact).mean() >= 0.99
     # The nominal pose is feasible; off the grid the lookup falls back to the exact test.
     assert fmap.lookup(np.array(WORLD.nominal_pose))
     off = np.array([[1.6, 0.0, 0.0], [0.2, 0.6, 1.0]])
-    np.testing.assert_array_equal(fmap.lookup(off), wam.feasible_paths(planar_pose(off)[:, None] @ poses))
+    np.testing.assert_array_equal(
+        fmap.lookup(off), wam.feasible_paths(planar_pose(off)[:, None] @ poses)
+    )
     assert not fmap.lookup(off[0])
 
 
@@ -253,6 +285,8 @@ def test_report_speed(tmp_cache, capsys):
     fmap = FeasibilityMap(top_down_wrt())
     g = fmap.grid
     with capsys.disabled():
-        print(f"\n[wam speed] ik_batch {ik_us:.1f} µs/pose (solved {ok.mean():.3f}); reachable {reach_us:.1f} µs/pose; "
-              f"FeasibilityMap of 3 waypoints over {g.nr}x{g.nphi}x{g.npsi} cells: {fmap.build_seconds:.2f} s")
+        print(
+            f"\n[wam speed] ik_batch {ik_us:.1f} µs/pose (solved {ok.mean():.3f}); reachable {reach_us:.1f} µs/pose; "
+            f"FeasibilityMap of 3 waypoints over {g.nr}x{g.nphi}x{g.npsi} cells: {fmap.build_seconds:.2f} s"
+        )
     assert ok.mean() > 0.9

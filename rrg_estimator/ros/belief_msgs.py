@@ -4,6 +4,7 @@ rrg_msgs/BeliefGrid, with the validation every node applies to a belief it recei
 Both layouts agree: the grid is centred on ``metadata.origin`` and the weights are C-ordered
 over (x, y, θ), so a belief goes out and comes back without reshuffling.
 """
+
 from __future__ import annotations
 
 import array
@@ -12,11 +13,10 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from visualization_msgs.msg import Marker, MarkerArray
 
-from rrg_msgs.msg import BeliefGrid, BeliefGridMetaData
-from rrg_estimator.grid import Grid
-from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, planar_from_msg, planar_to_msg
-
 from rrg_estimator.belief import Belief
+from rrg_estimator.grid import Grid
+from rrg_msgs.msg import BeliefGrid, BeliefGridMetaData
+from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, planar_from_msg, planar_to_msg
 
 
 class InvalidGrid(ValueError):
@@ -34,14 +34,22 @@ def float64_array(values) -> array.array:
     return out
 
 
-def grid_to_metadata(grid: Grid, map_load_time: Time | None = None,
-                     update_time: Time | None = None) -> BeliefGridMetaData:
+def grid_to_metadata(
+    grid: Grid, map_load_time: Time | None = None, update_time: Time | None = None
+) -> BeliefGridMetaData:
     sx, sy, st = (float(s) for s in grid.spacing)
     nx, ny, nt = (int(n) for n in grid.shape)
     return BeliefGridMetaData(
-        map_load_time=map_load_time or Time(), update_time=update_time or Time(),
-        resolution_x=sx, resolution_y=sy, resolution_theta=st, size_x=nx, size_y=ny, size_theta=nt,
-        origin=planar_to_msg(grid.center))
+        map_load_time=map_load_time or Time(),
+        update_time=update_time or Time(),
+        resolution_x=sx,
+        resolution_y=sy,
+        resolution_theta=st,
+        size_x=nx,
+        size_y=ny,
+        size_theta=nt,
+        origin=planar_to_msg(grid.center),
+    )
 
 
 def grid_from_metadata(meta: BeliefGridMetaData) -> Grid:
@@ -50,7 +58,9 @@ def grid_from_metadata(meta: BeliefGridMetaData) -> Grid:
     shape = (int(meta.size_x), int(meta.size_y), int(meta.size_theta))
     center = planar_from_msg(meta.origin)
     if not np.all(np.isfinite(spacing)) or np.any(spacing <= 0.0):
-        raise InvalidGrid(f"grid resolution must be finite and > 0, got (x, y, theta) = {spacing.tolist()}")
+        raise InvalidGrid(
+            f"grid resolution must be finite and > 0, got (x, y, theta) = {spacing.tolist()}"
+        )
     if min(shape) < 1:
         raise InvalidGrid(f"grid size must be >= 1 along every axis, got (x, y, theta) = {shape}")
     if not np.all(np.isfinite(center)):
@@ -58,11 +68,15 @@ def grid_from_metadata(meta: BeliefGridMetaData) -> Grid:
     return Grid(tuple(center.tolist()), tuple(spacing.tolist()), shape)
 
 
-def belief_to_msg(belief: Belief, stamp: Time, map_load_time: Time | None = None,
-                  frame_id: str = WORLD_FRAME) -> BeliefGrid:
+def belief_to_msg(
+    belief: Belief, stamp: Time, map_load_time: Time | None = None, frame_id: str = WORLD_FRAME
+) -> BeliefGrid:
     """A Belief → rrg_msgs/BeliefGrid stamped ``stamp`` (also the metadata's update time)."""
-    msg = BeliefGrid(metadata=grid_to_metadata(belief.grid, map_load_time or stamp, stamp),
-                     argmax=planar_to_msg(belief.w_star()), mean=planar_to_msg(belief.mean()))
+    msg = BeliefGrid(
+        metadata=grid_to_metadata(belief.grid, map_load_time or stamp, stamp),
+        argmax=planar_to_msg(belief.w_star()),
+        mean=planar_to_msg(belief.mean()),
+    )
     msg.header.stamp, msg.header.frame_id = stamp, frame_id
     msg.weights = float64_array(belief.weights)
     msg.covariance = belief.cov().ravel()
@@ -72,18 +86,29 @@ def belief_to_msg(belief: Belief, stamp: Time, map_load_time: Time | None = None
 def belief_from_msg(msg: BeliefGrid) -> Belief:
     """rrg_msgs/BeliefGrid → Belief; raises InvalidGrid or InvalidBelief (with the reason)."""
     grid = grid_from_metadata(msg.metadata)
-    weights = np.frombuffer(msg.weights, dtype=np.float64) if isinstance(msg.weights, array.array) \
+    weights = (
+        np.frombuffer(msg.weights, dtype=np.float64)
+        if isinstance(msg.weights, array.array)
         else np.asarray(msg.weights, dtype=np.float64)
+    )
     if weights.size != grid.size:
-        raise InvalidBelief(f"belief has {weights.size} weights, its grid {grid.shape} needs {grid.size}")
+        raise InvalidBelief(
+            f"belief has {weights.size} weights, its grid {grid.shape} needs {grid.size}"
+        )
     try:
         return Belief(grid, weights)
     except ValueError as exc:
         raise InvalidBelief(str(exc)) from exc
 
 
-def belief_markers(belief: Belief, stamp: Time, count: int, max_diameter_m: float,
-                   frame_id: str = WORLD_FRAME, namespace: str = "belief") -> MarkerArray:
+def belief_markers(
+    belief: Belief,
+    stamp: Time,
+    count: int,
+    max_diameter_m: float,
+    frame_id: str = WORLD_FRAME,
+    namespace: str = "belief",
+) -> MarkerArray:
     """The ``count`` heaviest grid points as spheres on the table (z = 0) with volume ∝ weight
     (diameter ``max_diameter_m`` for the heaviest) and colour from blue (θ low) to red (θ high),
     after a DELETEALL that clears the previous set."""

@@ -16,6 +16,7 @@ caused. Every retreat gets a belief of its stamp, even one with nothing to apply
 observation that cannot be used (no belief yet, another object, an unknown WRT, a malformed
 or impossible observation) is logged as an error and the belief is kept.
 """
+
 from __future__ import annotations
 
 import sys
@@ -26,16 +27,16 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 from visualization_msgs.msg import MarkerArray
 
-from rrg_msgs.msg import BeliefGrid, Observation as ObservationMsg, Retreated
-from rrg_msgs.srv import GetBelief, ResetBelief
 from rrg_estimator.config import LEVELS
+from rrg_estimator.ros.belief_msgs import belief_markers, belief_to_msg
+from rrg_estimator.tracker import BeliefTracker, CachedTables
+from rrg_msgs.msg import BeliefGrid, Retreated
+from rrg_msgs.msg import Observation as ObservationMsg
+from rrg_msgs.srv import GetBelief, ResetBelief
+from rrg_sim.objects import get_object
 from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, observation_from_msg, planar_from_msg
 from rrg_sim.ros_common.node_main import keep_serving, run_node
 from rrg_sim.ros_common.qos import LATCHED
-
-from rrg_estimator.tracker import BeliefTracker, CachedTables
-from rrg_sim.objects import get_object
-from rrg_estimator.ros.belief_msgs import belief_markers, belief_to_msg
 
 NODE_NAME = "estimator"
 NAMESPACE = "rrg"
@@ -46,16 +47,36 @@ class EstimatorNode(Node):
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME, namespace=NAMESPACE)
-        self.declare_parameter("frame_id", WORLD_FRAME, ParameterDescriptor(
-            description="Frame of the belief's poses (the WAM base frame)", read_only=True))
-        self.declare_parameter("marker_count", 300, ParameterDescriptor(
-            description="Number of heaviest grid points drawn in /rrg/belief_markers",
-            integer_range=[IntegerRange(from_value=1, to_value=10000, step=1)]))
-        self.declare_parameter("marker_diameter", 0.02, ParameterDescriptor(
-            description="Diameter [m] of the sphere of the heaviest grid point",
-            floating_point_range=[FloatingPointRange(from_value=0.001, to_value=0.2)]))
-        self.declare_parameter("variable_resolution", True, ParameterDescriptor(
-            description="Re-grid the belief at the low level's spacing once it has concentrated"))
+        self.declare_parameter(
+            "frame_id",
+            WORLD_FRAME,
+            ParameterDescriptor(
+                description="Frame of the belief's poses (the WAM base frame)", read_only=True
+            ),
+        )
+        self.declare_parameter(
+            "marker_count",
+            300,
+            ParameterDescriptor(
+                description="Number of heaviest grid points drawn in /rrg/belief_markers",
+                integer_range=[IntegerRange(from_value=1, to_value=10000, step=1)],
+            ),
+        )
+        self.declare_parameter(
+            "marker_diameter",
+            0.02,
+            ParameterDescriptor(
+                description="Diameter [m] of the sphere of the heaviest grid point",
+                floating_point_range=[FloatingPointRange(from_value=0.001, to_value=0.2)],
+            ),
+        )
+        self.declare_parameter(
+            "variable_resolution",
+            True,
+            ParameterDescriptor(
+                description="Re-grid the belief at the low level's spacing once it has concentrated"
+            ),
+        )
         self.frame_id = self.get_parameter("frame_id").value
         self.tracker: BeliefTracker | None = None
         self._map_load_time = Time()
@@ -76,57 +97,84 @@ class EstimatorNode(Node):
         msg = belief_to_msg(belief, stamp, self._map_load_time, self.frame_id)
         self._belief_msg = msg
         self.belief_pub.publish(msg)
-        self.marker_pub.publish(belief_markers(
-            belief, stamp, self.get_parameter("marker_count").value,
-            self.get_parameter("marker_diameter").value, self.frame_id))
+        self.marker_pub.publish(
+            belief_markers(
+                belief,
+                stamp,
+                self.get_parameter("marker_count").value,
+                self.get_parameter("marker_diameter").value,
+                self.frame_id,
+            )
+        )
         return msg
 
     # ------------------------------------------------------------------ callbacks
     def on_observation(self, msg: ObservationMsg) -> None:
         log = self.get_logger()
         if self.tracker is None:
-            log.error(f"observation of {msg.object_name}/{msg.wrt_name} ignored: no belief yet (call reset_belief)")
+            log.error(
+                f"observation of {msg.object_name}/{msg.wrt_name} ignored: no belief yet (call reset_belief)"
+            )
             return
         if msg.object_name != self.tracker.obj.name:
-            log.error(f"observation of object {msg.object_name!r} ignored: the belief is about "
-                      f"{self.tracker.obj.name!r}; belief kept")
+            log.error(
+                f"observation of object {msg.object_name!r} ignored: the belief is about "
+                f"{self.tracker.obj.name!r}; belief kept"
+            )
             return
         old_grid = self.tracker.belief.grid
         try:
-            belief = self.tracker.update(msg.wrt_name, planar_from_msg(msg.estimate), observation_from_msg(msg))
+            belief = self.tracker.update(
+                msg.wrt_name, planar_from_msg(msg.estimate), observation_from_msg(msg)
+            )
         except KeyError as exc:
             log.error(f"observation ignored, unknown WRT: {exc.args[0]}; belief kept")
             return
-        except Exception as exc:  # noqa: BLE001 - e.g. an impossible observation (ValueError): keep serving
-            log.error(f"observation of {msg.wrt_name} ignored: {type(exc).__name__}: {exc}; belief kept")
+        except Exception as exc:
+            log.error(
+                f"observation of {msg.wrt_name} ignored: {type(exc).__name__}: {exc}; belief kept"
+            )
             return
         self.publish_belief(msg.header.stamp, belief.grid != old_grid)
-        log.info(f"updated with {msg.wrt_name} (contact={msg.contact}): w* = "
-                 f"{np.round(belief.w_star(), 3).tolist()}, grid spacing {belief.grid.spacing}")
+        log.info(
+            f"updated with {msg.wrt_name} (contact={msg.contact}): w* = "
+            f"{np.round(belief.w_star(), 3).tolist()}, grid spacing {belief.grid.spacing}"
+        )
 
     def on_retreated(self, msg: Retreated) -> None:
         if self.tracker is None:
-            self.get_logger().warn(f"retreat from {msg.object_name}/{msg.wrt_name} ignored: no belief yet")
+            self.get_logger().warn(
+                f"retreat from {msg.object_name}/{msg.wrt_name} ignored: no belief yet"
+            )
             return
         old_grid = self.tracker.belief.grid
         try:
             belief = self.tracker.retreated()
-        except Exception as exc:  # noqa: BLE001 - keep serving; the belief is kept
-            self.get_logger().error(f"retreat from {msg.wrt_name} not applied: {type(exc).__name__}: {exc}")
+        except Exception as exc:
+            self.get_logger().error(
+                f"retreat from {msg.wrt_name} not applied: {type(exc).__name__}: {exc}"
+            )
             belief = self.tracker.belief
         self.publish_belief(msg.header.stamp, belief.grid != old_grid)
-        self.get_logger().info(f"retreated from {msg.wrt_name or 'nothing'}: w* = "
-                               f"{np.round(belief.w_star(), 3).tolist()}, grid spacing {belief.grid.spacing}")
+        self.get_logger().info(
+            f"retreated from {msg.wrt_name or 'nothing'}: w* = "
+            f"{np.round(belief.w_star(), 3).tolist()}, grid spacing {belief.grid.spacing}"
+        )
 
     @keep_serving
-    def on_reset_belief(self, req: ResetBelief.Request, resp: ResetBelief.Response) -> ResetBelief.Response:
+    def on_reset_belief(
+        self, req: ResetBelief.Request, resp: ResetBelief.Response
+    ) -> ResetBelief.Response:
         sigma = np.array([req.sigma_x, req.sigma_y, req.sigma_theta])
         mean = planar_from_msg(req.mean)
         if req.level and req.level not in LEVELS:
             resp.error_code = ResetBelief.Response.UNKNOWN_LEVEL
             resp.error_msg = f"unknown level {req.level!r}; valid: {sorted(LEVELS)} or empty"
         elif not np.all(np.isfinite(mean)):
-            resp.error_code, resp.error_msg = ResetBelief.Response.INVALID_MEAN, f"mean must be finite, got {mean.tolist()}"
+            resp.error_code, resp.error_msg = (
+                ResetBelief.Response.INVALID_MEAN,
+                f"mean must be finite, got {mean.tolist()}",
+            )
         elif not (np.all(np.isfinite(sigma)) and np.all(sigma > 0.0)):
             resp.error_code = ResetBelief.Response.INVALID_SIGMA
             resp.error_msg = f"sigma (x, y, theta) must be finite and > 0, got {sigma.tolist()}"
@@ -135,16 +183,26 @@ class EstimatorNode(Node):
                 obj = get_object(req.object_name)
                 # workers=1: no fork from a process running DDS threads (tables are normally cached)
                 tracker = BeliefTracker.gaussian(
-                    obj, mean, sigma, LEVELS.get(req.level), tables=CachedTables(obj, workers=1),
-                    variable_resolution=self.get_parameter("variable_resolution").value)
+                    obj,
+                    mean,
+                    sigma,
+                    LEVELS.get(req.level),
+                    tables=CachedTables(obj, workers=1),
+                    variable_resolution=self.get_parameter("variable_resolution").value,
+                )
             except KeyError as exc:
-                resp.error_code, resp.error_msg = ResetBelief.Response.UNKNOWN_OBJECT, str(exc.args[0])
+                resp.error_code, resp.error_msg = (
+                    ResetBelief.Response.UNKNOWN_OBJECT,
+                    str(exc.args[0]),
+                )
             else:
                 tracker.preload()
                 self.tracker = tracker
                 resp.belief = self.publish_belief(self.get_clock().now().to_msg(), new_grid=True)
-                self.get_logger().info(f"belief reset: {req.object_name} at {np.round(mean, 3).tolist()}, "
-                                       f"sigma {np.round(sigma, 3).tolist()}, grid {tracker.belief.grid.spacing}")
+                self.get_logger().info(
+                    f"belief reset: {req.object_name} at {np.round(mean, 3).tolist()}, "
+                    f"sigma {np.round(sigma, 3).tolist()}, grid {tracker.belief.grid.spacing}"
+                )
                 return resp
         self.get_logger().error(f"reset_belief refused: {resp.error_msg}")
         return resp
@@ -152,7 +210,10 @@ class EstimatorNode(Node):
     @keep_serving
     def on_get_belief(self, req: GetBelief.Request, resp: GetBelief.Response) -> GetBelief.Response:
         if self._belief_msg is None:
-            resp.error_code, resp.error_msg = GetBelief.Response.NO_BELIEF, "no belief yet: call reset_belief first"
+            resp.error_code, resp.error_msg = (
+                GetBelief.Response.NO_BELIEF,
+                "no belief yet: call reset_belief first",
+            )
             return resp
         resp.object_name, resp.belief = self.tracker.obj.name, self._belief_msg
         return resp

@@ -7,14 +7,14 @@
 The bag may be given as its folder or as its ``.mcap`` file. A bag whose recorder was killed
 before it could write the MCAP summary is read by scanning its records instead.
 """
+
 from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import dataclass, field
-from datetime import datetime, timezone
 from pathlib import Path
-from typing import Iterator
+
+from mcap.exceptions import McapError
 
 from rrg_planner.bags.bag_info import bag_info, format_info
 
@@ -25,11 +25,17 @@ def build_parser() -> argparse.ArgumentParser:
     info = commands.add_parser("info", help="topics, types, message counts and duration")
     info.add_argument("bag", type=Path, help="bag folder (bags/NAME) or its .mcap file")
     info.set_defaults(run=lambda a: print(format_info(bag_info(a.bag))))
-    plot = commands.add_parser("plot", help="PNGs of the belief over the actions (x-y and theta marginals)")
+    plot = commands.add_parser(
+        "plot", help="PNGs of the belief over the actions (x-y and theta marginals)"
+    )
     plot.add_argument("bag", type=Path, help="bag folder (bags/NAME) or its .mcap file")
-    plot.add_argument("--out", type=Path, default=None, help="output folder (default: <bag>_plots beside the bag)")
+    plot.add_argument(
+        "--out", type=Path, default=None, help="output folder (default: <bag>_plots beside the bag)"
+    )
     plot.set_defaults(run=run_plot)
-    summary = commands.add_parser("summary", help="actions, observations, P(goal) per step and outcome")
+    summary = commands.add_parser(
+        "summary", help="actions, observations, P(goal) per step and outcome"
+    )
     summary.add_argument("bag", type=Path, help="bag folder (bags/NAME) or its .mcap file")
     summary.set_defaults(run=run_summary)
     return parser

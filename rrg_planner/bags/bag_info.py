@@ -4,10 +4,10 @@ complete records."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
-from typing import Iterator
 
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
@@ -57,9 +57,12 @@ def find_mcap(bag: Path) -> Path:
 
 
 def _topics(channels: dict[int, Channel], schemas: dict[int, Schema]) -> dict[int, TopicSummary]:
-    return {cid: TopicSummary(c.topic, schemas[c.schema_id].name if c.schema_id in schemas else "",
-                              c.message_encoding)
-            for cid, c in channels.items()}
+    return {
+        cid: TopicSummary(
+            c.topic, schemas[c.schema_id].name if c.schema_id in schemas else "", c.message_encoding
+        )
+        for cid, c in channels.items()
+    }
 
 
 def complete_records(path: Path) -> Iterator[object]:
@@ -120,7 +123,7 @@ def bag_info(bag: str | Path) -> BagInfo:
 
 
 def _time(ns: int) -> str:
-    return datetime.fromtimestamp(ns / 1e9, tz=timezone.utc).isoformat(timespec="milliseconds")
+    return datetime.fromtimestamp(ns / 1e9, tz=UTC).isoformat(timespec="milliseconds")
 
 
 def format_info(info: BagInfo) -> str:
@@ -133,12 +136,16 @@ def format_info(info: BagInfo) -> str:
         f"Duration:   {info.duration_s:.3f} s",
     ]
     if info.message_count:
-        lines += [f"Start:      {_time(info.start_ns)} ({info.start_ns})",
-                  f"End:        {_time(info.end_ns)} ({info.end_ns})"]
+        lines += [
+            f"Start:      {_time(info.start_ns)} ({info.start_ns})",
+            f"End:        {_time(info.end_ns)} ({info.end_ns})",
+        ]
     lines.append(f"Messages:   {info.message_count}")
     lines.append(f"Topics:     {len(info.topics)}")
     width = max((len(t.name) for t in info.topics), default=0)
     type_width = max((len(t.type) for t in info.topics), default=0)
     for t in sorted(info.topics, key=lambda t: t.name):
-        lines.append(f"  {t.name:<{width}}  {t.type:<{type_width}}  {t.count:>7}  {t.message_encoding}")
+        lines.append(
+            f"  {t.name:<{width}}  {t.type:<{type_width}}  {t.count:>7}  {t.message_encoding}"
+        )
     return "\n".join(lines)

@@ -5,6 +5,7 @@ with the x–y marginal as a heat map and the θ marginal below it; the object's
 ``/rrg/eval/object_pose``, simulation only) is marked where the bag has it, and so is w*(b).
 Writes one PNG per belief and an overview PNG with all of them side by side.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -13,15 +14,19 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from scipy.spatial.transform import Rotation  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from scipy.spatial.transform import Rotation
 
-from rrg_estimator.belief import Belief  # noqa: E402
-from rrg_estimator.ros.belief_msgs import belief_from_msg  # noqa: E402
-from rrg_sim.poses import wrap_angle  # noqa: E402
-
-from rrg_planner.bags.bag_read import BELIEF_TOPIC, OBSERVATION_TOPIC, TRUE_POSE_TOPIC, read_messages  # noqa: E402
+from rrg_estimator.belief import Belief
+from rrg_estimator.ros.belief_msgs import belief_from_msg
+from rrg_planner.bags.bag_read import (
+    BELIEF_TOPIC,
+    OBSERVATION_TOPIC,
+    TRUE_POSE_TOPIC,
+    read_messages,
+)
+from rrg_sim.poses import wrap_angle
 
 
 @dataclass
@@ -62,8 +67,14 @@ def draw_belief(ax_xy, ax_theta, frame: BeliefFrame, title: str) -> None:
     ax, ay, at = b.grid.axes()
     dx, dy, _ = b.grid.spacing
     extent = np.array([ax[0] - dx / 2, ax[-1] + dx / 2, ay[0] - dy / 2, ay[-1] + dy / 2]) * 100
-    ax_xy.imshow(b.marginal_xy().T, origin="lower", extent=extent, cmap="viridis", aspect="equal",
-                 interpolation="nearest")
+    ax_xy.imshow(
+        b.marginal_xy().T,
+        origin="lower",
+        extent=extent,
+        cmap="viridis",
+        aspect="equal",
+        interpolation="nearest",
+    )
     w_star = b.w_star()
     ax_xy.plot(w_star[0] * 100, w_star[1] * 100, "wx", ms=8, mew=2, label="w*(b)")
     theta_deg = np.degrees(at)
@@ -97,8 +108,13 @@ def plot_bag(bag: str | Path, out_dir: str | Path) -> list[Path]:
         fig.savefig(path, dpi=100)
         plt.close(fig)
         written.append(path)
-    fig, axes = plt.subplots(2, len(frames), figsize=(3.2 * len(frames), 5.5), squeeze=False,
-                             gridspec_kw={"height_ratios": [3, 1]})
+    fig, axes = plt.subplots(
+        2,
+        len(frames),
+        figsize=(3.2 * len(frames), 5.5),
+        squeeze=False,
+        gridspec_kw={"height_ratios": [3, 1]},
+    )
     for k, frame in enumerate(frames):
         draw_belief(axes[0, k], axes[1, k], frame, f"{k}: {frame.label}")
     fig.suptitle(f"Belief over the actions: {Path(bag).name}")

@@ -4,11 +4,13 @@ Messages are decoded with rclpy's own deserializer into the generated Python cla
 bag tools work with the same types as the nodes. A bag whose recorder was killed before it
 wrote the MCAP summary is read by scanning its records up to where the file ends.
 """
+
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any
 
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
@@ -26,9 +28,13 @@ class BagMessage:
     msg: Any
 
 
-def _raw_finalized(path: Path, topics: set[str] | None) -> Iterator[tuple[Schema, Channel, Message]]:
+def _raw_finalized(
+    path: Path, topics: set[str] | None
+) -> Iterator[tuple[Schema, Channel, Message]]:
     with path.open("rb") as f:
-        yield from make_reader(f).iter_messages(topics=sorted(topics) if topics else None, log_time_order=True)
+        yield from make_reader(f).iter_messages(
+            topics=sorted(topics) if topics else None, log_time_order=True
+        )
 
 
 def _raw_scanned(path: Path, topics: set[str] | None) -> Iterator[tuple[Schema, Channel, Message]]:
@@ -64,7 +70,9 @@ def read_messages(bag: str | Path, topics: Iterable[str] | None = None) -> Itera
     raw = _raw_finalized if is_finalized(path) else _raw_scanned
     classes: dict[str, type] = {}
     for schema, channel, message in raw(path, wanted):
-        cls = classes.get(schema.name) or classes.setdefault(schema.name, message_class(schema.name))
+        cls = classes.get(schema.name) or classes.setdefault(
+            schema.name, message_class(schema.name)
+        )
         yield BagMessage(channel.topic, message.log_time, deserialize_message(message.data, cls))
 
 

@@ -6,24 +6,39 @@ line spells the type as a ``.msg`` field does (``std_msgs/Header``, not
 ``std_msgs/msg/Header``): Foxglove's reader rejects the long form. The ``.msg`` files are read
 from ``<prefix>/share/<pkg>/msg/`` of each ament prefix (the venv itself for the pip wheels).
 """
+
 from __future__ import annotations
 
 import importlib
-
 import os
 import re
 import sys
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 SCHEMA_ENCODING = "ros2msg"
 SEPARATOR = "=" * 80
 
 #: Built-in field types of the .msg format (ROS 2 design "Interface definition").
-PRIMITIVE_TYPES = frozenset({
-    "bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16",
-    "int32", "uint32", "int64", "uint64", "string", "wstring",
-})
+PRIMITIVE_TYPES = frozenset(
+    {
+        "bool",
+        "byte",
+        "char",
+        "float32",
+        "float64",
+        "int8",
+        "uint8",
+        "int16",
+        "uint16",
+        "int32",
+        "uint32",
+        "int64",
+        "uint64",
+        "string",
+        "wstring",
+    }
+)
 
 _ARRAY_SUFFIX = re.compile(r"\[[^\]]*\]$")
 _STRING_BOUND = re.compile(r"<=\d+$")
@@ -50,7 +65,7 @@ def split_type_name(type_name: str) -> tuple[str, str]:
     raise ValueError(f"not a message type name: {type_name!r} (expected pkg/msg/Type)")
 
 
-@lru_cache(maxsize=None)
+@cache
 def msg_text(package: str, name: str) -> str:
     """The ``.msg`` definition of ``package/name``, without trailing whitespace."""
     for prefix in ament_prefixes():
@@ -58,7 +73,8 @@ def msg_text(package: str, name: str) -> str:
         if path.is_file():
             return path.read_text(encoding="utf-8").rstrip()
     raise UnknownMessageType(
-        f"no {package}/msg/{name}.msg under {[str(p) for p in ament_prefixes()]}")
+        f"no {package}/msg/{name}.msg under {[str(p) for p in ament_prefixes()]}"
+    )
 
 
 def field_types(package: str, text: str) -> list[tuple[str, str]]:
@@ -75,7 +91,7 @@ def field_types(package: str, text: str) -> list[tuple[str, str]]:
     return nested
 
 
-@lru_cache(maxsize=None)
+@cache
 def full_definition(type_name: str) -> str:
     """The ros2msg schema data of ``type_name`` (``pkg/msg/Type``) with every nested type."""
     package, name = split_type_name(type_name)

@@ -4,6 +4,7 @@ From the planner's decisions (``/rrg/grasp_step``), the executor's observations
 (``/rrg/observation``) and the simulator's judgement (``/rrg/eval/grasp_outcome``, when the
 launcher asked for one).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -11,10 +12,14 @@ from pathlib import Path
 
 import numpy as np
 
+from rrg_planner.bags.bag_read import (
+    BELIEF_TOPIC,
+    GRASP_OUTCOME_TOPIC,
+    GRASP_STEP_TOPIC,
+    OBSERVATION_TOPIC,
+    read_messages,
+)
 from rrg_sim.config import SENSOR_NAMES
-
-from rrg_planner.bags.bag_read import (BELIEF_TOPIC, GRASP_OUTCOME_TOPIC, GRASP_STEP_TOPIC, OBSERVATION_TOPIC,
-                                       read_messages)
 
 
 @dataclass
@@ -47,25 +52,47 @@ class GraspSummary:
 def summarize(bag: str | Path) -> GraspSummary:
     """The last robust grasp recorded in a bag."""
     s = GraspSummary()
-    for m in read_messages(bag, {GRASP_STEP_TOPIC, OBSERVATION_TOPIC, GRASP_OUTCOME_TOPIC, BELIEF_TOPIC}):
+    for m in read_messages(
+        bag, {GRASP_STEP_TOPIC, OBSERVATION_TOPIC, GRASP_OUTCOME_TOPIC, BELIEF_TOPIC}
+    ):
         if m.topic == BELIEF_TOPIC:
             s.beliefs += 1
         elif m.topic == GRASP_STEP_TOPIC:
             r = m.msg
             estimate = [r.estimate.x, r.estimate.y, r.estimate.theta]
-            if r.event == r.EVENT_INFEASIBLE:  # the last chosen step did not move: the planner chose again
+            if (
+                r.event == r.EVENT_INFEASIBLE
+            ):  # the last chosen step did not move: the planner chose again
                 if s.steps and s.steps[-1].wrt == r.wrt_name and s.steps[-1].contact is None:
                     s.steps.pop()
-                s.replanned.append(f"step {r.step}: {r.wrt_name} infeasible at e = {np.round(estimate, 4).tolist()}")
+                s.replanned.append(
+                    f"step {r.step}: {r.wrt_name} infeasible at e = {np.round(estimate, 4).tolist()}"
+                )
             elif r.event == r.EVENT_DECISION:
-                if s.planner_outcome:  # a step after a finished grasp: a new grasp, keep only the last
+                if (
+                    s.planner_outcome
+                ):  # a step after a finished grasp: a new grasp, keep only the last
                     s.steps, s.replanned, s.planner_outcome, s.judged_outcome = [], [], {}, {}
                 s.object_name, s.strategy = r.object_name, r.strategy
-                s.steps.append(StepSummary(int(r.step), r.wrt_name, r.wrt_kind, estimate, r.p_goal, r.value,
-                                           r.planning_time))
+                s.steps.append(
+                    StepSummary(
+                        int(r.step),
+                        r.wrt_name,
+                        r.wrt_kind,
+                        estimate,
+                        r.p_goal,
+                        r.value,
+                        r.planning_time,
+                    )
+                )
             else:
-                s.planner_outcome = dict(success=r.success, p_goal=r.final_p_goal, actions=list(r.actions_taken),
-                                         error_code=r.error_code, error_msg=r.error_msg)
+                s.planner_outcome = dict(
+                    success=r.success,
+                    p_goal=r.final_p_goal,
+                    actions=list(r.actions_taken),
+                    error_code=r.error_code,
+                    error_msg=r.error_msg,
+                )
         elif m.topic == OBSERVATION_TOPIC:
             pending = [st for st in s.steps if st.contact is None and st.wrt == m.msg.wrt_name]
             if pending:
@@ -74,32 +101,47 @@ def summarize(bag: str | Path) -> GraspSummary:
                 st.sensors = [n for n, on in zip(SENSOR_NAMES, m.msg.sensors) if on]
         elif m.topic == GRASP_OUTCOME_TOPIC:
             o = m.msg
-            s.judged_outcome = dict(success=o.success, in_region=o.in_region, held=o.held,
-                                    offset=[o.offset.x, o.offset.y, o.offset.theta], message=o.message)
+            s.judged_outcome = dict(
+                success=o.success,
+                in_region=o.in_region,
+                held=o.held,
+                offset=[o.offset.x, o.offset.y, o.offset.theta],
+                message=o.message,
+            )
     return s
 
 
 def format_summary(s: GraspSummary) -> str:
     if not s.steps:
         return "no robust grasp recorded in this bag"
-    lines = [f"Object:    {s.object_name}", f"Strategy:  {s.strategy}",
-             f"Actions:   {len(s.steps)} ({', '.join(st.wrt for st in s.steps)})",
-             f"Beliefs:   {s.beliefs} published", ""]
+    lines = [
+        f"Object:    {s.object_name}",
+        f"Strategy:  {s.strategy}",
+        f"Actions:   {len(s.steps)} ({', '.join(st.wrt for st in s.steps)})",
+        f"Beliefs:   {s.beliefs} published",
+        "",
+    ]
     for st in s.steps:
         e = np.round(st.estimate, 3).tolist()
-        lines.append(f"step {st.step}: {st.wrt:<13} ({st.kind}) at e = {e}   P(goal) = {st.p_goal:.3f}   "
-                     f"value = {st.value:.3f}   planned in {st.planning_time_s * 1e3:.0f} ms")
+        lines.append(
+            f"step {st.step}: {st.wrt:<13} ({st.kind}) at e = {e}   P(goal) = {st.p_goal:.3f}   "
+            f"value = {st.value:.3f}   planned in {st.planning_time_s * 1e3:.0f} ms"
+        )
         if st.contact is None:
             lines.append("        observation: none recorded")
         else:
-            lines.append(f"        observation: contact = {'yes' if st.contact else 'no'}, "
-                         f"progress = {st.progress_m:.3f} m, sensors = {st.sensors or 'none'}")
+            lines.append(
+                f"        observation: contact = {'yes' if st.contact else 'no'}, "
+                f"progress = {st.progress_m:.3f} m, sensors = {st.sensors or 'none'}"
+            )
     lines.append("")
     lines += [f"Replanned: {r} (nothing moved)" for r in s.replanned]
     if s.planner_outcome:
         o = s.planner_outcome
-        lines.append(f"Planner:   success = {o['success']}, final P(goal) = {o['p_goal']:.3f}"
-                     + (f", error {o['error_code']}: {o['error_msg']}" if o["error_code"] else ""))
+        lines.append(
+            f"Planner:   success = {o['success']}, final P(goal) = {o['p_goal']:.3f}"
+            + (f", error {o['error_code']}: {o['error_msg']}" if o["error_code"] else "")
+        )
     else:
         lines.append("Planner:   no outcome recorded (interrupted?)")
     if s.judged_outcome:

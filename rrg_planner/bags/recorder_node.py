@@ -10,27 +10,27 @@ are captured even when they were published before the recorder saw them. Hidden 
 name part starting with ``_``, e.g. actions' internal topics) are skipped, as ``ros2 bag record
 --all`` does. SIGINT, SIGTERM or Ctrl-C stop it, and the bag is always finalized.
 """
+
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
 import time
 from pathlib import Path
 
 import rclpy
 import rclpy.logging
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.subscription import Subscription
 from rclpy.topic_endpoint_info import TopicEndpointInfo
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.utilities import remove_ros_args
 
-from rrg_planner.bags.bag_writer import Rosbag2McapWriter
 from rrg_planner.bags.bag_schema import UnknownMessageType, message_class
+from rrg_planner.bags.bag_writer import Rosbag2McapWriter
 
 NODE_NAME = "rrg_bag_recorder"
 
@@ -78,12 +78,22 @@ class BagRecorder(Node):
 
     def __init__(self, writer: Rosbag2McapWriter) -> None:
         super().__init__(NODE_NAME)
-        self.declare_parameter("discovery_period", 0.2, ParameterDescriptor(
-            description="Period [s] of the poll for new topics",
-            floating_point_range=[FloatingPointRange(from_value=0.05, to_value=10.0)]))
-        self.declare_parameter("qos_depth", 1000, ParameterDescriptor(
-            description="History depth of each subscription (messages queued per topic)",
-            integer_range=[IntegerRange(from_value=1, to_value=10000)]))
+        self.declare_parameter(
+            "discovery_period",
+            0.2,
+            ParameterDescriptor(
+                description="Period [s] of the poll for new topics",
+                floating_point_range=[FloatingPointRange(from_value=0.05, to_value=10.0)],
+            ),
+        )
+        self.declare_parameter(
+            "qos_depth",
+            1000,
+            ParameterDescriptor(
+                description="History depth of each subscription (messages queued per topic)",
+                integer_range=[IntegerRange(from_value=1, to_value=10000)],
+            ),
+        )
         self._depth = self.get_parameter("qos_depth").value
         self.writer = writer
         self._recorded: dict[str, Subscription] = {}
@@ -107,15 +117,20 @@ class BagRecorder(Node):
     def _subscribe(self, topic: str, msg_type: str, publishers: list[TopicEndpointInfo]) -> None:
         try:
             cls = message_class(msg_type)
-            self.writer.add_topic(topic, msg_type, [qos_to_dict(p.qos_profile) for p in publishers],
-                                  str(publishers[0].topic_type_hash))
+            self.writer.add_topic(
+                topic,
+                msg_type,
+                [qos_to_dict(p.qos_profile) for p in publishers],
+                str(publishers[0].topic_type_hash),
+            )
         except (ImportError, AttributeError, ValueError, UnknownMessageType) as exc:
             self.get_logger().error(f"not recording {topic} ({msg_type}): {exc}")
             self._skipped.add(topic)
             return
         qos = subscription_qos(publishers, self._depth)
         self._recorded[topic] = self.create_subscription(
-            cls, topic, lambda data, info, t=topic: self._on_message(t, data, info), qos, raw=True)
+            cls, topic, lambda data, info, t=topic: self._on_message(t, data, info), qos, raw=True
+        )
         self.get_logger().info(f"recording {topic} [{msg_type}] ({qos.durability.name.lower()})")
 
     def _on_message(self, topic: str, data: bytes, info: dict) -> None:
@@ -124,10 +139,17 @@ class BagRecorder(Node):
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m rrg_planner.bags.recorder_node",
-                                     description="Record every topic into a rosbag2-layout MCAP bag.")
-    parser.add_argument("--output", "-o", required=True, type=Path,
-                        help="bag folder to create (e.g. bags/NAME); must not exist")
+    parser = argparse.ArgumentParser(
+        prog="python -m rrg_planner.bags.recorder_node",
+        description="Record every topic into a rosbag2-layout MCAP bag.",
+    )
+    parser.add_argument(
+        "--output",
+        "-o",
+        required=True,
+        type=Path,
+        help="bag folder to create (e.g. bags/NAME); must not exist",
+    )
     return parser.parse_args(remove_ros_args(argv)[1:])
 
 
@@ -156,7 +178,8 @@ def main(argv: list[str] | None = None) -> int:
         s = writer.stats
         rclpy.logging.get_logger(NODE_NAME).info(
             f"bag closed: {writer.bag_dir} ({s.message_count} messages on "
-            f"{len(writer.topics)} topics, {s.duration_ns / 1e9:.3f} s)")
+            f"{len(writer.topics)} topics, {s.duration_ns / 1e9:.3f} s)"
+        )
         rclpy.try_shutdown()
     return 0
 

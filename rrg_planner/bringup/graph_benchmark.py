@@ -14,6 +14,7 @@
 With ``--json`` the last line is one JSON object: ``select_overhead_ms``,
 ``launch_to_first_action_s`` and the figures behind them.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -43,8 +44,13 @@ def select_overhead(graph, object_name: str, level: str, horizon: int, calls: in
 
     mean = np.asarray(WORLD.nominal_pose)
     belief = Belief.for_level(LEVELS[level], mean)
-    req = SelectAction.Request(belief=belief_to_msg(belief, Time()), object_name=object_name,
-                               strategy="rrg-info", horizon=horizon, delta=0.1)
+    req = SelectAction.Request(
+        belief=belief_to_msg(belief, Time()),
+        object_name=object_name,
+        strategy="rrg-info",
+        horizon=horizon,
+        delta=0.1,
+    )
     client = graph.clients["/rrg/select_action"]
     rtt, plan = [], []
     for i in range(calls + 5):  # 5 warm-up calls
@@ -57,10 +63,14 @@ def select_overhead(graph, object_name: str, level: str, horizon: int, calls: in
             rtt.append(dt)
             plan.append(resp.planning_time)
     over = np.asarray(rtt) - np.asarray(plan)
-    return {"select_rtt_ms": statistics.median(rtt) * 1e3, "select_planning_ms": statistics.median(plan) * 1e3,
-            "select_overhead_ms": float(np.median(over)) * 1e3,
-            "select_overhead_p90_ms": float(np.percentile(over, 90)) * 1e3, "select_calls": calls,
-            "belief_points": belief.grid.size}
+    return {
+        "select_rtt_ms": statistics.median(rtt) * 1e3,
+        "select_planning_ms": statistics.median(plan) * 1e3,
+        "select_overhead_ms": float(np.median(over)) * 1e3,
+        "select_overhead_p90_ms": float(np.percentile(over, 90)) * 1e3,
+        "select_calls": calls,
+        "belief_points": belief.grid.size,
+    }
 
 
 def first_action(graph, object_name: str, level: str, horizon: int) -> float:
@@ -69,14 +79,26 @@ def first_action(graph, object_name: str, level: str, horizon: int) -> float:
     from rrg_msgs.srv import ResetSim
     from rrg_sim.ros_common.msg_conversions import planar_to_msg
 
-    reset = graph.result(graph.clients["/rrg/reset_sim"].call_async(
-        ResetSim.Request(object_name=object_name, pose=planar_to_msg(WORLD.nominal_pose))), 60.0, "reset_sim")
+    reset = graph.result(
+        graph.clients["/rrg/reset_sim"].call_async(
+            ResetSim.Request(object_name=object_name, pose=planar_to_msg(WORLD.nominal_pose))
+        ),
+        60.0,
+        "reset_sim",
+    )
     if reset.error_code != ResetSim.Response.NONE:
         raise RuntimeError(f"reset_sim failed: {reset.error_msg}")
     first: list[float] = []
-    goal = RobustGrasp.Goal(object_name=object_name, level=level, strategy="rrg-info", horizon=horizon, delta=0.1)
-    handle = graph.result(graph.actions["/rrg/robust_grasp"].send_goal_async(
-        goal, feedback_callback=lambda _: first.append(time.monotonic())), 30.0, "robust_grasp")
+    goal = RobustGrasp.Goal(
+        object_name=object_name, level=level, strategy="rrg-info", horizon=horizon, delta=0.1
+    )
+    handle = graph.result(
+        graph.actions["/rrg/robust_grasp"].send_goal_async(
+            goal, feedback_callback=lambda _: first.append(time.monotonic())
+        ),
+        30.0,
+        "robust_grasp",
+    )
     graph.spin_until(lambda: bool(first), 600.0, "the first action")
     graph.result(handle.cancel_goal_async(), 30.0, "the cancellation")
     graph.result(handle.get_result_async(), 600.0, "the cancelled grasp")
@@ -86,19 +108,32 @@ def first_action(graph, object_name: str, level: str, horizon: int) -> float:
 def bench_ros(argv: list[str]) -> int:
     from rrg_planner.bringup.launch import Graph, ros_environment, warm_tables
 
-    ap = argparse.ArgumentParser(prog="rrg-bench ros", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="rrg-bench ros",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     ap.add_argument("--object", default="powerdrill")
     ap.add_argument("--level", default="high", choices=sorted(LEVELS))
-    ap.add_argument("--horizon", type=int, default=1, choices=(1, 2, 3), help="H of the timed select-action calls")
+    ap.add_argument(
+        "--horizon",
+        type=int,
+        default=1,
+        choices=(1, 2, 3),
+        help="H of the timed select-action calls",
+    )
     ap.add_argument("--calls", type=int, default=200)
     ap.add_argument("--domain-id", type=int, default=97)
-    ap.add_argument("--json", action="store_true", help="print the figures as JSON on the last line")
+    ap.add_argument(
+        "--json", action="store_true", help="print the figures as JSON on the last line"
+    )
     args = ap.parse_args(argv)
 
     warm_tables(args.object, LEVEL_NAMES)  # not part of the launch time: built once, then cached
 
-    def terminate(signum, _frame):  # SIGTERM stops the graph like Ctrl-C (set after the table workers exist)
+    def terminate(
+        signum, _frame
+    ):  # SIGTERM stops the graph like Ctrl-C (set after the table workers exist)
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, terminate)
@@ -115,15 +150,25 @@ def bench_ros(argv: list[str]) -> int:
         finally:
             graph.disconnect()
             graph.stop()
-    out = {"select_overhead_ms": sel["select_overhead_ms"], "launch_to_first_action_s": launch_s,
-           "graph_ready_s": ready_s, **{k: v for k, v in sel.items() if k != "select_overhead_ms"},
-           "object": args.object, "level": args.level, "horizon": args.horizon}
+    out = {
+        "select_overhead_ms": sel["select_overhead_ms"],
+        "launch_to_first_action_s": launch_s,
+        "graph_ready_s": ready_s,
+        **{k: v for k, v in sel.items() if k != "select_overhead_ms"},
+        "object": args.object,
+        "level": args.level,
+        "horizon": args.horizon,
+    }
     print("\n| figure | value | target |")
     print("|---|---|---|")
-    print(f"| select-action overhead (median of {args.calls}, {sel['belief_points']}-point belief in the request) "
-          f"| {sel['select_overhead_ms']:.2f} ms | ≤ {SELECT_TARGET_MS:.0f} ms |")
-    print(f"| select-action round trip / core planning time (H={args.horizon}) | {sel['select_rtt_ms']:.1f} ms / "
-          f"{sel['select_planning_ms']:.1f} ms | – |")
+    print(
+        f"| select-action overhead (median of {args.calls}, {sel['belief_points']}-point belief in the request) "
+        f"| {sel['select_overhead_ms']:.2f} ms | ≤ {SELECT_TARGET_MS:.0f} ms |"
+    )
+    print(
+        f"| select-action round trip / core planning time (H={args.horizon}) | {sel['select_rtt_ms']:.1f} ms / "
+        f"{sel['select_planning_ms']:.1f} ms | – |"
+    )
     print(f"| launch → graph ready | {ready_s:.1f} s | – |")
     print(f"| launch → first action ({args.object}, {args.level}) | {launch_s:.1f} s | – |")
     if args.json:

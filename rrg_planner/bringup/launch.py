@@ -19,6 +19,7 @@ the bag in ``bags/<name>/`` is always finalized.
 Exit status: 0 when the graph ran (and the grasp, if asked for, was executed and judged,
 whatever its outcome), 1 on an error, 2 on a usage error (e.g. ``--mode hw``).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -28,20 +29,20 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from datetime import datetime
 from pathlib import Path
-from typing import Callable, TextIO
+from typing import TextIO
 
 import numpy as np
 
 from rrg_estimator.config import LEVELS
 from rrg_planner.config import SEARCH
+from rrg_planner.requests import STRATEGIES
 from rrg_sim.config import WORLD
 from rrg_sim.objects import OBJECT_NAMES
 from rrg_sim.poses import compose_planar
-
-from rrg_planner.requests import STRATEGIES
 
 ROOT = Path(__file__).resolve().parents[2]
 RECORDER = "rrg_bag_recorder"
@@ -62,8 +63,15 @@ NODES = {
     "planner": "rrg_planner.ros.planner_node",
 }
 #: What must answer before the graph counts as ready.
-SERVICES = ("/rrg/reset_sim", "/rrg/hand_command", "/rrg/eval/judge_grasp", "/rrg/retreat",
-            "/rrg/reset_belief", "/rrg/get_belief", "/rrg/select_action")
+SERVICES = (
+    "/rrg/reset_sim",
+    "/rrg/hand_command",
+    "/rrg/eval/judge_grasp",
+    "/rrg/retreat",
+    "/rrg/reset_belief",
+    "/rrg/get_belief",
+    "/rrg/select_action",
+)
 ACTIONS = ("/rrg/guarded_move", "/rrg/execute_wrt", "/rrg/robust_grasp")
 
 
@@ -98,8 +106,12 @@ class Child:
 
 def ros_environment(domain_id: int) -> dict[str, str]:
     """The children's environment: loopback discovery in the given DDS domain."""
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               PYTHONUNBUFFERED="1")
+    env = dict(
+        os.environ,
+        ROS_DOMAIN_ID=str(domain_id),
+        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+        PYTHONUNBUFFERED="1",
+    )
     env.pop("ROS_LOCALHOST_ONLY", None)  # deprecated; the discovery range replaces it
     env.setdefault("AMENT_PREFIX_PATH", sys.prefix)
     return env
@@ -136,23 +148,50 @@ class Graph:
             self.log_dir.mkdir(parents=True, exist_ok=True)
             log = (self.log_dir / f"{name}.log").open("w")
         # Own session: a terminal's Ctrl-C reaches only the launcher, which stops the children in order.
-        proc = subprocess.Popen([sys.executable, *args], env=self.env, cwd=ROOT, start_new_session=True,
-                                stdout=log or sys.stderr, stderr=subprocess.STDOUT)
+        proc = subprocess.Popen(
+            [sys.executable, *args],
+            env=self.env,
+            cwd=ROOT,
+            start_new_session=True,
+            stdout=log or sys.stderr,
+            stderr=subprocess.STDOUT,
+        )
         self.children.append(Child(name, proc, log))
 
-    def start(self, object_name: str, levels: list[str], seed: int, real_time_factor: float,
-              sensor_noise: float = 1.0) -> None:
+    def start(
+        self,
+        object_name: str,
+        levels: list[str],
+        seed: int,
+        real_time_factor: float,
+        sensor_noise: float = 1.0,
+    ) -> None:
         """Start the recorder (if recording) and the four nodes (the launch time counts from here)."""
         self.started = time.monotonic()
         if self.bag_dir is not None:
-            self.spawn("recorder", ["-m", "rrg_planner.bags.recorder_node", "--output", str(self.bag_dir),
-                                    *ros_args({"discovery_period": 0.1})])
+            self.spawn(
+                "recorder",
+                [
+                    "-m",
+                    "rrg_planner.bags.recorder_node",
+                    "--output",
+                    str(self.bag_dir),
+                    *ros_args({"discovery_period": 0.1}),
+                ],
+            )
         params = {
-            "sim": {"object_name": object_name, "seed": seed, "real_time_factor": real_time_factor,
-                    "sensor_noise": sensor_noise},
+            "sim": {
+                "object_name": object_name,
+                "seed": seed,
+                "real_time_factor": real_time_factor,
+                "sensor_noise": sensor_noise,
+            },
             "executor": {},
             "estimator": {},
-            "planner": {"levels": f"[{','.join(repr(lv) for lv in levels)}]", "preload": f"['{object_name}']"},
+            "planner": {
+                "levels": f"[{','.join(repr(lv) for lv in levels)}]",
+                "preload": f"['{object_name}']",
+            },
         }
         for name, module in NODES.items():
             self.spawn(name, ["-m", module, *ros_args(params[name])])
@@ -160,8 +199,10 @@ class Graph:
     def check_children(self) -> None:
         dead = [c for c in self.children if c.proc.poll() is not None]
         if dead:
-            raise LaunchError("child process exited: " + ", ".join(f"{c.name} (status {c.proc.returncode})"
-                                                                   for c in dead))
+            raise LaunchError(
+                "child process exited: "
+                + ", ".join(f"{c.name} (status {c.proc.returncode})" for c in dead)
+            )
 
     def stop(self) -> None:
         """Stop the nodes (SIGINT → SIGTERM → SIGKILL), then the recorder the same way."""
@@ -190,7 +231,9 @@ class Graph:
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.signals import SignalHandlerOptions
 
-        os.environ.update({k: self.env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
+        os.environ.update(
+            {k: self.env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
+        )
         self._context = rclpy.Context()
         # The launcher handles SIGINT itself (it must stop the children in order).
         rclpy.init(context=self._context, signal_handler_options=SignalHandlerOptions.NO)
@@ -224,25 +267,44 @@ class Graph:
         """Wait for every service and action server and for the recorder's subscriptions;
         returns the seconds since the launch."""
         from rclpy.action import ActionClient
+        from std_srvs.srv import Trigger
 
         from rrg_msgs.action import ExecuteWrt, GuardedMove, RobustGrasp
         from rrg_msgs.msg import GraspOutcome
-        from rrg_msgs.srv import GetBelief, HandCommand, ResetBelief, ResetSim, Retreat, SelectAction
-        from std_srvs.srv import Trigger
+        from rrg_msgs.srv import (
+            GetBelief,
+            HandCommand,
+            ResetBelief,
+            ResetSim,
+            Retreat,
+            SelectAction,
+        )
 
-        types = {"/rrg/reset_sim": ResetSim, "/rrg/hand_command": HandCommand, "/rrg/eval/judge_grasp": Trigger,
-                 "/rrg/retreat": Retreat, "/rrg/reset_belief": ResetBelief, "/rrg/get_belief": GetBelief,
-                 "/rrg/select_action": SelectAction, "/rrg/guarded_move": GuardedMove,
-                 "/rrg/execute_wrt": ExecuteWrt, "/rrg/robust_grasp": RobustGrasp}
+        types = {
+            "/rrg/reset_sim": ResetSim,
+            "/rrg/hand_command": HandCommand,
+            "/rrg/eval/judge_grasp": Trigger,
+            "/rrg/retreat": Retreat,
+            "/rrg/reset_belief": ResetBelief,
+            "/rrg/get_belief": GetBelief,
+            "/rrg/select_action": SelectAction,
+            "/rrg/guarded_move": GuardedMove,
+            "/rrg/execute_wrt": ExecuteWrt,
+            "/rrg/robust_grasp": RobustGrasp,
+        }
         self.clients = {name: self.node.create_client(types[name], name) for name in SERVICES}
         self.actions = {name: ActionClient(self.node, types[name], name) for name in ACTIONS}
         self.node.create_subscription(GraspOutcome, "/rrg/eval/grasp_outcome", self.on_outcome, 10)
         deadline = time.monotonic() + timeout_s
         for name, client in [*self.clients.items(), *self.actions.items()]:
             ready = client.service_is_ready if name in self.clients else client.server_is_ready
-            self.spin_until(ready, deadline - time.monotonic(), f"{name} (planning models load first)")
+            self.spin_until(
+                ready, deadline - time.monotonic(), f"{name} (planning models load first)"
+            )
         if self.bag_dir is not None:
-            self.spin_until(self.recorder_caught_up, deadline - time.monotonic(), "the recorder's subscriptions")
+            self.spin_until(
+                self.recorder_caught_up, deadline - time.monotonic(), "the recorder's subscriptions"
+            )
         return time.monotonic() - self.started
 
     def recorder_caught_up(self) -> bool:
@@ -252,49 +314,85 @@ class Graph:
         for topic, _ in self.node.get_topic_names_and_types():
             if is_hidden(topic) or not self.node.get_publishers_info_by_topic(topic):
                 continue
-            if not any(s.node_name == RECORDER for s in self.node.get_subscriptions_info_by_topic(topic)):
+            if not any(
+                s.node_name == RECORDER for s in self.node.get_subscriptions_info_by_topic(topic)
+            ):
                 return False
         return True
 
     # ------------------------------------------------------------------ one grasp
-    def grasp(self, outcome: GraspOutcome, horizon: int, delta: float, max_actions: int,
-              on_first_action: Callable[[], None] | None = None) -> GraspOutcome:
+    def grasp(
+        self,
+        outcome: GraspOutcome,
+        horizon: int,
+        delta: float,
+        max_actions: int,
+        on_first_action: Callable[[], None] | None = None,
+    ) -> GraspOutcome:
         """Place the object, run the robust grasp, judge it; fills and returns ``outcome``."""
+        from std_srvs.srv import Trigger
+
         from rrg_msgs.action import RobustGrasp
         from rrg_msgs.srv import ResetSim
         from rrg_sim.ros_common.msg_conversions import planar_to_msg
-        from std_srvs.srv import Trigger
 
-        reset = self.result(self.clients["/rrg/reset_sim"].call_async(
-            ResetSim.Request(object_name=outcome.object_name, pose=planar_to_msg(outcome.true_pose))), 60.0, "reset_sim")
+        reset = self.result(
+            self.clients["/rrg/reset_sim"].call_async(
+                ResetSim.Request(
+                    object_name=outcome.object_name, pose=planar_to_msg(outcome.true_pose)
+                )
+            ),
+            60.0,
+            "reset_sim",
+        )
         if reset.error_code != ResetSim.Response.NONE:
             raise LaunchError(f"reset_sim failed: {reset.error_msg}")
-        goal = RobustGrasp.Goal(object_name=outcome.object_name, level=outcome.level, strategy=outcome.strategy,
-                                horizon=horizon, delta=delta, max_actions=max_actions)
+        goal = RobustGrasp.Goal(
+            object_name=outcome.object_name,
+            level=outcome.level,
+            strategy=outcome.strategy,
+            horizon=horizon,
+            delta=delta,
+            max_actions=max_actions,
+        )
 
         def feedback(msg) -> None:
             fb = msg.feedback
             if fb.step == 1 and on_first_action is not None:
                 on_first_action()
-            print(f"[rrg-launch] step {fb.step}: {fb.wrt_name} (P(goal) = {fb.p_goal:.3f}, value = {fb.value:.3f})",
-                  flush=True)
+            print(
+                f"[rrg-launch] step {fb.step}: {fb.wrt_name} (P(goal) = {fb.p_goal:.3f}, value = {fb.value:.3f})",
+                flush=True,
+            )
 
         client = self.actions["/rrg/robust_grasp"]
-        self.goal_handle = self.result(client.send_goal_async(goal, feedback_callback=feedback), 30.0, "robust_grasp")
+        self.goal_handle = self.result(
+            client.send_goal_async(goal, feedback_callback=feedback), 30.0, "robust_grasp"
+        )
         if not self.goal_handle.accepted:
             raise LaunchError("the planner rejected the robust_grasp goal")
         answer = self.result(self.goal_handle.get_result_async(), 3600.0, "the robust grasp")
         self.goal_handle = None
         res = answer.result
-        outcome.actions, outcome.p_goal, outcome.planner_success = list(res.actions_taken), res.final_p_goal, res.success
+        outcome.actions, outcome.p_goal, outcome.planner_success = (
+            list(res.actions_taken),
+            res.final_p_goal,
+            res.success,
+        )
         if res.error_code != RobustGrasp.Result.NONE:
             outcome.error = f"robust_grasp error {res.error_code}: {res.error_msg}"
             return outcome
         seen = self.outcomes_seen
-        judged = self.result(self.clients["/rrg/eval/judge_grasp"].call_async(Trigger.Request()), 120.0, "judge_grasp")
+        judged = self.result(
+            self.clients["/rrg/eval/judge_grasp"].call_async(Trigger.Request()),
+            120.0,
+            "judge_grasp",
+        )
         outcome.success, outcome.judge = judged.success, judged.message
         try:  # let the outcome message reach the recorder before anything stops
-            self.spin_until(lambda: self.outcomes_seen > seen, OUTCOME_WAIT_S, "/rrg/eval/grasp_outcome")
+            self.spin_until(
+                lambda: self.outcomes_seen > seen, OUTCOME_WAIT_S, "/rrg/eval/grasp_outcome"
+            )
             grace = time.monotonic() + OUTCOME_GRACE_S
             self.spin_until(lambda: time.monotonic() > grace, OUTCOME_GRACE_S + 1.0, "the recorder")
         except LaunchError as exc:
@@ -336,43 +434,95 @@ def true_pose(args: argparse.Namespace) -> np.ndarray:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="rrg-launch", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--mode", choices=("sim", "hw"), default="sim", help="arm/hand interface: simulator or hardware")
-    p.add_argument("--domain-id", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "0") or 0),
-                   help="ROS_DOMAIN_ID of the graph (0-101; default: $ROS_DOMAIN_ID or 0)")
-    p.add_argument("--object", default="powerdrill", choices=OBJECT_NAMES,
-                   help="object the simulator starts with (--grasp overrides it)")
-    p.add_argument("--grasp", metavar="OBJECT", choices=OBJECT_NAMES, help="run one robust grasp of OBJECT, then stop")
-    p.add_argument("--level", default="high", choices=sorted(LEVELS), help="initial uncertainty of the grasp")
+    p = argparse.ArgumentParser(
+        prog="rrg-launch", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument(
+        "--mode",
+        choices=("sim", "hw"),
+        default="sim",
+        help="arm/hand interface: simulator or hardware",
+    )
+    p.add_argument(
+        "--domain-id",
+        type=int,
+        default=int(os.environ.get("ROS_DOMAIN_ID", "0") or 0),
+        help="ROS_DOMAIN_ID of the graph (0-101; default: $ROS_DOMAIN_ID or 0)",
+    )
+    p.add_argument(
+        "--object",
+        default="powerdrill",
+        choices=OBJECT_NAMES,
+        help="object the simulator starts with (--grasp overrides it)",
+    )
+    p.add_argument(
+        "--grasp",
+        metavar="OBJECT",
+        choices=OBJECT_NAMES,
+        help="run one robust grasp of OBJECT, then stop",
+    )
+    p.add_argument(
+        "--level", default="high", choices=sorted(LEVELS), help="initial uncertainty of the grasp"
+    )
     p.add_argument("--strategy", default="rrg-info", choices=STRATEGIES)
     p.add_argument("--horizon", type=int, default=SEARCH.horizon, choices=(1, 2, 3))
     p.add_argument("--delta", type=float, default=SEARCH.delta)
     p.add_argument("--max-actions", type=int, default=SEARCH.max_actions)
-    p.add_argument("--true-pose", type=float, nargs=3, metavar=("X", "Y", "THETA"),
-                   help="the object's true pose [m, m, rad] (default: drawn from the level's Gaussian)")
-    p.add_argument("--seed", type=int, default=0, help="seeds the true-pose draw and the sensor noise")
-    p.add_argument("--levels", default=",".join(LEVELS),
-                   help="uncertainty levels the planner loads (variable resolution from high needs all three)")
-    p.add_argument("--real-time-factor", type=float, default=0.0,
-                   help="simulator pacing: 1 = real time, 0 = as fast as it steps")
-    p.add_argument("--sensor-noise", type=float, default=1.0,
-                   help="scale of the simulated sensors' noise (1 = config values, 0 = noiseless)")
+    p.add_argument(
+        "--true-pose",
+        type=float,
+        nargs=3,
+        metavar=("X", "Y", "THETA"),
+        help="the object's true pose [m, m, rad] (default: drawn from the level's Gaussian)",
+    )
+    p.add_argument(
+        "--seed", type=int, default=0, help="seeds the true-pose draw and the sensor noise"
+    )
+    p.add_argument(
+        "--levels",
+        default=",".join(LEVELS),
+        help="uncertainty levels the planner loads (variable resolution from high needs all three)",
+    )
+    p.add_argument(
+        "--real-time-factor",
+        type=float,
+        default=0.0,
+        help="simulator pacing: 1 = real time, 0 = as fast as it steps",
+    )
+    p.add_argument(
+        "--sensor-noise",
+        type=float,
+        default=1.0,
+        help="scale of the simulated sensors' noise (1 = config values, 0 = noiseless)",
+    )
     p.add_argument("--bags", type=Path, default=ROOT / "bags", help="folder of the bags")
     p.add_argument("--bag-name", help="bag folder name (default: rrg_<object>_<time>)")
     p.add_argument("--no-bag", action="store_true", help="do not record")
-    p.add_argument("--log-dir", type=Path, help="write each child's output to LOG_DIR/<node>.log (default: stderr)")
-    p.add_argument("--ready-timeout", type=float, default=600.0,
-                   help="longest wait for the graph [s] (a first table build takes minutes)")
-    p.add_argument("--json", action="store_true", help="print the grasp's outcome as JSON on the last line")
+    p.add_argument(
+        "--log-dir",
+        type=Path,
+        help="write each child's output to LOG_DIR/<node>.log (default: stderr)",
+    )
+    p.add_argument(
+        "--ready-timeout",
+        type=float,
+        default=600.0,
+        help="longest wait for the graph [s] (a first table build takes minutes)",
+    )
+    p.add_argument(
+        "--json", action="store_true", help="print the grasp's outcome as JSON on the last line"
+    )
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.mode == "hw":
-        print("rrg-launch: --mode hw needs the rrg_hw_bridge node (the arm/hand interface on the real "
-              "WAM, BarrettHand and Nano17 drivers), which does not exist yet; use --mode sim", file=sys.stderr)
+        print(
+            "rrg-launch: --mode hw needs the rrg_hw_bridge node (the arm/hand interface on the real "
+            "WAM, BarrettHand and Nano17 drivers), which does not exist yet; use --mode sim",
+            file=sys.stderr,
+        )
         return 2
     if not 0 <= args.domain_id <= 101:
         print(f"rrg-launch: --domain-id must be 0-101, got {args.domain_id}", file=sys.stderr)
@@ -392,26 +542,45 @@ def main(argv: list[str] | None = None) -> int:
     status = 0
     outcome = None
     try:
-        print(f"[rrg-launch] observation tables of {object_name} at levels {levels} (built once, ~1 min per "
-              "level when missing)", flush=True)
+        print(
+            f"[rrg-launch] observation tables of {object_name} at levels {levels} (built once, ~1 min per "
+            "level when missing)",
+            flush=True,
+        )
         warm_tables(object_name, levels)
-        signal.signal(signal.SIGTERM, terminate)  # after the table workers, which must not inherit it
+        signal.signal(
+            signal.SIGTERM, terminate
+        )  # after the table workers, which must not inherit it
         # Ctrl-C stops the graph even if this process started with SIGINT ignored (a background
         # job of a non-interactive shell: Python keeps an inherited SIG_IGN), and the nodes
         # started next inherit the default instead of the ignore.
         signal.signal(signal.SIGINT, signal.default_int_handler)
         graph.start(object_name, levels, args.seed, args.real_time_factor, args.sensor_noise)
         graph.connect()
-        print(f"[rrg-launch] started {len(graph.children)} processes in domain {args.domain_id}; waiting for "
-              "the graph (the planner loads its models first)", flush=True)
+        print(
+            f"[rrg-launch] started {len(graph.children)} processes in domain {args.domain_id}; waiting for "
+            "the graph (the planner loads its models first)",
+            flush=True,
+        )
         ready_s = graph.wait_ready(args.ready_timeout)
-        print(f"[rrg-launch] graph ready after {ready_s:.1f} s" + (f", recording to {bag_dir}" if bag_dir else ""),
-              flush=True)
+        print(
+            f"[rrg-launch] graph ready after {ready_s:.1f} s"
+            + (f", recording to {bag_dir}" if bag_dir else ""),
+            flush=True,
+        )
         if args.grasp:
-            outcome = GraspOutcome(args.grasp, args.level, args.strategy, np.round(true_pose(args), 5).tolist(),
-                                   bag=str(bag_dir or ""))
-            print(f"[rrg-launch] robust grasp of {args.grasp} ({args.level} uncertainty, {args.strategy}), "
-                  f"true pose {outcome.true_pose}", flush=True)
+            outcome = GraspOutcome(
+                args.grasp,
+                args.level,
+                args.strategy,
+                np.round(true_pose(args), 5).tolist(),
+                bag=str(bag_dir or ""),
+            )
+            print(
+                f"[rrg-launch] robust grasp of {args.grasp} ({args.level} uncertainty, {args.strategy}), "
+                f"true pose {outcome.true_pose}",
+                flush=True,
+            )
 
             def first_action() -> None:
                 outcome.launch_to_first_action_s = time.monotonic() - graph.started
@@ -429,7 +598,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"[rrg-launch] error: {exc}", file=sys.stderr, flush=True)
         status = 1
     finally:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the shutdown short
+        signal.signal(
+            signal.SIGINT, signal.SIG_IGN
+        )  # a second Ctrl-C must not cut the shutdown short
         graph.disconnect()
         graph.stop()
         signal.signal(signal.SIGINT, signal.default_int_handler)
@@ -437,13 +608,20 @@ def main(argv: list[str] | None = None) -> int:
         from rrg_planner.bags.bag_cli import bag_info
 
         info = bag_info(bag_dir)
-        print(f"[rrg-launch] bag {bag_dir}: {info.message_count} messages on {len(info.topics)} topics, "
-              f"{'finalized' if info.finalized else 'NOT finalized'}", flush=True)
+        print(
+            f"[rrg-launch] bag {bag_dir}: {info.message_count} messages on {len(info.topics)} topics, "
+            f"{'finalized' if info.finalized else 'NOT finalized'}",
+            flush=True,
+        )
     if outcome is not None:
-        print(f"[rrg-launch] outcome: actions {outcome.actions}, P(goal) = {outcome.p_goal:.3f}, planner "
-              f"{'succeeded' if outcome.planner_success else 'did not succeed'}; simulator judged the grasp a "
-              f"{'SUCCESS' if outcome.success else 'FAILURE'}" + (f" ({outcome.judge})" if outcome.judge else "")
-              + (f"; {outcome.error}" if outcome.error else ""), flush=True)
+        print(
+            f"[rrg-launch] outcome: actions {outcome.actions}, P(goal) = {outcome.p_goal:.3f}, planner "
+            f"{'succeeded' if outcome.planner_success else 'did not succeed'}; simulator judged the grasp a "
+            f"{'SUCCESS' if outcome.success else 'FAILURE'}"
+            + (f" ({outcome.judge})" if outcome.judge else "")
+            + (f"; {outcome.error}" if outcome.error else ""),
+            flush=True,
+        )
         if outcome.error:
             status = status or 1
         if args.json:

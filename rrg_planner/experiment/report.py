@@ -1,5 +1,6 @@
 """Campaign outputs: per-cell summary with 95 % intervals, the markdown table, and the
 paper's Fig. 7 (low), Fig. 8 (high) and Fig. 9 (δ sweep on the drill) as PNGs."""
+
 from __future__ import annotations
 
 import json
@@ -10,10 +11,10 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from rrg_planner.config import SEARCH  # noqa: E402
+from rrg_planner.config import SEARCH
 
 STRATEGY_LABELS = {"open-loop": "Open-loop", "rrg-goal": "RRG-Goal", "rrg-info": "RRG-Info"}
 
@@ -46,9 +47,15 @@ def summarize(records: list[dict]) -> dict[str, dict]:
         k = sum(bool(r["success"]) for r in rs)
         lo, hi = wilson(k, len(rs))
         out[key] = dict(
-            object=rs[0]["object"], level=rs[0]["level"], strategy=rs[0]["strategy"],
-            horizon=rs[0]["horizon"], delta=rs[0]["delta"], trials=len(rs), successes=k,
-            success_rate=k / len(rs), ci95=[lo, hi],
+            object=rs[0]["object"],
+            level=rs[0]["level"],
+            strategy=rs[0]["strategy"],
+            horizon=rs[0]["horizon"],
+            delta=rs[0]["delta"],
+            trials=len(rs),
+            successes=k,
+            success_rate=k / len(rs),
+            ci95=[lo, hi],
             mean_actions=float(np.mean([r["n_actions"] for r in rs])),
             mean_planning_s=float(np.mean([r["planning_time_s"] for r in rs])),
             errors=sum(bool(r["error"]) for r in rs),
@@ -72,20 +79,26 @@ def failure_reasons(records: list[dict]) -> dict[str, int]:
     )
 
 
-def failure_table(summary: dict[str, dict], objects: list[str], levels: list[str],
-                  strategy: str = "rrg-info") -> str:
+def failure_table(
+    summary: dict[str, dict], objects: list[str], levels: list[str], strategy: str = "rrg-info"
+) -> str:
     """Markdown: the failed trials of one strategy per object and level, by reason."""
-    lines = [f"**why {STRATEGY_LABELS[strategy]} trials failed** (a trial may have several reasons)", "",
-             "| object | level | failed | declared success | no grasp judged | out of goal region | not held |",
-             "|---|---|---|---|---|---|---|"]
+    lines = [
+        f"**why {STRATEGY_LABELS[strategy]} trials failed** (a trial may have several reasons)",
+        "",
+        "| object | level | failed | declared success | no grasp judged | out of goal region | not held |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for level in levels:
         for obj in objects:
             s = summary.get(f"{obj}/{level}/{strategy}")
             if s is None or not s.get("failures", {}).get("failed"):
                 continue
             f = s["failures"]
-            lines.append(f"| {obj} | {level} | {f['failed']}/{s['trials']} | {f['declared']} | {f['no_grasp']} | "
-                         f"{f['out_of_region']} | {f['not_held']} |")
+            lines.append(
+                f"| {obj} | {level} | {f['failed']}/{s['trials']} | {f['declared']} | {f['no_grasp']} | "
+                f"{f['out_of_region']} | {f['not_held']} |"
+            )
     return "\n".join(lines) + "\n"
 
 
@@ -93,24 +106,34 @@ def markdown_table(summary: dict[str, dict], objects: list[str], levels: list[st
     """Success % per object × strategy × level with n and the 95 % interval, beside the paper."""
     lines = []
     for level in levels:
-        lines += [f"**{level} uncertainty**", "",
-                  "| object | open-loop | RRG-Goal | RRG-Info (H=2) | paper RRG-Info | mean actions (Info) |",
-                  "|---|---|---|---|---|---|"]
+        lines += [
+            f"**{level} uncertainty**",
+            "",
+            "| object | open-loop | RRG-Goal | RRG-Info (H=2) | paper RRG-Info | mean actions (Info) |",
+            "|---|---|---|---|---|---|",
+        ]
         for obj in objects:
             cells = []
             for strat in ("open-loop", "rrg-goal", "rrg-info"):
                 s = summary.get(f"{obj}/{level}/{strat}")
-                cells.append("–" if s is None else
-                             f"{100 * s['success_rate']:.0f}% ({s['successes']}/{s['trials']}, "
-                             f"{100 * s['ci95'][0]:.0f}–{100 * s['ci95'][1]:.0f})")
+                cells.append(
+                    "–"
+                    if s is None
+                    else f"{100 * s['success_rate']:.0f}% ({s['successes']}/{s['trials']}, "
+                    f"{100 * s['ci95'][0]:.0f}–{100 * s['ci95'][1]:.0f})"
+                )
             info = summary.get(f"{obj}/{level}/rrg-info")
             acts = f"{info['mean_actions']:.1f}" if info else "–"
-            lines.append(f"| {obj} | " + " | ".join(cells) + f" | {paper_rrg_info(obj, level)} | {acts} |")
+            lines.append(
+                f"| {obj} | " + " | ".join(cells) + f" | {paper_rrg_info(obj, level)} | {acts} |"
+            )
         lines.append("")
     return "\n".join(lines)
 
 
-def bar_chart(summary: dict[str, dict], objects: list[str], level: str, path: Path, title: str) -> None:
+def bar_chart(
+    summary: dict[str, dict], objects: list[str], level: str, path: Path, title: str
+) -> None:
     """Fig. 7/8: success % per object for the three strategies, with 95 % intervals."""
     fig, ax = plt.subplots(figsize=(11, 4))
     width = 0.27
@@ -135,16 +158,22 @@ def bar_chart(summary: dict[str, dict], objects: list[str], level: str, path: Pa
     plt.close(fig)
 
 
-def fig9_curves(summary: dict[str, dict], obj: str = "powerdrill", level: str = "high") -> dict[str, list[dict]]:
+def fig9_curves(
+    summary: dict[str, dict], obj: str = "powerdrill", level: str = "high"
+) -> dict[str, list[dict]]:
     """Fig. 9's curves: name (RRG-Goal, RRG-Info H=1…3) → its cells' summaries, by name."""
     curves: dict[str, list[dict]] = defaultdict(list)
     for s in summary.values():
         if s["object"] == obj and s["level"] == level and s["strategy"] != "open-loop":
-            curves["RRG-Goal" if s["strategy"] == "rrg-goal" else f"RRG-Info H={s['horizon']}"].append(s)
+            curves[
+                "RRG-Goal" if s["strategy"] == "rrg-goal" else f"RRG-Info H={s['horizon']}"
+            ].append(s)
     return dict(sorted(curves.items()))
 
 
-def fig9(summary: dict[str, dict], path: Path, obj: str = "powerdrill", level: str = "high") -> None:
+def fig9(
+    summary: dict[str, dict], path: Path, obj: str = "powerdrill", level: str = "high"
+) -> None:
     """Fig. 9: success % against mean actions, δ swept, RRG-Goal and RRG-Info at H = 1, 2, 3."""
     fig, ax = plt.subplots(figsize=(6, 4.5))
     for name, cells in fig9_curves(summary, obj, level).items():
@@ -160,36 +189,59 @@ def fig9(summary: dict[str, dict], path: Path, obj: str = "powerdrill", level: s
     plt.close(fig)
 
 
-def fig9_frontier(summary: dict[str, dict], obj: str = "powerdrill", level: str = "high",
-                  target: float = 0.9) -> dict[str, dict | None]:
+def fig9_frontier(
+    summary: dict[str, dict], obj: str = "powerdrill", level: str = "high", target: float = 0.9
+) -> dict[str, dict | None]:
     """Per Fig. 9 curve (RRG-Goal, RRG-Info H=1…3): its point with the fewest mean actions at
     or above ``target`` success (the cell's summary), or None if no point reaches it."""
-    return {name: min((s for s in cells if s["success_rate"] >= target), key=lambda s: s["mean_actions"], default=None)
-            for name, cells in fig9_curves(summary, obj, level).items()}
+    return {
+        name: min(
+            (s for s in cells if s["success_rate"] >= target),
+            key=lambda s: s["mean_actions"],
+            default=None,
+        )
+        for name, cells in fig9_curves(summary, obj, level).items()
+    }
 
 
 def fig9_table(summary: dict[str, dict], target: float = 0.9) -> str:
     """Markdown: each Fig. 9 curve's fewest mean actions at ≥ target success (fig9_frontier)."""
-    rows = [f"**Fig. 9: fewest mean actions at ≥ {target:.0%} success (powerdrill, high)**", "",
-            "| curve | success | mean actions | δ |", "|---|---|---|---|"]
+    rows = [
+        f"**Fig. 9: fewest mean actions at ≥ {target:.0%} success (powerdrill, high)**",
+        "",
+        "| curve | success | mean actions | δ |",
+        "|---|---|---|---|",
+    ]
     for name, s in fig9_frontier(summary, target=target).items():
-        rows.append(f"| {name} | none reaches {target:.0%} | | |" if s is None else
-                    f"| {name} | {s['success_rate']:.0%} ({s['successes']}/{s['trials']}) | "
-                    f"{s['mean_actions']:.2f} | {s['delta']:g} |")
+        rows.append(
+            f"| {name} | none reaches {target:.0%} | | |"
+            if s is None
+            else f"| {name} | {s['success_rate']:.0%} ({s['successes']}/{s['trials']}) | "
+            f"{s['mean_actions']:.2f} | {s['delta']:g} |"
+        )
     return "\n".join(rows) + "\n"
 
 
-def write_outputs(records: list[dict], out_dir: Path, objects: list[str], levels: list[str]) -> dict:
+def write_outputs(
+    records: list[dict], out_dir: Path, objects: list[str], levels: list[str]
+) -> dict:
     """summary.json, table.md and the figures that the records support."""
     out_dir.mkdir(parents=True, exist_ok=True)
     summary = summarize(records)
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=1))
-    fig9_cells = any(s["delta"] != SEARCH.delta or s["horizon"] != SEARCH.horizon for s in summary.values())
-    (out_dir / "table.md").write_text(markdown_table(summary, objects, levels) + "\n"
-                                      + failure_table(summary, objects, levels)
-                                      + ("\n" + fig9_table(summary) if fig9_cells else ""))
-    titles = {"low": "Fig. 7: simulation, low uncertainty (1 cm, 1 cm, 3°)",
-              "high": "Fig. 8: simulation, high uncertainty (5 cm, 5 cm, 30°)"}
+    fig9_cells = any(
+        s["delta"] != SEARCH.delta or s["horizon"] != SEARCH.horizon for s in summary.values()
+    )
+    (out_dir / "table.md").write_text(
+        markdown_table(summary, objects, levels)
+        + "\n"
+        + failure_table(summary, objects, levels)
+        + ("\n" + fig9_table(summary) if fig9_cells else "")
+    )
+    titles = {
+        "low": "Fig. 7: simulation, low uncertainty (1 cm, 1 cm, 3°)",
+        "high": "Fig. 8: simulation, high uncertainty (5 cm, 5 cm, 30°)",
+    }
     for level, fig_name in (("low", "fig7_low.png"), ("high", "fig8_high.png")):
         if level in levels:
             bar_chart(summary, objects, level, out_dir / fig_name, titles[level])

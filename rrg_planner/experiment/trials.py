@@ -6,6 +6,7 @@ random positions drawn from the same distribution as the initial uncertainty"), 
 trial replays alone from its id (cell key and index) and the base seed. Results append to a
 JSONL file, one line per trial, so a stopped campaign resumes where it left off.
 """
+
 from __future__ import annotations
 
 import json
@@ -13,9 +14,9 @@ import logging
 import multiprocessing as mp
 import time
 import zlib
+from collections.abc import Iterable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Iterable, Iterator
 
 import numpy as np
 from tqdm import tqdm
@@ -49,7 +50,7 @@ class Cell:
         return k
 
     @classmethod
-    def from_key(cls, key: str) -> "Cell":
+    def from_key(cls, key: str) -> Cell:
         """The cell a ``key`` names (its inverse); ValueError for anything else."""
         parts = key.split("/")
         if len(parts) < 3:
@@ -77,7 +78,9 @@ class TrialSpec:
     @property
     def seed(self) -> int:
         """Depends on the object, level and index only: strategies are compared on the same poses."""
-        return zlib.crc32(f"{self.base_seed}/{self.cell.object}/{self.cell.level}/{self.index}".encode())
+        return zlib.crc32(
+            f"{self.base_seed}/{self.cell.object}/{self.cell.level}/{self.index}".encode()
+        )
 
     @property
     def id(self) -> str:
@@ -85,7 +88,9 @@ class TrialSpec:
 
     def true_pose(self) -> np.ndarray:
         rng = np.random.default_rng(self.seed)
-        return compose_planar(np.asarray(WORLD.nominal_pose), rng.normal(0.0, LEVELS[self.cell.level].sigma))
+        return compose_planar(
+            np.asarray(WORLD.nominal_pose), rng.normal(0.0, LEVELS[self.cell.level].sigma)
+        )
 
 
 def model_levels(level: str) -> tuple[str, ...]:
@@ -103,7 +108,9 @@ def _model(obj: str, level: str):
 
     key = (obj, model_levels(level))
     if key not in _MODELS:
-        _MODELS[key] = PlanningModel(obj, levels=key[1], workers=1, progress=False)  # no nested pools
+        _MODELS[key] = PlanningModel(
+            obj, levels=key[1], workers=1, progress=False
+        )  # no nested pools
     return _MODELS[key]
 
 
@@ -125,25 +132,60 @@ def run_trial(spec: TrialSpec) -> dict:
     true = spec.true_pose()
     env = _env(cell.object)
     env.reset(true, seed=spec.seed)
-    agent = RobustGraspAgent(_model(cell.object, cell.level), strategy=cell.strategy,
-                             horizon=cell.horizon, delta=cell.delta)
+    agent = RobustGraspAgent(
+        _model(cell.object, cell.level),
+        strategy=cell.strategy,
+        horizon=cell.horizon,
+        delta=cell.delta,
+    )
     try:
         res = run_in_process(agent, env, cell.level, WORLD.nominal_pose)
-        out = dict(success=res.success, declared=res.declared, n_actions=res.n_actions,
-                   actions=[s.wrt for s in res.steps], p_goal=res.p_goal,
-                   planning_time_s=res.planning_time, error=res.error, judge=_jsonable(env.last_judgement))
-    except Exception as exc:  # noqa: BLE001 - a crashed trial is recorded as a failure, never dropped
+        out = dict(
+            success=res.success,
+            declared=res.declared,
+            n_actions=res.n_actions,
+            actions=[s.wrt for s in res.steps],
+            p_goal=res.p_goal,
+            planning_time_s=res.planning_time,
+            error=res.error,
+            judge=_jsonable(env.last_judgement),
+        )
+    except Exception as exc:
         log.exception("trial %s failed", spec.id)
-        out = dict(success=False, declared=False, n_actions=0, actions=[], p_goal=float("nan"),
-                   planning_time_s=0.0, error=f"{type(exc).__name__}: {exc}", judge={})
-    return dict(id=spec.id, cell=cell.key, **asdict(cell), trial=spec.index, seed=spec.seed,
-                true_pose=[float(v) for v in true], wall_s=time.perf_counter() - t0, **out)
+        out = dict(
+            success=False,
+            declared=False,
+            n_actions=0,
+            actions=[],
+            p_goal=float("nan"),
+            planning_time_s=0.0,
+            error=f"{type(exc).__name__}: {exc}",
+            judge={},
+        )
+    return dict(
+        id=spec.id,
+        cell=cell.key,
+        **asdict(cell),
+        trial=spec.index,
+        seed=spec.seed,
+        true_pose=[float(v) for v in true],
+        wall_s=time.perf_counter() - t0,
+        **out,
+    )
 
 
 def _jsonable(info: dict) -> dict:
     """The judge's findings as plain JSON values (numpy scalars and bools converted)."""
-    return {k: (v.tolist() if isinstance(v, np.ndarray) else v.item() if isinstance(v, np.generic) else v)
-            for k, v in info.items()}
+    return {
+        k: (
+            v.tolist()
+            if isinstance(v, np.ndarray)
+            else v.item()
+            if isinstance(v, np.generic)
+            else v
+        )
+        for k, v in info.items()
+    }
 
 
 # ------------------------------------------------------------------ campaign
@@ -176,7 +218,13 @@ def run_campaign(specs: list[TrialSpec], out: Path, workers: int = 2) -> list[di
     todo = [s for s in specs if s.id not in done]
     if todo:
         prepare_models(todo)
-    log.info("%d trials, %d already done, %d to run on %d workers", len(specs), len(done), len(todo), workers)
+    log.info(
+        "%d trials, %d already done, %d to run on %d workers",
+        len(specs),
+        len(done),
+        len(todo),
+        workers,
+    )
     with out.open("a") as f:
         for rec in _imap(todo, workers, desc=f"trials ({len(done)} done before)"):
             f.write(json.dumps(rec) + "\n")

@@ -28,7 +28,12 @@ from rrg_msgs.action import ExecuteWrt, RobustGrasp
 from rrg_msgs.msg import BeliefGrid
 from rrg_msgs.srv import ResetBelief, Retreat
 from rrg_sim.observation import Observation
-from rrg_sim.ros_common.futures import ThreadSafeActionClient, WaitInterrupted, WaitTimeout, wait_for
+from rrg_sim.ros_common.futures import (
+    ThreadSafeActionClient,
+    WaitInterrupted,
+    WaitTimeout,
+    wait_for,
+)
 from rrg_sim.ros_common.msg_conversions import observation_from_msg, planar_to_msg
 from rrg_sim.ros_common.qos import LATCHED
 from rrg_sim.wrt import WRT, InfeasibleWRT
@@ -59,10 +64,14 @@ class GraphClient:
         self.interrupted: Callable[[], bool] = lambda: not node.context.ok()
         self._belief_cv = threading.Condition()
         self.belief_msg: BeliefGrid | None = None  # the estimator's latest belief
-        node.create_subscription(BeliefGrid, "belief", self._on_belief, LATCHED, callback_group=group)
+        node.create_subscription(
+            BeliefGrid, "belief", self._on_belief, LATCHED, callback_group=group
+        )
         self.reset_client = node.create_client(ResetBelief, "reset_belief", callback_group=group)
         self.retreat_client = node.create_client(Retreat, "retreat", callback_group=group)
-        self.execute_client = ThreadSafeActionClient(node, ExecuteWrt, "execute_wrt", callback_group=group)
+        self.execute_client = ThreadSafeActionClient(
+            node, ExecuteWrt, "execute_wrt", callback_group=group
+        )
         self._observation_stamp: Time | None = None
         self._retreat_stamp: Time | None = None
 
@@ -81,7 +90,10 @@ class GraphClient:
                 if self.interrupted():
                     raise WaitInterrupted("interrupted while waiting for the belief")
                 if time.monotonic() > deadline:
-                    raise GraphError(RG.ESTIMATION_FAILED, f"no belief from the estimator within {timeout_s:.0f} s")
+                    raise GraphError(
+                        RG.ESTIMATION_FAILED,
+                        f"no belief from the estimator within {timeout_s:.0f} s",
+                    )
                 self._belief_cv.wait(0.05)
             return belief_from_msg(self.belief_msg)
 
@@ -91,16 +103,30 @@ class GraphClient:
             raise GraphError(RG.ESTIMATION_FAILED, "no belief from the estimator yet")
         return belief_from_msg(self.belief_msg)
 
-    def reset(self, object_name: str, level: str, mean: np.ndarray, sigma: np.ndarray,
-              interrupted: Callable[[], bool]) -> Belief:
+    def reset(
+        self,
+        object_name: str,
+        level: str,
+        mean: np.ndarray,
+        sigma: np.ndarray,
+        interrupted: Callable[[], bool],
+    ) -> Belief:
         """Start a robust grasp: the estimator's belief N(mean, σ²) on the level's grid."""
         self.object_name, self.interrupted = object_name, interrupted
         if not self.reset_client.wait_for_service(timeout_sec=SERVER_WAIT_S):
             raise GraphError(RG.ESTIMATION_FAILED, "the estimator's reset_belief is not available")
-        req = ResetBelief.Request(object_name=object_name, mean=planar_to_msg(mean), level=level,
-                                  sigma_x=float(sigma[0]), sigma_y=float(sigma[1]), sigma_theta=float(sigma[2]))
+        req = ResetBelief.Request(
+            object_name=object_name,
+            mean=planar_to_msg(mean),
+            level=level,
+            sigma_x=float(sigma[0]),
+            sigma_y=float(sigma[1]),
+            sigma_theta=float(sigma[2]),
+        )
         try:
-            resp = wait_for(self.reset_client.call_async(req), self.timeouts()["reset"], interrupted)
+            resp = wait_for(
+                self.reset_client.call_async(req), self.timeouts()["reset"], interrupted
+            )
         except WaitTimeout as exc:
             raise GraphError(RG.ESTIMATION_FAILED, f"reset_belief: {exc}") from exc
         if resp.error_code != ResetBelief.Response.NONE:
@@ -115,12 +141,16 @@ class GraphClient:
         Raises InfeasibleWRT when the executor found τ(e) infeasible before moving."""
         if not self.execute_client.wait_for_server(timeout_sec=SERVER_WAIT_S):
             raise GraphError(RG.EXECUTION_FAILED, "the executor's execute_wrt is not available")
-        goal = ExecuteWrt.Goal(object_name=self.object_name, wrt_name=wrt.name, estimate=planar_to_msg(e))
+        goal = ExecuteWrt.Goal(
+            object_name=self.object_name, wrt_name=wrt.name, estimate=planar_to_msg(e)
+        )
         handle = wait_for(self.execute_client.send_goal_async(goal), SERVER_WAIT_S)
         if not handle.accepted:
             raise GraphError(RG.EXECUTION_FAILED, f"execute_wrt rejected {wrt.name}")
         try:
-            answer = wait_for(handle.get_result_async(), self.timeouts()["execute"], self.interrupted)
+            answer = wait_for(
+                handle.get_result_async(), self.timeouts()["execute"], self.interrupted
+            )
         except WaitInterrupted:
             wait_for(handle.cancel_goal_async(), SERVER_WAIT_S)
             raise
@@ -131,7 +161,9 @@ class GraphClient:
         if result.error_code == ExecuteWrt.Result.INFEASIBLE:
             raise InfeasibleWRT(result.error_msg)
         if result.error_code != ExecuteWrt.Result.NONE:
-            raise GraphError(RG.EXECUTION_FAILED, f"execute_wrt {wrt.name} failed: {result.error_msg}")
+            raise GraphError(
+                RG.EXECUTION_FAILED, f"execute_wrt {wrt.name} failed: {result.error_msg}"
+            )
         self._observation_stamp = result.observation.header.stamp
         return observation_from_msg(result.observation)
 
@@ -139,8 +171,11 @@ class GraphClient:
         """Retreat home through the executor; the estimator hears of it on /rrg/retreated."""
         if not self.retreat_client.wait_for_service(timeout_sec=SERVER_WAIT_S):
             raise GraphError(RG.EXECUTION_FAILED, "the executor's retreat is not available")
-        resp = wait_for(self.retreat_client.call_async(Retreat.Request()), self.timeouts()["execute"],
-                        self.interrupted)
+        resp = wait_for(
+            self.retreat_client.call_async(Retreat.Request()),
+            self.timeouts()["execute"],
+            self.interrupted,
+        )
         if resp.error_code != Retreat.Response.NONE:
             raise GraphError(RG.EXECUTION_FAILED, f"retreat failed: {resp.error_msg}")
         self._retreat_stamp = resp.header.stamp

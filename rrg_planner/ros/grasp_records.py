@@ -13,15 +13,32 @@ from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, planar_to_msg
 
 
 def _record(goal: RobustGrasp.Goal, event: int, stamp: Time) -> GraspStep:
-    return GraspStep(header=Header(stamp=stamp, frame_id=WORLD_FRAME), event=event, object_name=goal.object_name,
-                     strategy=goal.strategy, horizon=goal.horizon, delta=goal.delta)
+    return GraspStep(
+        header=Header(stamp=stamp, frame_id=WORLD_FRAME),
+        event=event,
+        object_name=goal.object_name,
+        strategy=goal.strategy,
+        horizon=goal.horizon,
+        delta=goal.delta,
+    )
 
 
 def _with_decision(msg: GraspStep, d: Decision) -> GraspStep:
-    msg.step, msg.wrt_name, msg.wrt_kind, msg.estimate = d.number, d.wrt, d.kind, planar_to_msg(d.estimate)
-    msg.value, msg.p_goal, msg.planning_time = float(d.value), float(d.p_goal), float(d.planning_time)
+    msg.step, msg.wrt_name, msg.wrt_kind, msg.estimate = (
+        d.number,
+        d.wrt,
+        d.kind,
+        planar_to_msg(d.estimate),
+    )
+    msg.value, msg.p_goal, msg.planning_time = (
+        float(d.value),
+        float(d.p_goal),
+        float(d.planning_time),
+    )
     msg.action_names = list(d.action_values)
-    msg.action_values = [float(v) if np.isfinite(v) else float("nan") for v in d.action_values.values()]
+    msg.action_values = [
+        float(v) if np.isfinite(v) else float("nan") for v in d.action_values.values()
+    ]
     return msg
 
 
@@ -40,6 +57,10 @@ def infeasible_record(goal: RobustGrasp.Goal, d: Decision, reason: str, stamp: T
 def done_record(goal: RobustGrasp.Goal, result: RobustGrasp.Result, stamp: Time) -> GraspStep:
     """The robust grasp ended, as its action result says."""
     msg = _record(goal, GraspStep.EVENT_DONE, stamp)
-    msg.success, msg.actions_taken, msg.final_p_goal = result.success, list(result.actions_taken), result.final_p_goal
+    msg.success, msg.actions_taken, msg.final_p_goal = (
+        result.success,
+        list(result.actions_taken),
+        result.final_p_goal,
+    )
     msg.error_code, msg.error_msg = result.error_code, result.error_msg
     return msg

@@ -18,6 +18,7 @@ Services and actions:
 The decisions are the core's (rrg_planner.agent.RobustGraspAgent) and the belief is the estimator
 node's: this node only moves messages.
 """
+
 from __future__ import annotations
 
 import sys
@@ -43,8 +44,8 @@ from rrg_planner.agent import RobustGraspAgent
 from rrg_planner.closed_loop import ClosedLoop, Decision, GraspCanceled, decide
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.requests import InvalidRequest
-from rrg_planner.ros.grasp_records import decision_record, done_record, infeasible_record
 from rrg_planner.ros.graph_client import GraphClient, GraphError
+from rrg_planner.ros.grasp_records import decision_record, done_record, infeasible_record
 from rrg_sim.config import WORLD
 from rrg_sim.ros_common.futures import WaitInterrupted, wait_for
 from rrg_sim.ros_common.msg_conversions import planar_to_msg
@@ -64,7 +65,7 @@ class RequestError(Exception):
         self.code = code
 
     @classmethod
-    def of(cls, exc: InvalidRequest, codes) -> "RequestError":
+    def of(cls, exc: InvalidRequest, codes) -> RequestError:
         """The interface's code for a core validation error (codes: SelectAction.Response or
         RobustGrasp.Result)."""
         return cls(getattr(codes, exc.code), str(exc))
@@ -75,21 +76,47 @@ class PlannerNode(Node):
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME, namespace=NAMESPACE)
-        self.declare_parameter("levels", list(LEVELS), ParameterDescriptor(
-            description="Uncertainty levels whose tables are loaded (beliefs must use one of their grids)",
-            read_only=True))
-        self.declare_parameter("preload", Parameter.Type.STRING_ARRAY, ParameterDescriptor(
-            read_only=True, description="Objects whose planning models are loaded before the services start "
-                        "(a first build takes ~1 min per object)"))
-        self.declare_parameter("reset_timeout", 300.0, ParameterDescriptor(
-            description="Longest wait [s] for the estimator's reset (it may load or build tables)",
-            floating_point_range=[FloatingPointRange(from_value=1.0, to_value=3600.0)]))
-        self.declare_parameter("execute_timeout", 300.0, ParameterDescriptor(
-            description="Longest wait [s] for one WRT execution or retreat",
-            floating_point_range=[FloatingPointRange(from_value=1.0, to_value=3600.0)]))
-        self.declare_parameter("belief_timeout", 120.0, ParameterDescriptor(
-            description="Longest wait [s] for the estimator's belief after an observation or a retreat",
-            floating_point_range=[FloatingPointRange(from_value=0.1, to_value=3600.0)]))
+        self.declare_parameter(
+            "levels",
+            list(LEVELS),
+            ParameterDescriptor(
+                description="Uncertainty levels whose tables are loaded (beliefs must use one of their grids)",
+                read_only=True,
+            ),
+        )
+        self.declare_parameter(
+            "preload",
+            Parameter.Type.STRING_ARRAY,
+            ParameterDescriptor(
+                read_only=True,
+                description="Objects whose planning models are loaded before the services start "
+                "(a first build takes ~1 min per object)",
+            ),
+        )
+        self.declare_parameter(
+            "reset_timeout",
+            300.0,
+            ParameterDescriptor(
+                description="Longest wait [s] for the estimator's reset (it may load or build tables)",
+                floating_point_range=[FloatingPointRange(from_value=1.0, to_value=3600.0)],
+            ),
+        )
+        self.declare_parameter(
+            "execute_timeout",
+            300.0,
+            ParameterDescriptor(
+                description="Longest wait [s] for one WRT execution or retreat",
+                floating_point_range=[FloatingPointRange(from_value=1.0, to_value=3600.0)],
+            ),
+        )
+        self.declare_parameter(
+            "belief_timeout",
+            120.0,
+            ParameterDescriptor(
+                description="Longest wait [s] for the estimator's belief after an observation or a retreat",
+                floating_point_range=[FloatingPointRange(from_value=0.1, to_value=3600.0)],
+            ),
+        )
         self.levels = tuple(self.get_parameter("levels").value)
         unknown = [lv for lv in self.levels if lv not in LEVELS]
         if unknown:
@@ -104,29 +131,48 @@ class PlannerNode(Node):
         self.step_pub = self.create_publisher(GraspStep, "grasp_step", 10)
         self.get_client = self.create_client(GetBelief, "get_belief", callback_group=group)
         self._grasp_active = threading.Lock()
-        self.create_service(SelectAction, "select_action", self.on_select_action, callback_group=group)
-        ActionServer(self, RobustGrasp, "robust_grasp", execute_callback=self.execute_robust_grasp,
-                     goal_callback=self.on_grasp_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
-                     callback_group=group)
-        self.get_logger().info(f"planner ready (levels {list(self.levels)}, models loaded: {sorted(self._models)})")
+        self.create_service(
+            SelectAction, "select_action", self.on_select_action, callback_group=group
+        )
+        ActionServer(
+            self,
+            RobustGrasp,
+            "robust_grasp",
+            execute_callback=self.execute_robust_grasp,
+            goal_callback=self.on_grasp_goal,
+            cancel_callback=lambda _: CancelResponse.ACCEPT,
+            callback_group=group,
+        )
+        self.get_logger().info(
+            f"planner ready (levels {list(self.levels)}, models loaded: {sorted(self._models)})"
+        )
 
     def timeouts(self) -> dict[str, float]:
         """The graph client's timeouts [s], read from the parameters at each use."""
-        return {name: self.get_parameter(f"{name}_timeout").value for name in ("reset", "execute", "belief")}
+        return {
+            name: self.get_parameter(f"{name}_timeout").value
+            for name in ("reset", "execute", "belief")
+        }
 
     # ------------------------------------------------------------------ models
     def model(self, object_name: str) -> PlanningModel:
         """The object's planning model, loaded on first use (a first build takes ~1 min)."""
         with self._model_lock:
             if object_name not in self._models:
-                self.get_logger().info(f"loading the planning model of {object_name} at levels "
-                                       f"{list(self.levels)} (building missing tables takes ~1 min per object)")
+                self.get_logger().info(
+                    f"loading the planning model of {object_name} at levels "
+                    f"{list(self.levels)} (building missing tables takes ~1 min per object)"
+                )
                 t0 = time.monotonic()
                 # workers=1: forking a table-building pool from a process running DDS threads can
                 # deadlock; rrg-launch builds missing tables in parallel before it starts the nodes.
-                self._models[object_name] = PlanningModel(object_name, levels=self.levels, workers=1, progress=False)
-                self.get_logger().info(f"model of {object_name} loaded in {time.monotonic() - t0:.1f} s: "
-                                       f"WRTs {self._models[object_name].names}")
+                self._models[object_name] = PlanningModel(
+                    object_name, levels=self.levels, workers=1, progress=False
+                )
+                self.get_logger().info(
+                    f"model of {object_name} loaded in {time.monotonic() - t0:.1f} s: "
+                    f"WRTs {self._models[object_name].names}"
+                )
             return self._models[object_name]
 
     # ------------------------------------------------------------------ select action
@@ -135,13 +181,20 @@ class PlannerNode(Node):
         msg = req.belief
         if req.use_current_belief:
             if not self.get_client.service_is_ready():
-                raise RequestError(SA.NO_BELIEF, "use_current_belief, but the estimator's get_belief is not available")
+                raise RequestError(
+                    SA.NO_BELIEF,
+                    "use_current_belief, but the estimator's get_belief is not available",
+                )
             current = wait_for(self.get_client.call_async(GetBelief.Request()), 10.0)
             if current.error_code != GetBelief.Response.NONE:
-                raise RequestError(SA.NO_BELIEF, f"the estimator has no belief: {current.error_msg}")
+                raise RequestError(
+                    SA.NO_BELIEF, f"the estimator has no belief: {current.error_msg}"
+                )
             if current.object_name != req.object_name:
-                raise RequestError(SA.INVALID_BELIEF, f"the current belief is about {current.object_name!r}, "
-                                                      f"not {req.object_name!r}")
+                raise RequestError(
+                    SA.INVALID_BELIEF,
+                    f"the current belief is about {current.object_name!r}, not {req.object_name!r}",
+                )
             msg = current.belief
         try:
             return belief_from_msg(msg)
@@ -150,7 +203,9 @@ class PlannerNode(Node):
         except InvalidBelief as exc:
             raise RequestError(SA.INVALID_BELIEF, str(exc)) from exc
 
-    def on_select_action(self, req: SelectAction.Request, resp: SelectAction.Response) -> SelectAction.Response:
+    def on_select_action(
+        self, req: SelectAction.Request, resp: SelectAction.Response
+    ) -> SelectAction.Response:
         try:
             try:
                 requests.check_choice(req.strategy, req.horizon, req.delta)
@@ -163,12 +218,21 @@ class PlannerNode(Node):
                 model.level_of(belief.grid)
             except ValueError as exc:
                 raise RequestError(SA.INVALID_GRID, str(exc)) from exc
-            decision = decide(RobustGraspAgent(model, req.strategy, req.horizon, req.delta), belief, number=1)
+            decision = decide(
+                RobustGraspAgent(model, req.strategy, req.horizon, req.delta), belief, number=1
+            )
             if decision.action < 0:
-                raise RequestError(SA.NO_FEASIBLE_ACTION, f"no WRT of {req.object_name} is feasible at "
-                                                          f"w* = {np.round(belief.w_star(), 3).tolist()}")
+                raise RequestError(
+                    SA.NO_FEASIBLE_ACTION,
+                    f"no WRT of {req.object_name} is feasible at "
+                    f"w* = {np.round(belief.w_star(), 3).tolist()}",
+                )
             resp.wrt_name, resp.estimate = decision.wrt, planar_to_msg(decision.estimate)
-            resp.value, resp.p_goal, resp.planning_time = decision.value, decision.p_goal, decision.planning_time
+            resp.value, resp.p_goal, resp.planning_time = (
+                decision.value,
+                decision.p_goal,
+                decision.planning_time,
+            )
             if decision.search is not None:
                 values = decision.search.action_values
                 resp.action_names = model.names
@@ -194,9 +258,14 @@ class PlannerNode(Node):
             requests.check_choice(goal.strategy, goal.horizon, goal.delta)
             requests.check_object(goal.object_name)
             requests.check_level(goal.level, self.levels)
-            mean = ([goal.initial_mean.x, goal.initial_mean.y, goal.initial_mean.theta]
-                    if goal.use_initial_mean else WORLD.nominal_pose)
-            mean, sigma = requests.grasp_prior(goal.level, [goal.sigma_x, goal.sigma_y, goal.sigma_theta], mean)
+            mean = (
+                [goal.initial_mean.x, goal.initial_mean.y, goal.initial_mean.theta]
+                if goal.use_initial_mean
+                else WORLD.nominal_pose
+            )
+            mean, sigma = requests.grasp_prior(
+                goal.level, [goal.sigma_x, goal.sigma_y, goal.sigma_theta], mean
+            )
             return mean, sigma, requests.max_actions(goal.max_actions)
         except InvalidRequest as exc:
             raise RequestError.of(exc, RG) from exc
@@ -220,8 +289,10 @@ class PlannerNode(Node):
                 handle.succeed()
             else:
                 handle.abort()
-            text = (f"robust grasp ended: success={result.success} actions={list(result.actions_taken)} "
-                    f"P(goal)={result.final_p_goal:.3f}")
+            text = (
+                f"robust grasp ended: success={result.success} actions={list(result.actions_taken)} "
+                f"P(goal)={result.final_p_goal:.3f}"
+            )
             if result.error_code == RG.NONE:
                 self.get_logger().info(text)
             else:
@@ -233,27 +304,45 @@ class PlannerNode(Node):
         goal = handle.request
         mean, sigma, max_actions = self.validate_grasp(goal)
         model = self.model(goal.object_name)
-        interrupted = lambda: handle.is_cancel_requested or not self.context.ok()  # noqa: E731
+        interrupted = lambda: handle.is_cancel_requested or not self.context.ok()
         self.graph.reset(goal.object_name, goal.level, mean, sigma, interrupted)
         agent = RobustGraspAgent(model, goal.strategy, goal.horizon, goal.delta, max_actions)
 
         def on_decision(d: Decision) -> None:
-            handle.publish_feedback(RobustGrasp.Feedback(step=d.number, wrt_name=d.wrt, value=d.value,
-                                                         p_goal=d.p_goal, belief=self.graph.belief_msg))
+            handle.publish_feedback(
+                RobustGrasp.Feedback(
+                    step=d.number,
+                    wrt_name=d.wrt,
+                    value=d.value,
+                    p_goal=d.p_goal,
+                    belief=self.graph.belief_msg,
+                )
+            )
             self.step_pub.publish(decision_record(goal, d, self.now()))
-            self.get_logger().info(f"step {d.number}: {d.wrt} ({d.kind}) at e = {np.round(d.estimate, 3).tolist()}, "
-                                   f"P(goal) = {d.p_goal:.3f}, planned in {d.planning_time * 1e3:.0f} ms")
+            self.get_logger().info(
+                f"step {d.number}: {d.wrt} ({d.kind}) at e = {np.round(d.estimate, 3).tolist()}, "
+                f"P(goal) = {d.p_goal:.3f}, planned in {d.planning_time * 1e3:.0f} ms"
+            )
 
         def on_infeasible(d: Decision, reason: str) -> None:
-            self.get_logger().warn(f"{d.wrt} infeasible at {np.round(d.estimate, 3).tolist()} ({reason}): replanning")
+            self.get_logger().warn(
+                f"{d.wrt} infeasible at {np.round(d.estimate, 3).tolist()} ({reason}): replanning"
+            )
             self.step_pub.publish(infeasible_record(goal, d, reason, self.now()))
 
         def on_step(step, belief) -> None:
             result.actions_taken.append(step.wrt)
             result.final_p_goal = step.p_goal
 
-        loop = ClosedLoop(agent, self.graph, self.graph, on_decision=on_decision, on_infeasible=on_infeasible,
-                          on_step=on_step, canceled=interrupted)
+        loop = ClosedLoop(
+            agent,
+            self.graph,
+            self.graph,
+            on_decision=on_decision,
+            on_infeasible=on_infeasible,
+            on_step=on_step,
+            canceled=interrupted,
+        )
         run = loop.run()
         if run.error:
             raise RequestError(RG.PLANNING_FAILED, run.error)

@@ -16,6 +16,7 @@ this node drives it through ``RosRobot``, so it runs unchanged against a hardwar
 It lives in rrg_sim because everything it needs is there (the object catalogue with the
 WRTs, the WAM's IK, the path planning), and it is robot-side software: it never reads a belief.
 """
+
 from __future__ import annotations
 
 import sys
@@ -30,15 +31,15 @@ from rclpy.node import Node
 from std_msgs.msg import Header
 
 from rrg_msgs.action import ExecuteWrt
-from rrg_msgs.msg import Observation as ObservationMsg, Retreated
+from rrg_msgs.msg import Observation as ObservationMsg
+from rrg_msgs.msg import Retreated
 from rrg_msgs.srv import Retreat
-
+from rrg_sim.executor.robot_client import MotionCanceled, MotionFailed, RosRobot
+from rrg_sim.executor.trajectory import InfeasiblePath
 from rrg_sim.executor.wrt_executor import WrtExecutor
 from rrg_sim.objects import OBJECT_NAMES, get_object
-from rrg_sim.executor.trajectory import InfeasiblePath
 from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, observation_to_msg, planar_from_msg
 from rrg_sim.ros_common.node_main import keep_serving, run_node
-from rrg_sim.executor.robot_client import MotionCanceled, MotionFailed, RosRobot
 
 NODE_NAME = "executor"
 NAMESPACE = "rrg"
@@ -50,12 +51,23 @@ class ExecutorNode(Node):
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME, namespace=NAMESPACE)
-        self.declare_parameter("motion_timeout", 300.0, ParameterDescriptor(
-            description="Longest wait [s] for one guarded move or hand command", read_only=True,
-            floating_point_range=[FloatingPointRange(from_value=1.0, to_value=3600.0)]))
-        self.declare_parameter("ready_timeout", 30.0, ParameterDescriptor(
-            description="Longest wait [s] for the arm/hand interface when a goal arrives",
-            floating_point_range=[FloatingPointRange(from_value=0.1, to_value=600.0)]))
+        self.declare_parameter(
+            "motion_timeout",
+            300.0,
+            ParameterDescriptor(
+                description="Longest wait [s] for one guarded move or hand command",
+                read_only=True,
+                floating_point_range=[FloatingPointRange(from_value=1.0, to_value=3600.0)],
+            ),
+        )
+        self.declare_parameter(
+            "ready_timeout",
+            30.0,
+            ParameterDescriptor(
+                description="Longest wait [s] for the arm/hand interface when a goal arrives",
+                floating_point_range=[FloatingPointRange(from_value=0.1, to_value=600.0)],
+            ),
+        )
         group = ReentrantCallbackGroup()
         self.robot = RosRobot(self, group, self.get_parameter("motion_timeout").value)
         self.core = WrtExecutor(self.robot)
@@ -63,9 +75,15 @@ class ExecutorNode(Node):
         self.obs_pub = self.create_publisher(ObservationMsg, "observation", 10)
         self.retreated_pub = self.create_publisher(Retreated, "retreated", 10)
         self._last_observation: ObservationMsg | None = None  # of the WRT a retreat would leave
-        ActionServer(self, ExecuteWrt, "execute_wrt", execute_callback=self.execute_wrt,
-                     goal_callback=self.on_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
-                     callback_group=group)
+        ActionServer(
+            self,
+            ExecuteWrt,
+            "execute_wrt",
+            execute_callback=self.execute_wrt,
+            goal_callback=self.on_goal,
+            cancel_callback=lambda _: CancelResponse.ACCEPT,
+            callback_group=group,
+        )
         self.create_service(Retreat, "retreat", self.on_retreat, callback_group=group)
         self.get_logger().info("executor ready")
 
@@ -91,14 +109,20 @@ class ExecutorNode(Node):
         goal, result = handle.request, ExecuteWrt.Result()
         e = planar_from_msg(goal.estimate)
         if goal.object_name not in OBJECT_NAMES:
-            result.error_code, result.error_msg = R.UNKNOWN_OBJECT, f"unknown object {goal.object_name!r}"
+            result.error_code, result.error_msg = (
+                R.UNKNOWN_OBJECT,
+                f"unknown object {goal.object_name!r}",
+            )
         elif goal.wrt_name not in [w.name for w in get_object(goal.object_name).wrts()]:
             result.error_code = R.UNKNOWN_WRT
             result.error_msg = f"{goal.object_name} has no WRT {goal.wrt_name!r}"
         elif not np.all(np.isfinite(e)):
             result.error_code, result.error_msg = R.INFEASIBLE, f"non-finite estimate {e.tolist()}"
         elif not self.wait_ready():
-            result.error_code, result.error_msg = R.MOTION_FAILED, "the arm/hand interface is not available"
+            result.error_code, result.error_msg = (
+                R.MOTION_FAILED,
+                "the arm/hand interface is not available",
+            )
         else:
             with self._busy:
                 self.run(handle, get_object(goal.object_name).wrt(goal.wrt_name), e, result)
@@ -108,7 +132,9 @@ class ExecutorNode(Node):
             handle.canceled()
         else:
             handle.abort()
-            self.get_logger().error(f"execute_wrt {goal.object_name}/{goal.wrt_name} failed: {result.error_msg}")
+            self.get_logger().error(
+                f"execute_wrt {goal.object_name}/{goal.wrt_name} failed: {result.error_msg}"
+            )
         return result
 
     def run(self, handle: ServerGoalHandle, wrt, e: np.ndarray, result: ExecuteWrt.Result) -> None:
@@ -120,19 +146,26 @@ class ExecutorNode(Node):
             if self.core.last is not None:  # the previous WRT's retreat, announced like any other
                 self.retreat(progress)
             obs = self.core.execute(wrt, e, progress)
-            msg = observation_to_msg(obs, handle.request.object_name, wrt.name, e, self.get_clock().now().to_msg())
+            msg = observation_to_msg(
+                obs, handle.request.object_name, wrt.name, e, self.get_clock().now().to_msg()
+            )
             self._last_observation = msg
             self.obs_pub.publish(msg)
             result.observation = msg
-            self.get_logger().info(f"{wrt.name} at {np.round(e, 3).tolist()}: contact={obs.contact}, "
-                                   f"progress {obs.progress:.3f} m, sensors {np.flatnonzero(obs.sensors).tolist()}")
+            self.get_logger().info(
+                f"{wrt.name} at {np.round(e, 3).tolist()}: contact={obs.contact}, "
+                f"progress {obs.progress:.3f} m, sensors {np.flatnonzero(obs.sensors).tolist()}"
+            )
         except InfeasiblePath as exc:
-            result.error_code, result.error_msg = R.INFEASIBLE, f"no IK path for {wrt.name} at {e.tolist()}: {exc}"
+            result.error_code, result.error_msg = (
+                R.INFEASIBLE,
+                f"no IK path for {wrt.name} at {e.tolist()}: {exc}",
+            )
         except MotionCanceled as exc:
             result.error_code, result.error_msg = R.CANCELED, str(exc)
         except MotionFailed as exc:
             result.error_code, result.error_msg = R.MOTION_FAILED, str(exc)
-        except Exception as exc:  # noqa: BLE001 - answer, log and keep serving
+        except Exception as exc:
             result.error_code, result.error_msg = R.UNKNOWN, f"{type(exc).__name__}: {exc}"
         finally:
             self.robot.interrupted = lambda: not self.context.ok()
@@ -144,20 +177,30 @@ class ExecutorNode(Node):
         header = Header(stamp=self.get_clock().now().to_msg(), frame_id=WORLD_FRAME)
         event = Retreated(header=header)
         if obs is not None:
-            event.observation_stamp, event.object_name, event.wrt_name = obs.header.stamp, obs.object_name, obs.wrt_name
+            event.observation_stamp, event.object_name, event.wrt_name = (
+                obs.header.stamp,
+                obs.object_name,
+                obs.wrt_name,
+            )
         self.retreated_pub.publish(event)
         return header
 
     @keep_serving
     def on_retreat(self, req: Retreat.Request, resp: Retreat.Response) -> Retreat.Response:
         if not self.wait_ready():
-            resp.error_code, resp.error_msg = Retreat.Response.UNAVAILABLE, "the arm/hand interface is not available"
+            resp.error_code, resp.error_msg = (
+                Retreat.Response.UNAVAILABLE,
+                "the arm/hand interface is not available",
+            )
             return resp
         with self._busy:
             try:
                 resp.header = self.retreat()
             except (MotionFailed, MotionCanceled, InfeasiblePath) as exc:
-                resp.error_code, resp.error_msg = Retreat.Response.MOTION_FAILED, f"retreat failed: {exc}"
+                resp.error_code, resp.error_msg = (
+                    Retreat.Response.MOTION_FAILED,
+                    f"retreat failed: {exc}",
+                )
         if resp.error_code != Retreat.Response.NONE:
             self.get_logger().error(resp.error_msg)
         return resp

@@ -6,10 +6,11 @@ Joint angles come from ``/rrg/joint_states`` and from the results of the command
 whichever is newer; the sensor reading is the one the last command returned (at a guarded
 move's stop, after closing the hand).
 """
+
 from __future__ import annotations
 
 import threading
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 from builtin_interfaces.msg import Duration
@@ -19,12 +20,21 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from rrg_msgs.action import GuardedMove
 from rrg_msgs.srv import HandCommand
-
 from rrg_sim import wam
 from rrg_sim.config import HAND, N_SENSORS
 from rrg_sim.executor.wrt_executor import Reading
-from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES, PROXIMAL_JOINT_NAMES, SPREAD_JOINT_NAME, tip_contacts_from_msg
-from rrg_sim.ros_common.futures import ThreadSafeActionClient, WaitInterrupted, WaitTimeout, wait_for
+from rrg_sim.ros_common.futures import (
+    ThreadSafeActionClient,
+    WaitInterrupted,
+    WaitTimeout,
+    wait_for,
+)
+from rrg_sim.ros_common.msg_conversions import (
+    ARM_JOINT_NAMES,
+    PROXIMAL_JOINT_NAMES,
+    SPREAD_JOINT_NAME,
+    tip_contacts_from_msg,
+)
 
 
 class MotionFailed(RuntimeError):
@@ -51,14 +61,22 @@ class RosRobot:
     def __init__(self, node: Node, callback_group, timeout_s: float):
         self.node = node
         self.timeout_s = timeout_s
-        self.move_client = ThreadSafeActionClient(node, GuardedMove, "guarded_move", callback_group=callback_group)
-        self.hand_client = node.create_client(HandCommand, "hand_command", callback_group=callback_group)
-        node.create_subscription(JointState, "joint_states", self.on_joint_state, 10, callback_group=callback_group)
+        self.move_client = ThreadSafeActionClient(
+            node, GuardedMove, "guarded_move", callback_group=callback_group
+        )
+        self.hand_client = node.create_client(
+            HandCommand, "hand_command", callback_group=callback_group
+        )
+        node.create_subscription(
+            JointState, "joint_states", self.on_joint_state, 10, callback_group=callback_group
+        )
         self.interrupted: Callable[[], bool] = lambda: False
         self._lock = threading.Lock()
         self._joints: dict[str, float] = {}
         self._stamp = -1
-        self._reading = Reading(np.zeros(N_SENSORS, bool), np.full((3, 3), np.nan), np.full((3, 3), np.nan))
+        self._reading = Reading(
+            np.zeros(N_SENSORS, bool), np.full((3, 3), np.nan), np.full((3, 3), np.nan)
+        )
 
     # ------------------------------------------------------------------ state
     def on_joint_state(self, msg: JointState) -> None:
@@ -70,8 +88,11 @@ class RosRobot:
     def ready(self) -> bool:
         """Whether the joint states of every joint the executor needs have arrived."""
         names = (*ARM_JOINT_NAMES, SPREAD_JOINT_NAME, *PROXIMAL_JOINT_NAMES)
-        return all(n in self._joints for n in names) and self.move_client.server_is_ready() \
+        return (
+            all(n in self._joints for n in names)
+            and self.move_client.server_is_ready()
             and self.hand_client.service_is_ready()
+        )
 
     def synced_since(self, since_ns: int) -> bool:
         """Whether a joint state stamped at or after ``since_ns`` (ROS time) has arrived: the
@@ -82,7 +103,9 @@ class RosRobot:
         return np.array([self._joints[n] for n in ARM_JOINT_NAMES])
 
     def hand_angles(self) -> tuple[float, np.ndarray]:
-        return float(self._joints[SPREAD_JOINT_NAME]), np.array([self._joints[n] for n in PROXIMAL_JOINT_NAMES])
+        return float(self._joints[SPREAD_JOINT_NAME]), np.array(
+            [self._joints[n] for n in PROXIMAL_JOINT_NAMES]
+        )
 
     def hand_pose(self) -> np.ndarray:
         return wam.fk(self.arm_q())
@@ -103,10 +126,19 @@ class RosRobot:
 
     # ------------------------------------------------------------------ commands
     def follow(self, q: np.ndarray, t: np.ndarray, guard: bool) -> float | None:
-        traj = JointTrajectory(joint_names=list(ARM_JOINT_NAMES), points=[
-            JointTrajectoryPoint(positions=qk.tolist(), time_from_start=duration(tk)) for qk, tk in zip(q, t)])
-        handle = self._wait(self.move_client.send_goal_async(GuardedMove.Goal(trajectory=traj, stop_on_contact=guard)),
-                            "guarded_move")
+        traj = JointTrajectory(
+            joint_names=list(ARM_JOINT_NAMES),
+            points=[
+                JointTrajectoryPoint(positions=qk.tolist(), time_from_start=duration(tk))
+                for qk, tk in zip(q, t)
+            ],
+        )
+        handle = self._wait(
+            self.move_client.send_goal_async(
+                GuardedMove.Goal(trajectory=traj, stop_on_contact=guard)
+            ),
+            "guarded_move",
+        )
         if not handle.accepted:
             raise MotionFailed("guarded_move rejected the goal")
         try:
@@ -121,8 +153,11 @@ class RosRobot:
         return res.path_fraction * (len(q) - 1) if res.stopped_on_contact else None
 
     def _hand(self, mode: int, spread: float, proximal) -> HandCommand.Response:
-        req = HandCommand.Request(mode=mode, spread=float(np.clip(spread, *HAND.spread_range)),
-                                  proximal=np.clip(np.broadcast_to(proximal, 3), *HAND.proximal_range))
+        req = HandCommand.Request(
+            mode=mode,
+            spread=float(np.clip(spread, *HAND.spread_range)),
+            proximal=np.clip(np.broadcast_to(proximal, 3), *HAND.proximal_range),
+        )
         try:
             resp = self._wait(self.hand_client.call_async(req), "hand_command")
         except WaitInterrupted as exc:

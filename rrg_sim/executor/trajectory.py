@@ -17,6 +17,7 @@ the lift that follows it (``plan_path``'s ``then``), so that the arm can lift wh
 every waypoint): these are the joint via-points' times of a guarded move. ``servo_targets``
 turns timed via-points into servo targets for every control period.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -88,31 +89,36 @@ class DensePath:
         steps = np.linalg.norm(np.diff(self.poses[:, :3, 3], axis=0), axis=1)
         return np.r_[0.0, np.cumsum(steps)]
 
-    def upto(self, index: int) -> "DensePath":
+    def upto(self, index: int) -> DensePath:
         """The samples 0..index."""
-        return DensePath(self.poses[:index + 1], self.q[:index + 1], self.segment[:index + 1])
+        return DensePath(self.poses[: index + 1], self.q[: index + 1], self.segment[: index + 1])
 
-    def reversed(self) -> "DensePath":
+    def reversed(self) -> DensePath:
         """The same samples backwards, segment k renumbered max - k (a lead-in becomes last)."""
         seg = self.segment[::-1]
         return DensePath(self.poses[::-1], self.q[::-1], seg.max() - seg)
 
 
-def densify(waypoints: np.ndarray, step: float = PHYSICS.path_step) -> tuple[np.ndarray, np.ndarray]:
+def densify(
+    waypoints: np.ndarray, step: float = PHYSICS.path_step
+) -> tuple[np.ndarray, np.ndarray]:
     """Straight-line samples (M,4,4) between hand waypoints (K,4,4), about ``step`` [m] apart
     (rotations counted at GEOMSIM.rotation_sample_radius), and their segment index (M,)."""
     poses, segment = [waypoints[:1]], [np.zeros(1, int)]
     for k, (T0, T1) in enumerate(zip(waypoints[:-1], waypoints[1:])):
-        length = max(np.linalg.norm(T1[:3, 3] - T0[:3, 3]),
-                     rotation_angles(T0, T1) * GEOMSIM.rotation_sample_radius)
+        length = max(
+            np.linalg.norm(T1[:3, 3] - T0[:3, 3]),
+            rotation_angles(T0, T1) * GEOMSIM.rotation_sample_radius,
+        )
         n = max(1, int(np.ceil(length / step)))
         poses.append(interpolate_poses(T0, T1, n + 1)[1:])
         segment.append(np.full(n, k))
     return np.concatenate(poses), np.concatenate(segment)
 
 
-def chain_ik(poses: np.ndarray, q_prev: np.ndarray, free: np.ndarray | None = None,
-             from_prev: bool = False) -> np.ndarray:
+def chain_ik(
+    poses: np.ndarray, q_prev: np.ndarray, free: np.ndarray | None = None, from_prev: bool = False
+) -> np.ndarray:
     """Joint angles (M,7) for dense hand poses (M,4,4): the continuous IK chain (see the module
     doc) of least joint motion, counting START_WEIGHT × the distance of its start from q_prev
     (7,); with ``from_prev``, the least-motion chain that starts at q_prev itself (poses[0]
@@ -125,8 +131,11 @@ def chain_ik(poses: np.ndarray, q_prev: np.ndarray, free: np.ndarray | None = No
     order = np.argsort(sol.q3[:, 0])  # J3 samples in ascending order (q_prev's own among them)
     q = sol.angles().reshape(wam.N_JOINTS, 8, -1, M)[:, :, order]  # (7, branch, J3 sample, pose)
     usable = sol.usable().reshape(8, -1, M)[:, order]
-    inside = np.all((q >= wam.LOWER[:, None, None, None] + LIMIT_MARGIN)
-                    & (q <= wam.UPPER[:, None, None, None] - LIMIT_MARGIN), axis=0)
+    inside = np.all(
+        (q >= wam.LOWER[:, None, None, None] + LIMIT_MARGIN)
+        & (q <= wam.UPPER[:, None, None, None] - LIMIT_MARGIN),
+        axis=0,
+    )
     penalty = np.where(inside, 0.0, LIMIT_PENALTY)  # (branch, J3 sample, pose)
     S = q.shape[2]
     q = np.where(usable, q, np.nan)
@@ -139,12 +148,14 @@ def chain_ik(poses: np.ndarray, q_prev: np.ndarray, free: np.ndarray | None = No
     steps = np.full((3, 8, 8, S, M), np.inf)
     for k, sh in enumerate(shifts):
         lo, hi = max(0, sh), S + min(0, sh)  # target samples s with s - sh in range
-        cross = np.einsum("jfsm,jtsm->ftsm", qs[:, :, lo - sh:hi - sh, :-1], qs[:, :, lo:hi, 1:])
-        d2 = n2[:, None, lo - sh:hi - sh, :-1] + n2[None, :, lo:hi, 1:] - 2 * cross
+        cross = np.einsum("jfsm,jtsm->ftsm", qs[:, :, lo - sh : hi - sh, :-1], qs[:, :, lo:hi, 1:])
+        d2 = n2[:, None, lo - sh : hi - sh, :-1] + n2[None, :, lo:hi, 1:] - 2 * cross
         if sh:
             d2[..., ~free[1:]] = np.inf
         with np.errstate(invalid="ignore"):
-            steps[k, :, :, lo:hi, 1:] = np.where(d2 <= MAX_JOINT_STEP**2, np.maximum(d2, 0.0), np.inf)
+            steps[k, :, :, lo:hi, 1:] = np.where(
+                d2 <= MAX_JOINT_STEP**2, np.maximum(d2, 0.0), np.inf
+            )
     steps = steps.reshape(24, 8, S, M) + penalty[None]
     start = (q[..., 0] - q_prev[:, None, None]) * JOINT_METRIC[:, None, None]
     start2 = np.sum(start**2, axis=0)
@@ -156,7 +167,11 @@ def chain_ik(poses: np.ndarray, q_prev: np.ndarray, free: np.ndarray | None = No
     back = np.zeros((M, 8, S), dtype=int)  # (J3 shift + 1) * 8 + branch of the previous sample
     prev = np.full((3, 8, S), np.inf)
     for m in range(1, M):
-        prev[0, :, :-1], prev[1], prev[2, :, 1:] = cost[:, 1:], cost, cost[:, :-1]  # cost at s - shift
+        prev[0, :, :-1], prev[1], prev[2, :, 1:] = (
+            cost[:, 1:],
+            cost,
+            cost[:, :-1],
+        )  # cost at s - shift
         total = (prev[:, :, None, :] + steps[..., m].reshape(3, 8, 8, S)).reshape(24, 8, S)
         back[m] = np.argmin(total, axis=0)
         cost = np.take_along_axis(total, back[m][None], axis=0)[0]
@@ -193,7 +208,9 @@ def _largest_step(q: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(q, axis=0) * JOINT_METRIC, axis=1).max(initial=0.0))
 
 
-def _densify_via(start: np.ndarray, waypoints: np.ndarray, via: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+def _densify_via(
+    start: np.ndarray, waypoints: np.ndarray, via: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
     """densify from start through waypoints; with a via pose, segment 0 runs start → via →
     waypoints[0] (both legs labelled 0)."""
     if via is None:
@@ -202,9 +219,14 @@ def _densify_via(start: np.ndarray, waypoints: np.ndarray, via: np.ndarray | Non
     return poses, np.maximum(segment - 1, 0)
 
 
-def plan_path(waypoints: np.ndarray, q_start: np.ndarray, rigid_from: int = 0,
-              reconfigure: bool = False, via: np.ndarray | None = None,
-              then: np.ndarray | None = None) -> DensePath:
+def plan_path(
+    waypoints: np.ndarray,
+    q_start: np.ndarray,
+    rigid_from: int = 0,
+    reconfigure: bool = False,
+    via: np.ndarray | None = None,
+    then: np.ndarray | None = None,
+) -> DensePath:
     """Dense joint path from the arm's configuration q_start along straight Cartesian segments
     from the current hand pose through hand waypoints (K,4,4); segment 0 passes through the
     ``via`` pose (4,4) when one is given. ``then`` (L,4,4): hand waypoints the arm must be
@@ -226,7 +248,9 @@ def plan_path(waypoints: np.ndarray, q_start: np.ndarray, rigid_from: int = 0,
     if then is not None:
         waypoints = np.concatenate([waypoints, np.asarray(then, dtype=float)])
 
-    def chain(start: np.ndarray, q0: np.ndarray, from_prev: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def chain(
+        start: np.ndarray, q0: np.ndarray, from_prev: bool = False
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         poses, segment = _densify_via(start, waypoints, via)
         q = chain_ik(poses, q0, (segment < rigid_from) | (segment >= K), from_prev)
         keep = segment < K
@@ -236,8 +260,11 @@ def plan_path(waypoints: np.ndarray, q_start: np.ndarray, rigid_from: int = 0,
     poses, segment, q = chain(here, q_start)
     try:
         lead = self_motion(here, q_start, q[0])[:-1]
-        return DensePath(np.concatenate([np.repeat(here[None], len(lead), axis=0), poses]),
-                         np.vstack([lead, q]), np.r_[np.full(len(lead), -1), segment])
+        return DensePath(
+            np.concatenate([np.repeat(here[None], len(lead), axis=0), poses]),
+            np.vstack([lead, q]),
+            np.r_[np.full(len(lead), -1), segment],
+        )
     except InfeasiblePath:
         pass
     # No elbow swivel reaches the least-motion chain: take the least-motion one that starts
@@ -256,8 +283,11 @@ def plan_path(waypoints: np.ndarray, q_start: np.ndarray, rigid_from: int = 0,
     poses, segment, q = chain(up, rise[-1])
     move = joint_path(rise[-1], q[0])
     lead_poses = np.concatenate([rise_poses, move.poses[1:-1]])
-    return DensePath(np.concatenate([lead_poses, poses]), np.vstack([rise, move.q[1:-1], q]),
-                     np.r_[np.full(len(rise_poses), -2), np.full(len(move.q) - 2, -1), segment])
+    return DensePath(
+        np.concatenate([lead_poses, poses]),
+        np.vstack([rise, move.q[1:-1], q]),
+        np.r_[np.full(len(rise_poses), -2), np.full(len(move.q) - 2, -1), segment],
+    )
 
 
 def solve_path(poses: np.ndarray, q_start: np.ndarray) -> DensePath:
@@ -265,8 +295,11 @@ def solve_path(poses: np.ndarray, q_start: np.ndarray) -> DensePath:
     free to move along it, with an elbow swivel first where the chain starts elsewhere."""
     q = chain_ik(poses, q_start, np.ones(len(poses), bool))
     lead = self_motion(poses[0], q_start, q[0])[:-1]
-    return DensePath(np.concatenate([np.repeat(poses[:1], len(lead), axis=0), poses]),
-                     np.vstack([lead, q]), np.r_[np.full(len(lead), -1), np.zeros(len(poses), int)])
+    return DensePath(
+        np.concatenate([np.repeat(poses[:1], len(lead), axis=0), poses]),
+        np.vstack([lead, q]),
+        np.r_[np.full(len(lead), -1), np.zeros(len(poses), int)],
+    )
 
 
 def joint_path(q_from: np.ndarray, q_to: np.ndarray) -> DensePath:
@@ -283,8 +316,11 @@ def _trapezoid_time(length: float, u: np.ndarray) -> np.ndarray:
     ta, u = ACCEL_TIME, np.clip(u, 0.0, length)
     total = _duration(length)
     ramp = min(ta / 2, length / 2)  # progress at the end of the acceleration
-    return np.where(u <= ramp, np.sqrt(2 * ta * u),
-                    np.where(u > length - ramp, total - np.sqrt(2 * ta * (length - u)), u + ta / 2))
+    return np.where(
+        u <= ramp,
+        np.sqrt(2 * ta * u),
+        np.where(u > length - ramp, total - np.sqrt(2 * ta * (length - u)), u + ta / 2),
+    )
 
 
 def _smooth(q: np.ndarray) -> np.ndarray:
@@ -294,7 +330,9 @@ def _smooth(q: np.ndarray) -> np.ndarray:
     kernel = np.full(2 * w + 1, 1.0 / (2 * w + 1))
     for _ in range(2):
         padded = np.pad(q, ((w, w), (0, 0)), mode="edge")
-        q = np.stack([np.convolve(padded[:, j], kernel, mode="valid") for j in range(q.shape[1])], axis=1)
+        q = np.stack(
+            [np.convolve(padded[:, j], kernel, mode="valid") for j in range(q.shape[1])], axis=1
+        )
     return q
 
 
@@ -319,7 +357,9 @@ class TimedPath:
         return len(self.ctrl)
 
 
-def sample_times(path: DensePath, speeds: dict[int, tuple[float, float]] | None = None) -> np.ndarray:
+def sample_times(
+    path: DensePath, speeds: dict[int, tuple[float, float]] | None = None
+) -> np.ndarray:
     """Time [s] from the start at which the arm passes each dense sample (M,): a trapezoidal
     profile per segment at (palm speed [m/s], turn speed [rad/s]) (``speeds`` by segment
     index; default PHYSICS.move_speed, PHYSICS.turn_speed), no joint faster than
@@ -329,8 +369,12 @@ def sample_times(path: DensePath, speeds: dict[int, tuple[float, float]] | None 
     default = (PHYSICS.move_speed, PHYSICS.turn_speed)
     v = np.array([speeds.get(int(k), default) for k in path.segment[1:]]).reshape(-1, 2)  # per step
     a, b = path.poses[:-1], path.poses[1:]
-    steps = np.stack([np.linalg.norm(b[:, :3, 3] - a[:, :3, 3], axis=1), rotation_angles(a, b)], axis=1)
-    joint = (np.abs(np.diff(path.q, axis=0)) / np.asarray(PHYSICS.joint_speed)).max(axis=1, initial=0.0)
+    steps = np.stack(
+        [np.linalg.norm(b[:, :3, 3] - a[:, :3, 3], axis=1), rotation_angles(a, b)], axis=1
+    )
+    joint = (np.abs(np.diff(path.q, axis=0)) / np.asarray(PHYSICS.joint_speed)).max(
+        axis=1, initial=0.0
+    )
     cost = np.r_[0.0, np.cumsum(np.maximum((steps / v).max(axis=1, initial=0.0), joint))]
     t = np.zeros(len(cost))
     start = 0.0
@@ -350,7 +394,10 @@ def servo_targets(q: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     dt = PHYSICS.timestep
     n = int(np.ceil(t[-1] / dt)) if len(t) > 1 else 0
     periods = np.arange(n + 1) * dt
-    index = np.r_[np.interp(periods, t, np.arange(len(t))), np.full(int(round(SETTLE_TIME / dt)), len(t) - 1.0)]
+    index = np.r_[
+        np.interp(periods, t, np.arange(len(t))),
+        np.full(int(round(SETTLE_TIME / dt)), len(t) - 1.0),
+    ]
     lo = np.minimum(np.floor(index).astype(int), max(len(t) - 2, 0))
     hi = np.minimum(lo + 1, len(t) - 1)
     qp = _smooth(q[lo] + (index - lo)[:, None] * (q[hi] - q[lo]))
@@ -358,7 +405,9 @@ def servo_targets(q: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return qp + qd * (np.asarray(PHYSICS.arm_kv) / np.asarray(PHYSICS.arm_kp)), index
 
 
-def timed_controls(path: DensePath, speeds: dict[int, tuple[float, float]] | None = None) -> TimedPath:
+def timed_controls(
+    path: DensePath, speeds: dict[int, tuple[float, float]] | None = None
+) -> TimedPath:
     """Servo targets for every control period along a dense path timed by ``sample_times``."""
     ctrl, index = servo_targets(path.q, sample_times(path, speeds))
     return TimedPath(path, ctrl, index)

@@ -12,20 +12,30 @@ it down and opens the hand.
 The robot is anything with the small ``Robot`` interface: ``PhysicsWorld`` implements it
 directly, the executor node with action and service clients of the sim (or hardware) node.
 """
+
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable, Protocol
+from typing import Protocol
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from rrg_sim import wam
 from rrg_sim.config import GEOMSIM, N_SENSORS, PHYSICS, REORIENT_MIN_FINGERS
+from rrg_sim.executor.trajectory import (
+    DensePath,
+    InfeasiblePath,
+    densify,
+    joint_path,
+    plan_path,
+    sample_times,
+    solve_path,
+)
 from rrg_sim.hand import hand_geoms_world
 from rrg_sim.observation import Observation, grasp_arrived, holds_object
-from rrg_sim.executor.trajectory import DensePath, InfeasiblePath, densify, joint_path, plan_path, sample_times, solve_path
 from rrg_sim.poses import planar_pose, raised
 from rrg_sim.wrt import WRT
 
@@ -144,8 +154,14 @@ def wrt_path(wrt: WRT, e: np.ndarray, q_start: np.ndarray) -> DensePath:
     when the WRT starts low (``transit_via``), and with an IK chain that can go on to the lift
     or turn that follows its grasp (``lift_after``). Raises InfeasiblePath."""
     poses = wrt.world_poses(e)
-    return plan_path(poses, q_start, rigid_from=1, reconfigure=True, via=transit_via(poses[0]),
-                     then=lift_after(wrt, poses[-1]))
+    return plan_path(
+        poses,
+        q_start,
+        rigid_from=1,
+        reconfigure=True,
+        via=transit_via(poses[0]),
+        then=lift_after(wrt, poses[-1]),
+    )
 
 
 def executed_poses(wrt: WRT) -> np.ndarray:
@@ -157,7 +173,9 @@ def executed_poses(wrt: WRT) -> np.ndarray:
     origin = planar_pose(np.zeros(3))  # the object frame in world for e = 0
     poses = wrt.world_poses(np.zeros(3))
     via, lift = transit_via(poses[0]), lift_after(wrt, poses[-1])
-    path = np.concatenate([p for p in (None if via is None else via[None], poses, lift) if p is not None])
+    path = np.concatenate(
+        [p for p in (None if via is None else via[None], poses, lift) if p is not None]
+    )
     dense, _ = densify(path, PHYSICS.feasibility_step)
     return np.linalg.inv(origin) @ dense
 
@@ -182,7 +200,9 @@ class WrtExecutor:
         self.last = None
 
     # ------------------------------------------------------------------ motion
-    def _follow(self, path: DensePath, guard: bool = False, speeds: dict | None = None) -> float | None:
+    def _follow(
+        self, path: DensePath, guard: bool = False, speeds: dict | None = None
+    ) -> float | None:
         return self.robot.follow(path.q, sample_times(path, speeds), guard)
 
     def _move(self, waypoints: np.ndarray, rigid_from: int = 0) -> None:
@@ -193,16 +213,22 @@ class WrtExecutor:
         """Raise the open hand straight up to PHYSICS.transit_height, clear of the object, or as
         far as the arm can."""
         here = self.robot.hand_pose()
-        self._move_as_far_as_feasible(lambda d: raised(here, d), PHYSICS.transit_height - here[2, 3])
+        self._move_as_far_as_feasible(
+            lambda d: raised(here, d), PHYSICS.transit_height - here[2, 3]
+        )
 
     def _back_out(self) -> None:
         """Withdraw the open hand along its approach axis (hand −z) by PHYSICS.back_out_distance,
         or as far as the arm can: the way out of a grasp whose fingers wrap a part (rising
         with them around the pitcher's handle dragged it 8 cm and turned it 1.3 rad)."""
         here = self.robot.hand_pose()
-        self._move_as_far_as_feasible(lambda d: here @ _translation_z(-d), PHYSICS.back_out_distance)
+        self._move_as_far_as_feasible(
+            lambda d: here @ _translation_z(-d), PHYSICS.back_out_distance
+        )
 
-    def _move_as_far_as_feasible(self, pose_at: Callable[[float], np.ndarray], distance: float) -> None:
+    def _move_as_far_as_feasible(
+        self, pose_at: Callable[[float], np.ndarray], distance: float
+    ) -> None:
         """Move straight to pose_at(distance) [m], halving the distance until the move is
         feasible; none below 1 cm."""
         while distance >= 0.01:
@@ -217,7 +243,9 @@ class WrtExecutor:
         self.robot.move_hand(spread, proximal)
 
     # ------------------------------------------------------------------ WRTs
-    def execute(self, wrt: WRT, e, progress: Callable[[str, float], None] | None = None) -> Observation:
+    def execute(
+        self, wrt: WRT, e, progress: Callable[[str, float], None] | None = None
+    ) -> Observation:
         """Run τ(e) from home as a guarded move, close the fingers, and return the observation;
         the hand is left closed at the stop (call ``retreat`` next, or judge the grasp first).
         A pending retreat of the previous WRT runs first. Raises physics.trajectory's
@@ -253,9 +281,16 @@ class WrtExecutor:
         contact = stop is not None and not arrived
         touched = self.robot.close_hand(guarded=not arrived)
         closed = self.robot.reading()
-        obs = Observation(contact=contact, progress=progress_m, hand_pose=stop_pose,
-                          sensors=at_stop.fired | touched | closed.fired, closure=self.robot.hand_angles()[1],
-                          tip_points=closed.tip_points, tip_normals=closed.tip_normals, motion_dir=motion_dir)
+        obs = Observation(
+            contact=contact,
+            progress=progress_m,
+            hand_pose=stop_pose,
+            sensors=at_stop.fired | touched | closed.fired,
+            closure=self.robot.hand_angles()[1],
+            tip_points=closed.tip_points,
+            tip_normals=closed.tip_normals,
+            motion_dir=motion_dir,
+        )
         self.last = Execution(wrt, e, path.upto(int(np.floor(index))), obs, self.robot.arm_q())
         if wrt.kind == "reorient" and holds_object(obs.contact, obs.sensors, REORIENT_MIN_FINGERS):
             report("reorient", PHASES["reorient"])
@@ -278,12 +313,24 @@ class WrtExecutor:
         return v / max(np.linalg.norm(v), 1e-12)
 
     @staticmethod
-    def _reorient_poses(wrt: WRT, e: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _reorient_poses(
+        wrt: WRT, e: np.ndarray, T: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """From the grasp's hand pose T (4,4): the lifted pose, the dense arc (n,4,4) turning it
         about the vertical through e, and the rigid motion G (4,4) of the whole turn."""
         lifted = raised(T, PHYSICS.reorient_lift)
-        n = max(2, int(np.ceil(abs(wrt.reorient_angle) * GEOMSIM.rotation_sample_radius / PHYSICS.path_step)) + 1)
-        arc = np.stack([rotation_about_z(e[:2], a) @ lifted for a in np.linspace(0.0, wrt.reorient_angle, n)])
+        n = max(
+            2,
+            int(
+                np.ceil(
+                    abs(wrt.reorient_angle) * GEOMSIM.rotation_sample_radius / PHYSICS.path_step
+                )
+            )
+            + 1,
+        )
+        arc = np.stack(
+            [rotation_about_z(e[:2], a) @ lifted for a in np.linspace(0.0, wrt.reorient_angle, n)]
+        )
         return lifted, arc, rotation_about_z(e[:2], wrt.reorient_angle)
 
     def _check_reorient(self, wrt: WRT, e: np.ndarray, path: DensePath) -> None:
@@ -315,7 +362,9 @@ class WrtExecutor:
             return
         last, self.last = self.last, None
         if np.abs(self.robot.arm_q() - last.q_end).max() > RETREAT_TOLERANCE:
-            log.warning("retreat from %s dropped: the arm has moved since the WRT ended", last.wrt.name)
+            log.warning(
+                "retreat from %s dropped: the arm has moved since the WRT ended", last.wrt.name
+            )
             return
         if progress is not None:
             progress("retreat", PHASES["retreat"])
@@ -323,8 +372,11 @@ class WrtExecutor:
         q0 = self.robot.arm_q()
         if np.allclose(last.moved, np.eye(4)):
             back = last.path.reversed()
-            path = DensePath(np.concatenate([wam.fk(q0)[None], back.poses]), np.vstack([q0, back.q]),
-                             np.r_[back.segment[0], back.segment])
+            path = DensePath(
+                np.concatenate([wam.fk(q0)[None], back.poses]),
+                np.vstack([q0, back.q]),
+                np.r_[back.segment[0], back.segment],
+            )
             top = int(last.path.segment.max())  # segments 0 and the lead-ins are free space
             self._follow(path, speeds={top - k: FREE_SPEEDS for k in (0, -1, -2)})
         else:
@@ -333,8 +385,12 @@ class WrtExecutor:
                 try:
                     self._move(back, rigid_from=len(back))
                 except InfeasiblePath as exc:  # the turned approach leaves the arm's reach
-                    log.warning("retreat from %s: the turned approach is infeasible (%s); opening the "
-                                "hand and backing out along its approach axis instead", last.wrt.name, exc)
+                    log.warning(
+                        "retreat from %s: the turned approach is infeasible (%s); opening the "
+                        "hand and backing out along its approach axis instead",
+                        last.wrt.name,
+                        exc,
+                    )
                     self._open(0.0)
                     self._back_out()
                     self._rise()

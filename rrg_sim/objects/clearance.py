@@ -6,6 +6,7 @@ at a fixed preshape on a free body): a hand pose is *clear* when MuJoCo reports 
 within the margins. Straight motions are sampled every ``STEP`` and refined by bisection.
 Bounding-box distances use surface samples of the hand's geoms.
 """
+
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
@@ -33,8 +34,16 @@ def _fmt(values) -> str:
 
 
 def _geom(parent: ET.Element, kind: str, size, pos, quat, margin: float) -> None:
-    ET.SubElement(parent, "geom", type=kind, size=_fmt(size), pos=_fmt(pos), quat=_fmt(quat),
-                  margin=_fmt(margin), gap="0")
+    ET.SubElement(
+        parent,
+        "geom",
+        type=kind,
+        size=_fmt(size),
+        pos=_fmt(pos),
+        quat=_fmt(quat),
+        margin=_fmt(margin),
+        gap="0",
+    )
 
 
 class HandObjectScene:
@@ -44,8 +53,14 @@ class HandObjectScene:
     spread, preclose: the hand's preshape [rad]; object_margin, table_margin [m].
     """
 
-    def __init__(self, parts: Sequence[Primitive], spread: float, preclose: float,
-                 object_margin: float, table_margin: float) -> None:
+    def __init__(
+        self,
+        parts: Sequence[Primitive],
+        spread: float,
+        preclose: float,
+        object_margin: float,
+        table_margin: float,
+    ) -> None:
         root = ET.Element("mujoco", model="hand_object_clearance")
         world = ET.SubElement(root, "worldbody")
         _geom(world, "box", _TABLE_HALF, (0.0, 0.0, -_TABLE_HALF[2]), (1, 0, 0, 0), table_margin)
@@ -76,16 +91,23 @@ class HandObjectScene:
 
 
 @lru_cache(maxsize=64)
-def scene(parts: tuple[Primitive, ...], spread: float, preclose: float,
-          object_margin: float, table_margin: float) -> HandObjectScene:
+def scene(
+    parts: tuple[Primitive, ...],
+    spread: float,
+    preclose: float,
+    object_margin: float,
+    table_margin: float,
+) -> HandObjectScene:
     """Cached ``HandObjectScene``."""
     return HandObjectScene(parts, spread, preclose, object_margin, table_margin)
 
 
 @lru_cache(maxsize=32)
 def _hand_points(spread: float, preclose: float) -> np.ndarray:
-    points = [surface_samples(g.kind, g.size, SAMPLE_SPACING) @ T[:3, :3].T + T[:3, 3]
-              for g, T in hand.hand_geoms_world(np.eye(4), spread, np.full(3, preclose))]
+    points = [
+        surface_samples(g.kind, g.size, SAMPLE_SPACING) @ T[:3, :3].T + T[:3, 3]
+        for g, T in hand.hand_geoms_world(np.eye(4), spread, np.full(3, preclose))
+    ]
     out = np.concatenate(points)
     out.setflags(write=False)
     return out
@@ -138,8 +160,14 @@ def bounds_clearance(bounds: np.ndarray, poses: np.ndarray, points: np.ndarray) 
     return box_distance(bounds, transform_points(poses, points)).min(axis=-1)
 
 
-def backoff_until_clear(bounds: np.ndarray, pose: np.ndarray, direction, points: np.ndarray,
-                        clearance: float, max_travel: float = 2.0) -> np.ndarray:
+def backoff_until_clear(
+    bounds: np.ndarray,
+    pose: np.ndarray,
+    direction,
+    points: np.ndarray,
+    clearance: float,
+    max_travel: float = 2.0,
+) -> np.ndarray:
     """Move ``pose`` along ``direction`` until every hand point is at least ``clearance`` [m]
     from the axis-aligned box ``bounds`` (2,3); returns the new (4,4) pose.
 

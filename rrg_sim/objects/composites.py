@@ -1,4 +1,5 @@
 """Builders of primitives and of the concave composites (rings, handles) the objects are made of."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -44,8 +45,9 @@ def cylinder_between(p0, p1, radius: float) -> Primitive:
     return _segment("cylinder", p0, p1, radius)
 
 
-def ring_wall(n: int, r_bottom: float, r_top: float, z_bottom: float, z_top: float,
-              thickness: float) -> tuple[Primitive, ...]:
+def ring_wall(
+    n: int, r_bottom: float, r_top: float, z_bottom: float, z_top: float, thickness: float
+) -> tuple[Primitive, ...]:
     """A thin wall of revolution about the object's z axis made of n overlapping boxes.
 
     r_bottom, r_top: radius [m] of the wall's mid-surface at z_bottom and z_top (different
@@ -59,27 +61,44 @@ def ring_wall(n: int, r_bottom: float, r_top: float, z_bottom: float, z_top: flo
     r_mid, z_mid = (r_bottom + r_top) / 2, (z_bottom + z_top) / 2
     parts = []
     for phi in 2 * np.pi * np.arange(n) / n:
-        rotation = Rotation.from_euler("ZY", [phi, tilt])  # Rz(φ) Ry(tilt): face the segment, lean out
+        rotation = Rotation.from_euler(
+            "ZY", [phi, tilt]
+        )  # Rz(φ) Ry(tilt): face the segment, lean out
         parts.append(box(half, (r_mid * np.cos(phi), r_mid * np.sin(phi), z_mid), rotation))
     return tuple(parts)
 
 
-def loop_handle(y_root: float, y_bar: float, z_low: float, z_high: float, radius: float,
-                x: float = 0.0, y_root_high: float | None = None) -> tuple[Primitive, ...]:
+def loop_handle(
+    y_root: float,
+    y_bar: float,
+    z_low: float,
+    z_high: float,
+    radius: float,
+    x: float = 0.0,
+    y_root_high: float | None = None,
+) -> tuple[Primitive, ...]:
     """A round "C" handle in the plane x = const: two arms from the body at y_root out to a
     vertical bar at y_bar, at heights z_low and z_high (capsule centre lines) [m].
     y_root_high: where the upper arm leaves the body, if not at y_root (a flared body)."""
     top_root = (x, y_root if y_root_high is None else y_root_high, z_high)
     top_out = (x, y_bar, z_high)
     low_root, low_out = (x, y_root, z_low), (x, y_bar, z_low)
-    return (capsule_between(top_root, top_out, radius),
-            capsule_between(top_out, low_out, radius),
-            capsule_between(low_out, low_root, radius))
+    return (
+        capsule_between(top_root, top_out, radius),
+        capsule_between(top_out, low_out, radius),
+        capsule_between(low_out, low_root, radius),
+    )
 
 
 def turn_about_z(parts: tuple[Primitive, ...], yaw: float) -> tuple[Primitive, ...]:
     """The primitives turned by ``yaw`` [rad] about the object's vertical axis."""
     turn = Rotation.from_euler("z", yaw)
-    return tuple(Primitive(p.kind, p.size, tuple(turn.apply(p.pos)),
-                           _quat(turn * Rotation.from_quat(p.quat, scalar_first=True)))
-                 for p in parts)
+    return tuple(
+        Primitive(
+            p.kind,
+            p.size,
+            tuple(turn.apply(p.pos)),
+            _quat(turn * Rotation.from_quat(p.quat, scalar_first=True)),
+        )
+        for p in parts
+    )

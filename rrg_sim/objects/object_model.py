@@ -1,4 +1,5 @@
 """An object of the catalogue: collision primitives, physical properties, goal region and WRTs."""
+
 from __future__ import annotations
 
 import json
@@ -11,12 +12,12 @@ import trimesh
 from scipy.special import ndtr
 
 from rrg_sim.config import SENSOR_NAMES, SETTLING_KERNEL_BANDWIDTH
+from rrg_sim.objects.composites import turn_about_z
+from rrg_sim.objects.primitives import Primitive, union_bounds
 from rrg_sim.poses import wrap_angle
 from rrg_sim.wrt import WRT, ReorientOutcome
-from rrg_sim.objects.primitives import Primitive, union_bounds
-from .wrt_generation import info_wrts, sweep_wrt
-from rrg_sim.objects.composites import turn_about_z
 
+from .wrt_generation import info_wrts, sweep_wrt
 
 #: The measured grasp-settling fits (rrg_sim.physics.settle writes it; committed).
 SETTLING_FILE = Path(__file__).with_name("settling.json")
@@ -42,7 +43,7 @@ class AffineSettle:
         return out
 
     @classmethod
-    def from_json(cls, fit: dict) -> "AffineSettle":
+    def from_json(cls, fit: dict) -> AffineSettle:
         return cls(np.array(fit["A"]), np.array(fit["b"]), np.array(fit["sigma"]))
 
 
@@ -90,18 +91,24 @@ class Settling:
         scaled = self.start / self.bandwidth
         shift, second = np.empty_like(mean), np.empty_like(mean)
         for lo in range(0, len(delta), 2048):  # bounded memory: 2048 × M kernel weights
-            q = delta[lo:lo + 2048] / self.bandwidth
-            sq = np.sum(q * q, axis=1)[:, None] - 2 * q @ scaled.T + np.sum(scaled * scaled, axis=1)[None]
+            q = delta[lo : lo + 2048] / self.bandwidth
+            sq = (
+                np.sum(q * q, axis=1)[:, None]
+                - 2 * q @ scaled.T
+                + np.sum(scaled * scaled, axis=1)[None]
+            )
             k = np.exp(-0.5 * (sq - sq.min(axis=1, keepdims=True)))
             k /= k.sum(axis=1, keepdims=True)
-            shift[lo:lo + 2048], second[lo:lo + 2048] = k @ residual, k @ (residual * residual)
+            shift[lo : lo + 2048], second[lo : lo + 2048] = k @ residual, k @ (residual * residual)
         sigma = np.sqrt(np.maximum(second - shift * shift, 1e-12))
         ignored = ~np.isfinite(self.bandwidth)  # an axis nothing depends on keeps its affine map
         shift[:, ignored], sigma[:, ignored] = 0.0, fit.sigma[ignored]
         return mean + shift, sigma
 
 
-def load_settling(name: str, path: Path = SETTLING_FILE, bandwidth: np.ndarray | None = None) -> Settling | None:
+def load_settling(
+    name: str, path: Path = SETTLING_FILE, bandwidth: np.ndarray | None = None
+) -> Settling | None:
     """The object's measured Settling from the committed fits, or None if not measured
     (``bandwidth``: see Settling; default inf, the affine maps alone)."""
     if not path.exists():
@@ -110,19 +117,38 @@ def load_settling(name: str, path: Path = SETTLING_FILE, bandwidth: np.ndarray |
     if name not in fits:
         return None
     f = fits[name]
-    samples = {k: np.asarray(v, dtype=float).reshape(-1, 3) for k, v in f.get("samples", {}).items()}
+    samples = {
+        k: np.asarray(v, dtype=float).reshape(-1, 3) for k, v in f.get("samples", {}).items()
+    }
     start = samples.pop("start", np.zeros((0, 3)))
-    return Settling(np.array(f["box"]), AffineSettle.from_json(f["closed"]), AffineSettle.from_json(f["retreated"]),
-                    start=start, samples=samples, bandwidth=np.full(3, np.inf) if bandwidth is None else bandwidth,
-                    source=f"{fits.get('_source', path.name)}: {f['arrived']} of {f['grasps']} grasps arrived")
+    return Settling(
+        np.array(f["box"]),
+        AffineSettle.from_json(f["closed"]),
+        AffineSettle.from_json(f["retreated"]),
+        start=start,
+        samples=samples,
+        bandwidth=np.full(3, np.inf) if bandwidth is None else bandwidth,
+        source=f"{fits.get('_source', path.name)}: {f['arrived']} of {f['grasps']} grasps arrived",
+    )
 
 
-def measured_reorientation(name: str, wrts: tuple[WRT, ...], path: Path = REORIENTATION_FILE) -> tuple[WRT, ...]:
+def measured_reorientation(
+    name: str, wrts: tuple[WRT, ...], path: Path = REORIENTATION_FILE
+) -> tuple[WRT, ...]:
     """The object's reorientation WRTs with the outcomes the study measured for them
     (WRT.reorient_outcome); unmeasured ones unchanged."""
     fits = json.loads(path.read_text()).get(name, {}) if path.exists() else {}
-    return tuple(replace(w, reorient_outcome=ReorientOutcome(*(np.array(fits[w.name][k]) for k in ("box", "shift", "sigma"))))
-                 if w.name in fits else w for w in wrts)
+    return tuple(
+        replace(
+            w,
+            reorient_outcome=ReorientOutcome(
+                *(np.array(fits[w.name][k]) for k in ("box", "shift", "sigma"))
+            ),
+        )
+        if w.name in fits
+        else w
+        for w in wrts
+    )
 
 
 @dataclass(frozen=True)
@@ -236,12 +262,15 @@ class ObjectModel:
     def info_wrts(self) -> tuple[WRT, ...]:
         """Information-gathering WRTs: generated from the primitives (pinches, then the sweep),
         then the hand-designed ones."""
-        return (info_wrts(self.parts) + (sweep_wrt(self.parts),)
-                + self.designed_info_wrts)
+        return info_wrts(self.parts) + (sweep_wrt(self.parts),) + self.designed_info_wrts
 
     @cached_property
     def _wrts(self) -> tuple[WRT, ...]:
-        wrts = (self.goal_wrt,) + self.info_wrts + measured_reorientation(self.name, self.reorient_wrts)
+        wrts = (
+            (self.goal_wrt,)
+            + self.info_wrts
+            + measured_reorientation(self.name, self.reorient_wrts)
+        )
         names = [w.name for w in wrts]
         if len(set(names)) != len(names):
             raise ValueError(f"{self.name}: WRT names are not unique: {names}")
@@ -250,7 +279,9 @@ class ObjectModel:
     @cached_property
     def grasp_settling(self) -> Settling | None:
         """How the firm goal grasp moves the object (measured), or None if not measured."""
-        return load_settling(self.name, bandwidth=SETTLING_KERNEL_BANDWIDTH * np.asarray(self.goal.tol, dtype=float))
+        return load_settling(
+            self.name, bandwidth=SETTLING_KERNEL_BANDWIDTH * np.asarray(self.goal.tol, dtype=float)
+        )
 
     @property
     def settling(self) -> Settling | None:

@@ -10,6 +10,7 @@ collision geometry of the geometric simulator and of the MuJoCo physics model:
 
 ``pos`` (3,) [m] and ``quat`` (4,) w x y z place the primitive in the object frame.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -40,7 +41,9 @@ class Primitive:
             raise ValueError(f"unknown primitive kind {self.kind!r}; valid: {sorted(SIZE_LENGTHS)}")
         size = tuple(float(s) for s in self.size)
         if len(size) != SIZE_LENGTHS[self.kind] or min(size) < 0.0:
-            raise ValueError(f"{self.kind} needs {SIZE_LENGTHS[self.kind]} non-negative sizes, got {size}")
+            raise ValueError(
+                f"{self.kind} needs {SIZE_LENGTHS[self.kind]} non-negative sizes, got {size}"
+            )
         quat = np.asarray(self.quat, dtype=float)
         object.__setattr__(self, "size", size)
         object.__setattr__(self, "pos", tuple(float(p) for p in self.pos))
@@ -76,7 +79,9 @@ class Primitive:
             half = np.full(3, s[0])
         else:
             axis = np.abs(R[:, 2])
-            across = s[0] if self.kind == "capsule" else s[0] * np.sqrt(np.clip(1.0 - axis**2, 0.0, 1.0))
+            across = (
+                s[0] if self.kind == "capsule" else s[0] * np.sqrt(np.clip(1.0 - axis**2, 0.0, 1.0))
+            )
             half = s[1] * axis + across
         return np.stack([np.asarray(self.pos) - half, np.asarray(self.pos) + half])
 
@@ -86,9 +91,13 @@ class Primitive:
         if self.kind == "box":
             return trimesh.creation.box(extents=2 * np.asarray(s), transform=self.transform)
         if self.kind == "cylinder":
-            return trimesh.creation.cylinder(radius=s[0], height=2 * s[1], sections=32, transform=self.transform)
+            return trimesh.creation.cylinder(
+                radius=s[0], height=2 * s[1], sections=32, transform=self.transform
+            )
         if self.kind == "capsule":
-            return trimesh.creation.capsule(height=2 * s[1], radius=s[0], count=[24, 12], transform=self.transform)
+            return trimesh.creation.capsule(
+                height=2 * s[1], radius=s[0], count=[24, 12], transform=self.transform
+            )
         sphere = trimesh.creation.icosphere(subdivisions=2, radius=s[0])
         return sphere.apply_transform(self.transform)
 
@@ -99,7 +108,9 @@ def local_signed_distance(kind: str, size: Sequence[float], p: np.ndarray) -> np
         q = np.abs(p) - np.asarray(size)
         return np.linalg.norm(np.maximum(q, 0.0), axis=-1) + np.minimum(q.max(axis=-1), 0.0)
     if kind == "cylinder":
-        q = np.stack([np.hypot(p[..., 0], p[..., 1]) - size[0], np.abs(p[..., 2]) - size[1]], axis=-1)
+        q = np.stack(
+            [np.hypot(p[..., 0], p[..., 1]) - size[0], np.abs(p[..., 2]) - size[1]], axis=-1
+        )
         return np.linalg.norm(np.maximum(q, 0.0), axis=-1) + np.minimum(q.max(axis=-1), 0.0)
     if kind == "capsule":
         nearest = np.zeros_like(p)
@@ -137,7 +148,9 @@ def _disk(radius: float, z: float, spacing: float) -> np.ndarray:
     """Points on concentric circles filling a disk of ``radius`` at height z."""
     rings = [np.zeros((1, 3)) + [0.0, 0.0, z]]
     for r in _grid(0.0, radius, spacing)[1:]:
-        a = np.linspace(0.0, 2 * np.pi, max(6, int(np.ceil(2 * np.pi * r / spacing))), endpoint=False)
+        a = np.linspace(
+            0.0, 2 * np.pi, max(6, int(np.ceil(2 * np.pi * r / spacing))), endpoint=False
+        )
         rings.append(np.stack([r * np.cos(a), r * np.sin(a), np.full_like(a, z)], axis=-1))
     return np.concatenate(rings)
 
@@ -169,7 +182,11 @@ def surface_samples(kind: str, size: Sequence[float], spacing: float) -> np.ndar
         return np.concatenate([side, _disk(r, -hh, spacing), _disk(r, hh, spacing)])
     if kind == "capsule":
         lat = _grid(0.0, np.pi / 2, spacing / r)[1:]
-        caps = [_circle(r * np.cos(t), s * (hh + r * np.sin(t)), spacing) for t in lat for s in (-1.0, 1.0)]
+        caps = [
+            _circle(r * np.cos(t), s * (hh + r * np.sin(t)), spacing)
+            for t in lat
+            for s in (-1.0, 1.0)
+        ]
         return np.concatenate([side] + caps)
     raise ValueError(f"unknown primitive kind {kind!r}")
 

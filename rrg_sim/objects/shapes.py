@@ -9,18 +9,26 @@ the table (rrg_sim.wam: a horizontal approach is reachable only for approach yaw
 0.35-1.5 rad at the nominal position), so handle objects are built in a canonical frame and
 placed turned by that yaw. Masses and frictions are chosen per material (YCB masses where given).
 """
+
 from __future__ import annotations
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from rrg_sim.objects.object_model import GoalRegion, ObjectModel
+
 from ..config import HAND
 from ..wrt import WRT
 from .composites import box, cylinder, cylinder_between, loop_handle, ring_wall, turn_about_z
-from rrg_sim.objects.object_model import GoalRegion, ObjectModel
 from .primitives import Primitive
 from .surface_pairs import Pinch
-from .wrt_generation import designed_pinch_wrt, line_grasp_wrt, reorient_wrts, side_rotation, top_down_rotation
+from .wrt_generation import (
+    designed_pinch_wrt,
+    line_grasp_wrt,
+    reorient_wrts,
+    side_rotation,
+    top_down_rotation,
+)
 
 YCB = "YCB object set (shared/notes/mujoco-world.md)"
 DEG = np.pi / 180.0
@@ -32,14 +40,22 @@ FINGER_OFFSET = HAND.knuckle_radius
 SIDE_APPROACH_YAW = 1.0
 
 
-def _placed_side_grasp(canonical: tuple[Primitive, ...], through, pitch: float, roll: float,
-                       standoff: float, description: str) -> tuple[tuple[Primitive, ...], WRT]:
+def _placed_side_grasp(
+    canonical: tuple[Primitive, ...],
+    through,
+    pitch: float,
+    roll: float,
+    standoff: float,
+    description: str,
+) -> tuple[tuple[Primitive, ...], WRT]:
     """Canonical parts, designed for a side grasp along +x through ``through`` [m], turned by
     SIDE_APPROACH_YAW, and the goal WRT on the turned parts."""
     parts = turn_about_z(canonical, SIDE_APPROACH_YAW)
     through = Rotation.from_euler("z", SIDE_APPROACH_YAW).apply(through)
     rotation = side_rotation(pitch=pitch, roll=roll, yaw=SIDE_APPROACH_YAW)
-    return parts, line_grasp_wrt(parts, rotation, through, standoff=standoff, description=description)
+    return parts, line_grasp_wrt(
+        parts, rotation, through, standoff=standoff, description=description
+    )
 
 
 def _dims(x: float, y: float, z: float, **features: float) -> dict[str, float]:
@@ -60,15 +76,26 @@ def powerdrill() -> ObjectModel:
         box((0.005, 0.008, 0.010), (-0.005, 0.0, 0.115)),  # trigger
     )
     parts, goal_wrt = _placed_side_grasp(
-        canonical, (-0.0325, 0.0, 0.095), pitch=0.15, roll=0.0, standoff=0.015,
-        description="side grasp of the handle from behind, palm 2 cm off its back, finger 1 (upper) at the trigger")
+        canonical,
+        (-0.0325, 0.0, 0.095),
+        pitch=0.15,
+        roll=0.0,
+        standoff=0.015,
+        description="side grasp of the handle from behind, palm 2 cm off its back, finger 1 (upper) at the trigger",
+    )
     return ObjectModel(
-        "powerdrill", parts, mass=0.895, friction=0.6,
+        "powerdrill",
+        parts,
+        mass=0.895,
+        friction=0.6,
         dimensions=_dims(0.184, 0.057, 0.188, handle_depth=0.045, handle_width=0.040),
         source=f"{YCB}: power drill 18.4 x 18.8 x 5.7 cm, 0.895 kg, modelled standing on its battery",
-        goal=GoalRegion((0.01, 0.01, 10 * DEG)), goal_wrt=goal_wrt, reorient_wrts=reorient_wrts(parts),
+        goal=GoalRegion((0.01, 0.01, 10 * DEG)),
+        goal_wrt=goal_wrt,
+        reorient_wrts=reorient_wrts(parts),
         placement_yaw=SIDE_APPROACH_YAW,
-        description="power drill; goal: the handle within 1 cm and 10 deg so finger 1 reaches the trigger")
+        description="power drill; goal: the handle within 1 cm and 10 deg so finger 1 reaches the trigger",
+    )
 
 
 def brita_pitcher() -> ObjectModel:
@@ -87,11 +114,18 @@ def brita_pitcher() -> ObjectModel:
         box((hx, wall / 2, h / 2), (0.0, -hy + wall / 2, h / 2)),
         box((hx, hy, 0.003), (0.0, 0.0, 0.003)),  # bottom
     )
-    y_root, y_in, y_out = hy - wall, hy + 0.062, hy + 0.076  # handle: inside the wall, bar's inner and outer faces
+    y_root, y_in, y_out = (
+        hy - wall,
+        hy + 0.062,
+        hy + 0.076,
+    )  # handle: inside the wall, bar's inner and outer faces
     z_low, z_high, arm = 0.0875, 0.2025, 0.0075  # arm centre heights, arm half thickness
     handle = (
         box((0.010, (y_out - y_root) / 2, arm), (0.0, (y_root + y_out) / 2, z_high)),  # upper arm
-        box((0.010, (y_out - y_in) / 2, (z_high - z_low) / 2 + arm), (0.0, (y_in + y_out) / 2, (z_low + z_high) / 2)),
+        box(
+            (0.010, (y_out - y_in) / 2, (z_high - z_low) / 2 + arm),
+            (0.0, (y_in + y_out) / 2, (z_low + z_high) / 2),
+        ),
         box((0.010, (y_out - y_root) / 2, arm), (0.0, (y_root + y_out) / 2, z_low)),  # lower arm
     )
     # Fingers 1+2 through the handle, finger 3 outside: the bar sits between them, so all three
@@ -102,22 +136,38 @@ def brita_pitcher() -> ObjectModel:
     # 0.003 rad at -0.05, 0.04 rad level, 0.12 rad at +0.1). Roll 0 (not π) keeps J7 off its
     # limit along the approach.
     parts, goal_wrt = _placed_side_grasp(
-        body + handle, (0.0, (y_in + y_out) / 2 + 0.003, (z_low + z_high) / 2), pitch=-0.05, roll=0.0,
-        standoff=0.0, description="side grasp of the handle bar: fingers 1+2 through the handle, finger 3 outside")
+        body + handle,
+        (0.0, (y_in + y_out) / 2 + 0.003, (z_low + z_high) / 2),
+        pitch=-0.05,
+        roll=0.0,
+        standoff=0.0,
+        description="side grasp of the handle bar: fingers 1+2 through the handle, finger 3 outside",
+    )
     return ObjectModel(
-        "brita_pitcher", parts, mass=0.5, friction=0.5,
-        dimensions=_dims(0.145, y_out + hy, 0.242, handle_gap=y_in - hy,
-                         handle_opening_height=z_high - z_low - 2 * arm),
+        "brita_pitcher",
+        parts,
+        mass=0.5,
+        friction=0.5,
+        dimensions=_dims(
+            0.145,
+            y_out + hy,
+            0.242,
+            handle_gap=y_in - hy,
+            handle_opening_height=z_high - z_low - 2 * arm,
+        ),
         source=f"{YCB}: pitcher 14.9 x 14.5 x 24.2 cm (body 14.5 x 8.5 cm); chosen: a 7.6 cm deep handle "
-               "(YCB: 6.4 cm) so two fingers fit through it",
-        goal=GoalRegion((0.01, 0.01, 6 * DEG)), goal_wrt=goal_wrt, reorient_wrts=reorient_wrts(parts),
+        "(YCB: 6.4 cm) so two fingers fit through it",
+        goal=GoalRegion((0.01, 0.01, 6 * DEG)),
+        goal_wrt=goal_wrt,
+        reorient_wrts=reorient_wrts(parts),
         placement_yaw=SIDE_APPROACH_YAW,
         # Each goal grasp and retreat turns the pitcher ~0.06 rad (settling.json: +0.06 rad at
         # Δ = 0, coupled to x). Tracked with the affine fit alone (σ 0.05 rad) this hurt (22/40
         # against 24/40 at both levels, session 4); with the kernel-corrected map it helps at
         # low uncertainty (35/40 against 32/40, 24/40 against 26/40 at high; 40-trial probes).
         track_settling=True,
-        description="Brita-style pitcher; goal: held by the handle, fingers 1+2 through it")
+        description="Brita-style pitcher; goal: held by the handle, fingers 1+2 through it",
+    )
 
 
 def cooler() -> ObjectModel:
@@ -131,109 +181,174 @@ def cooler() -> ObjectModel:
         box((0.0125, 0.1025, 0.0125), (0.0, 0.0, 0.2675)),  # handle bar
     )
     goal_wrt = line_grasp_wrt(
-        parts, top_down_rotation(np.pi / 2), (0.0, 0.0, 0.28),
-        description="from above, fingers either side of the handle bar down to the lid, closing under it")
+        parts,
+        top_down_rotation(np.pi / 2),
+        (0.0, 0.0, 0.28),
+        description="from above, fingers either side of the handle bar down to the lid, closing under it",
+    )
     return ObjectModel(
-        "cooler", parts, mass=1.2, friction=0.5,
+        "cooler",
+        parts,
+        mass=1.2,
+        friction=0.5,
         dimensions=_dims(0.21, 0.29, 0.28, handle_clearance=0.035),
         source="chosen: small personal cooler 21 x 29 x 28 cm incl. its handle, 1.2 kg empty",
-        goal=GoalRegion((0.015, 0.03, 12 * DEG), theta_period=np.pi), goal_wrt=goal_wrt,
-        description="cooler; goal: the handle bar centred between the fingers")
+        goal=GoalRegion((0.015, 0.03, 12 * DEG), theta_period=np.pi),
+        goal_wrt=goal_wrt,
+        description="cooler; goal: the handle bar centred between the fingers",
+    )
 
 
 def taperoll() -> ObjectModel:
     """Roll of duct tape lying flat (chosen: 11.4 cm outer, 7.6 cm (3 in) core, 4.8 cm wide)."""
     parts = ring_wall(16, 0.0475, 0.0475, 0.0, 0.048, 0.019)
     goal_wrt = line_grasp_wrt(
-        parts, top_down_rotation(-np.pi / 2), (-FINGER_OFFSET, 0.0, 0.048),
-        description="from above, finger 3 through the hole, fingers 1+2 outside the robot-side wall")
+        parts,
+        top_down_rotation(-np.pi / 2),
+        (-FINGER_OFFSET, 0.0, 0.048),
+        description="from above, finger 3 through the hole, fingers 1+2 outside the robot-side wall",
+    )
     return ObjectModel(
-        "taperoll", parts, mass=0.25, friction=0.6,
+        "taperoll",
+        parts,
+        mass=0.25,
+        friction=0.6,
         dimensions=_dims(0.114, 0.114, 0.048, hole_diameter=0.076),
         source="chosen: 48 mm duct tape roll, 114 mm outer / 76 mm core diameter, 0.25 kg",
-        goal=GoalRegion((0.018, 0.018, np.inf)), goal_wrt=goal_wrt, symmetric=True,
-        description="tape roll; goal: the robot-side wall pinched, finger 3 in the hole")
+        goal=GoalRegion((0.018, 0.018, np.inf)),
+        goal_wrt=goal_wrt,
+        symmetric=True,
+        description="tape roll; goal: the robot-side wall pinched, finger 3 in the hole",
+    )
 
 
 def can() -> ObjectModel:
     """Soup can (YCB), enveloped from the side."""
     parts = (cylinder(0.034, 0.051, (0.0, 0.0, 0.051)),)
     goal_wrt = line_grasp_wrt(
-        parts, side_rotation(pitch=0.15, roll=np.pi / 2, yaw=SIDE_APPROACH_YAW), (0.0, 0.0, 0.072),
+        parts,
+        side_rotation(pitch=0.15, roll=np.pi / 2, yaw=SIDE_APPROACH_YAW),
+        (0.0, 0.0, 0.072),
         spread=np.pi / 2,
-        description="side envelope: fingers 1, 2 wrap the can at spread pi/2, finger 3 over its top")
+        description="side envelope: fingers 1, 2 wrap the can at spread pi/2, finger 3 over its top",
+    )
     return ObjectModel(
-        "can", parts, mass=0.349, friction=0.4,
+        "can",
+        parts,
+        mass=0.349,
+        friction=0.4,
         dimensions=_dims(0.068, 0.068, 0.102),
         source=f"{YCB}: soup can 6.8 x 6.8 x 10.2 cm, 0.349 kg",
         # x ±2.5 cm: MuJoCo holds every start tried; y: starts beyond -1.8 cm slip out on the lift.
-        goal=GoalRegion((0.025, 0.015, np.inf)), goal_wrt=goal_wrt, symmetric=True,
-        description="can; goal: enveloped (large region)")
+        goal=GoalRegion((0.025, 0.015, np.inf)),
+        goal_wrt=goal_wrt,
+        symmetric=True,
+        description="can; goal: enveloped (large region)",
+    )
 
 
 def wooden_bowl() -> ObjectModel:
     """Bowl (YCB size): a flared ring of 20 tilted boxes on a 10 cm base."""
     wall = 0.008
-    parts = ring_wall(20, 0.048, 0.0765, 0.004, 0.053, wall) + (cylinder(0.050, 0.004, (0.0, 0.0, 0.004)),)
+    parts = ring_wall(20, 0.048, 0.0765, 0.004, 0.053, wall) + (
+        cylinder(0.050, 0.004, (0.0, 0.0, 0.004)),
+    )
     rim = 0.0765  # mid-surface radius of the wall at the top
     # The pinch settles the rim 1.1 cm robot-side of the hand's axis (MuJoCo: final Δx =
     # -0.011 ± 0.002 m for every start within ±1.1 cm), so the axis sits that far inside
     # the rim: the grasp then ends with the bowl where the goal region is centred.
     pinch_offset = 0.011
     goal_wrt = line_grasp_wrt(
-        parts, top_down_rotation(-np.pi / 2), (-rim + pinch_offset, 0.0, 0.055),
-        description="from above at the robot-side rim: finger 3 inside, fingers 1+2 outside")
+        parts,
+        top_down_rotation(-np.pi / 2),
+        (-rim + pinch_offset, 0.0, 0.055),
+        description="from above at the robot-side rim: finger 3 inside, fingers 1+2 outside",
+    )
     return ObjectModel(
-        "wooden_bowl", parts, mass=0.25, friction=0.5,
+        "wooden_bowl",
+        parts,
+        mass=0.25,
+        friction=0.5,
         dimensions=_dims(0.161, 0.161, 0.055, wall_thickness=wall),
         source=f"{YCB}: bowl 16.1 x 16.1 x 5.5 cm; 0.25 kg chosen for wood",
-        goal=GoalRegion((0.012, 0.025, np.inf)), goal_wrt=goal_wrt, symmetric=True,
-        description="wooden bowl; goal: rim pinched (orientation ignored)")
+        goal=GoalRegion((0.012, 0.025, np.inf)),
+        goal_wrt=goal_wrt,
+        symmetric=True,
+        description="wooden bowl; goal: rim pinched (orientation ignored)",
+    )
 
 
 def cup() -> ObjectModel:
     """Mug (YCB size 11.7 x 9.3 x 8.1 cm): body 9.3 cm across, handle on +y (robot's left)."""
     radius, wall, height = 0.0465, 0.005, 0.081
-    parts = (ring_wall(16, radius - wall / 2, radius - wall / 2, 0.0, height, wall)
-             + (cylinder(radius - wall + 0.001, 0.003, (0.0, 0.0, 0.003)),)
-             + loop_handle(radius - wall, 0.066, 0.022, 0.066, 0.0045))
+    parts = (
+        ring_wall(16, radius - wall / 2, radius - wall / 2, 0.0, height, wall)
+        + (cylinder(radius - wall + 0.001, 0.003, (0.0, 0.0, 0.003)),)
+        + loop_handle(radius - wall, 0.066, 0.022, 0.066, 0.0045)
+    )
     goal_wrt = line_grasp_wrt(
-        parts, top_down_rotation(-np.pi / 2), (-radius + wall / 2, 0.0, height),
-        description="from above at the robot-side rim: finger 3 inside, fingers 1+2 outside")
+        parts,
+        top_down_rotation(-np.pi / 2),
+        (-radius + wall / 2, 0.0, height),
+        description="from above at the robot-side rim: finger 3 inside, fingers 1+2 outside",
+    )
     return ObjectModel(
-        "cup", parts, mass=0.118, friction=0.5,
+        "cup",
+        parts,
+        mass=0.118,
+        friction=0.5,
         dimensions=_dims(0.093, 0.117, 0.081, wall_thickness=wall, handle_gap=0.015),
         source=f"{YCB}: mug 11.7 x 9.3 x 8.1 cm, 0.118 kg",
-        goal=GoalRegion((0.01, 0.01, np.inf)), goal_wrt=goal_wrt, reorient_wrts=reorient_wrts(parts),
-        symmetric=True, description="cup; goal: rim pinched within 1 cm (orientation ignored)")
+        goal=GoalRegion((0.01, 0.01, np.inf)),
+        goal_wrt=goal_wrt,
+        reorient_wrts=reorient_wrts(parts),
+        symmetric=True,
+        description="cup; goal: rim pinched within 1 cm (orientation ignored)",
+    )
 
 
 def teabox() -> ObjectModel:
     """Tea box (chosen: 5.5 x 11.5 x 7 cm, 80 g), long side across the robot's view."""
     parts = (box((0.0275, 0.0575, 0.035), (0.0, 0.0, 0.035)),)
     goal_wrt = line_grasp_wrt(
-        parts, top_down_rotation(np.pi / 2), (0.0, 0.0, 0.07),
-        description="from above at its centre, fingers closing across the 5.5 cm width")
+        parts,
+        top_down_rotation(np.pi / 2),
+        (0.0, 0.0, 0.07),
+        description="from above at its centre, fingers closing across the 5.5 cm width",
+    )
     return ObjectModel(
-        "teabox", parts, mass=0.08, friction=0.5,
+        "teabox",
+        parts,
+        mass=0.08,
+        friction=0.5,
         dimensions=_dims(0.055, 0.115, 0.07),
         source="chosen: tea box of 20 bags, 5.5 x 11.5 x 7 cm, 80 g",
-        goal=GoalRegion((0.01, 0.01, 8 * DEG), theta_period=np.pi), goal_wrt=goal_wrt,
-        description="tea box; goal: centred within 1 cm both ways")
+        goal=GoalRegion((0.01, 0.01, 8 * DEG), theta_period=np.pi),
+        goal_wrt=goal_wrt,
+        description="tea box; goal: centred within 1 cm both ways",
+    )
 
 
 def rect_box() -> ObjectModel:
     """Rectangular cardboard box (chosen: 5 x 20 x 10 cm, 0.3 kg), long axis along y."""
     parts = (box((0.025, 0.10, 0.05), (0.0, 0.0, 0.05)),)
     goal_wrt = line_grasp_wrt(
-        parts, top_down_rotation(np.pi / 2), (0.0, 0.0, 0.10),
-        description="from above, fingers closing across the 5 cm width (paper Fig. 4)")
+        parts,
+        top_down_rotation(np.pi / 2),
+        (0.0, 0.0, 0.10),
+        description="from above, fingers closing across the 5 cm width (paper Fig. 4)",
+    )
     return ObjectModel(
-        "box", parts, mass=0.3, friction=0.5,
+        "box",
+        parts,
+        mass=0.3,
+        friction=0.5,
         dimensions=_dims(0.05, 0.20, 0.10),
         source="chosen: cardboard box 5 x 20 x 10 cm, 0.3 kg",
-        goal=GoalRegion((0.015, 0.05, 10 * DEG), theta_period=np.pi), goal_wrt=goal_wrt,
-        description="box; goal: centred across within 1.5 cm and 10 deg, anywhere along its length")
+        goal=GoalRegion((0.015, 0.05, 10 * DEG), theta_period=np.pi),
+        goal_wrt=goal_wrt,
+        description="box; goal: centred across within 1.5 cm and 10 deg, anywhere along its length",
+    )
 
 
 def giant_teacup() -> ObjectModel:
@@ -244,9 +359,11 @@ def giant_teacup() -> ObjectModel:
     """
     wall = 0.006
     z_low, z_high, radius = 0.030, 0.110, 0.005  # arm centre lines, handle radius
-    canonical = (ring_wall(20, 0.047, 0.067, 0.001, 0.11, wall)
-                 + (cylinder(0.047, 0.004, (0.0, 0.0, 0.004)),)
-                 + loop_handle(0.058, 0.118, z_low, z_high, radius, y_root_high=0.068))
+    canonical = (
+        ring_wall(20, 0.047, 0.067, 0.001, 0.11, wall)
+        + (cylinder(0.047, 0.004, (0.0, 0.0, 0.004)),)
+        + loop_handle(0.058, 0.118, z_low, z_high, radius, y_root_high=0.068)
+    )
     # Thumb-and-finger pinch of the upper arm: finger 3 through the opening under it, fingers
     # 1+2 on top, the arm centred between them so all three reach it together. The cup then
     # hangs on finger 3 when lifted and the fingers on top stop it swinging down. A wrap of the
@@ -255,34 +372,64 @@ def giant_teacup() -> ObjectModel:
     # the approach for θ below about -0.1 rad.
     gap_centre = 0.087  # between the body (~6.1 cm at mid-height) and the bar (11.3 cm)
     parts, goal_wrt = _placed_side_grasp(
-        canonical, (0.0, gap_centre, z_high), pitch=0.2, roll=-np.pi / 2, standoff=0.03,
-        description="side pinch of the handle's upper arm: finger 3 through the handle under it, fingers 1+2 on top")
+        canonical,
+        (0.0, gap_centre, z_high),
+        pitch=0.2,
+        roll=-np.pi / 2,
+        standoff=0.03,
+        description="side pinch of the handle's upper arm: finger 3 through the handle under it, fingers 1+2 on top",
+    )
     # The rim pinches the generator finds tell where the round cup is, not how it is turned:
     # only the handle does. Fingers 1+2 and finger 3 come down on either side of the upper arm,
     # near the bar, and close across it; at 9-11 cm from the cup's axis, 0.1 rad of θ moves
     # the arm ~1 cm across the pinch.
     turn = Rotation.from_euler("z", SIDE_APPROACH_YAW)
     handle_pinch = designed_pinch_wrt(
-        parts, "info_handle",
-        Pinch(axis=turn.apply((1.0, 0.0, 0.0)), centre=turn.apply((0.0, 0.108, z_high + radius)),
-              separation=2 * radius, spread=0.0, score=0.0),
-        "across the handle's upper arm, near the bar")
+        parts,
+        "info_handle",
+        Pinch(
+            axis=turn.apply((1.0, 0.0, 0.0)),
+            centre=turn.apply((0.0, 0.108, z_high + radius)),
+            separation=2 * radius,
+            spread=0.0,
+            score=0.0,
+        ),
+        "across the handle's upper arm, near the bar",
+    )
     return ObjectModel(
-        "giant_teacup", parts, mass=0.5, friction=0.5,
-        dimensions=_dims(0.140, 0.193, z_high + radius, handle_gap=0.05,
-                         handle_opening_height=z_high - z_low - 2 * radius),
+        "giant_teacup",
+        parts,
+        mass=0.5,
+        friction=0.5,
+        dimensions=_dims(
+            0.140,
+            0.193,
+            z_high + radius,
+            handle_gap=0.05,
+            handle_opening_height=z_high - z_low - 2 * radius,
+        ),
         source="chosen: giant novelty teacup, 14 cm rim, 11 cm tall, 0.5 kg; thin 1 cm handle",
-        goal=GoalRegion((0.01, 0.01, 8 * DEG)), goal_wrt=goal_wrt,
+        goal=GoalRegion((0.01, 0.01, 8 * DEG)),
+        goal_wrt=goal_wrt,
         # Every rim pinch is equally central; the one the generator took sat at the handle's
         # root, where a finger lands on the handle: it held the cup in 6 of 16 MuJoCo starts
         # within 1 cm and 0.1 rad, the rim opposite the handle in 16 of 16.
         reorient_wrts=reorient_wrts(parts, away_from=turn.apply((0.0, 1.0, 0.0))),
-        designed_info_wrts=(handle_pinch,), placement_yaw=SIDE_APPROACH_YAW,
-        description="giant teacup; goal: held by the handle's upper arm, finger 3 through the handle")
+        designed_info_wrts=(handle_pinch,),
+        placement_yaw=SIDE_APPROACH_YAW,
+        description="giant teacup; goal: held by the handle's upper arm, finger 3 through the handle",
+    )
 
 
 BUILDERS = {
-    "powerdrill": powerdrill, "brita_pitcher": brita_pitcher, "cooler": cooler, "taperoll": taperoll,
-    "can": can, "wooden_bowl": wooden_bowl, "cup": cup, "teabox": teabox, "box": rect_box,
+    "powerdrill": powerdrill,
+    "brita_pitcher": brita_pitcher,
+    "cooler": cooler,
+    "taperoll": taperoll,
+    "can": can,
+    "wooden_bowl": wooden_bowl,
+    "cup": cup,
+    "teabox": teabox,
+    "box": rect_box,
     "giant_teacup": giant_teacup,
 }

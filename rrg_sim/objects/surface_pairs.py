@@ -6,6 +6,7 @@ of object surfaces").
 A pinch puts finger 3 against fingers 1+2 (spread 0) or finger 2 against finger 1 (spread
 π/2) across the pair; long shared surfaces give several pinch positions along them.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -174,7 +175,11 @@ def pinch_candidates(parts: Sequence[Primitive]) -> list[Pinch]:
             lat_lo, lat_hi = max(a_v.min(), b_v.min()), min(a_v.max(), b_v.max())
             z_lo = max(a.points[:, 2].min(), b.points[:, 2].min())
             z_hi = min(a.points[:, 2].max(), b.points[:, 2].max())
-            if sep <= 0.001 or lat_hi - lat_lo < MIN_LATERAL_OVERLAP or z_hi - z_lo < MIN_VERTICAL_OVERLAP:
+            if (
+                sep <= 0.001
+                or lat_hi - lat_lo < MIN_LATERAL_OVERLAP
+                or z_hi - z_lo < MIN_VERTICAL_OVERLAP
+            ):
                 continue
             mid_u = (a_u.mean() + b_u.mean()) / 2
             score = min(len(a.points), len(b.points)) * PATCH_SPACING**2
@@ -185,8 +190,14 @@ def pinch_candidates(parts: Sequence[Primitive]) -> list[Pinch]:
                     centre = mid_u * u + lateral * v
                     centre[2] = z_hi
                     offset = abs(lateral - (lat_lo + lat_hi) / 2)
-                    key = (-round(score, 8), spread, round(offset, 6), round(sep, 6),
-                           *np.round(centre, 6), *np.round(u, 6))
+                    key = (
+                        -round(score, 8),
+                        spread,
+                        round(offset, 6),
+                        round(sep, 6),
+                        *np.round(centre, 6),
+                        *np.round(u, 6),
+                    )
                     keyed.append((key, Pinch(u, centre, sep, spread, score)))
     keyed.sort(key=lambda kp: kp[0])
     return [p for _, p in keyed]

@@ -12,6 +12,7 @@
 
 Every first pose keeps ``APPROACH_CLEARANCE`` from the object's bounding box.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -60,8 +61,14 @@ def side_rotation(pitch: float = 0.0, roll: float = 0.0, yaw: float = 0.0) -> Ro
     return Rotation.from_euler("ZY", [yaw, pitch]) * base * Rotation.from_euler("z", roll)
 
 
-def line_grasp_poses(parts: Sequence[Primitive], rotation: Rotation, through, spread: float = 0.0,
-                     preclose: float = 0.0, standoff: float = 0.0) -> np.ndarray:
+def line_grasp_poses(
+    parts: Sequence[Primitive],
+    rotation: Rotation,
+    through,
+    spread: float = 0.0,
+    preclose: float = 0.0,
+    standoff: float = 0.0,
+) -> np.ndarray:
     """(2,4,4) approach and final hand poses for a grasp along a straight line.
 
     The hand keeps ``rotation`` and moves along its approach axis (hand z) on the line through
@@ -82,8 +89,15 @@ def line_grasp_poses(parts: Sequence[Primitive], rotation: Rotation, through, sp
     return np.stack([start, final])
 
 
-def line_grasp_wrt(parts: Sequence[Primitive], rotation: Rotation, through, spread: float = 0.0,
-                   preclose: float = 0.0, standoff: float = 0.0, description: str = "") -> WRT:
+def line_grasp_wrt(
+    parts: Sequence[Primitive],
+    rotation: Rotation,
+    through,
+    spread: float = 0.0,
+    preclose: float = 0.0,
+    standoff: float = 0.0,
+    description: str = "",
+) -> WRT:
     """The goal WRT of a hand-designed grasp along a line (see ``line_grasp_poses``).
 
     Its closure angles are not informative (WRT.closure_informative False): a firm grasp
@@ -99,17 +113,31 @@ def line_grasp_wrt(parts: Sequence[Primitive], rotation: Rotation, through, spre
     """
     poses = line_grasp_poses(parts, rotation, through, spread, preclose, standoff)
     meta = {"through": tuple(float(v) for v in through), "standoff": standoff}
-    return WRT("goal", "goal", poses, spread=spread, preclose=preclose, description=description,
-               closure_informative=False, meta=meta)
+    return WRT(
+        "goal",
+        "goal",
+        poses,
+        spread=spread,
+        preclose=preclose,
+        description=description,
+        closure_informative=False,
+        meta=meta,
+    )
 
 
-def top_down_poses(parts: Sequence[Primitive], pinch: Pinch, preclose: float = 0.0) -> np.ndarray | None:
+def top_down_poses(
+    parts: Sequence[Primitive], pinch: Pinch, preclose: float = 0.0
+) -> np.ndarray | None:
     """(2,4,4) approach and final poses of a pinch from above, or None when the descent
     collides before the fingertips reach FINGER_DEPTH below the top of the shared height."""
     points = hand_points(pinch.spread, preclose)
     top = union_bounds(parts)[1, 2]
-    reach = points[:, 2].max()  # hand z = object -z: the lowest hand point is this far below the origin
-    start = make_pose([pinch.centre[0], pinch.centre[1], top + APPROACH_CLEARANCE + reach], pinch.rotation())
+    reach = points[
+        :, 2
+    ].max()  # hand z = object -z: the lowest hand point is this far below the origin
+    start = make_pose(
+        [pinch.centre[0], pinch.centre[1], top + APPROACH_CLEARANCE + reach], pinch.rotation()
+    )
     down = np.array([0.0, 0.0, -1.0])
     checker = scene(tuple(parts), float(pinch.spread), float(preclose), OBJECT_MARGIN, TABLE_MARGIN)
     travel = free_travel(checker, start, down, start[2, 3])
@@ -125,7 +153,10 @@ def _axis_angle(a: Pinch, b: Pinch) -> float:
 
 
 def _similar(a: Pinch, b: Pinch) -> bool:
-    return _axis_angle(a, b) < DIVERSE_ANGLE and np.linalg.norm(a.centre[:2] - b.centre[:2]) < DIVERSE_DISTANCE
+    return (
+        _axis_angle(a, b) < DIVERSE_ANGLE
+        and np.linalg.norm(a.centre[:2] - b.centre[:2]) < DIVERSE_DISTANCE
+    )
 
 
 @lru_cache(maxsize=64)
@@ -153,21 +184,34 @@ def _info_pinches(parts: tuple[Primitive, ...]) -> tuple[tuple[Pinch, np.ndarray
 
 def _describe(pinch: Pinch) -> str:
     fingers = "finger 3 against fingers 1+2" if pinch.spread == 0.0 else "finger 2 against finger 1"
-    return (f"top-down pinch, {fingers}, across {100 * pinch.separation:.1f} cm along "
-            f"({pinch.axis[0]:+.2f}, {pinch.axis[1]:+.2f}) at ({100 * pinch.centre[0]:+.1f}, "
-            f"{100 * pinch.centre[1]:+.1f}) cm")
+    return (
+        f"top-down pinch, {fingers}, across {100 * pinch.separation:.1f} cm along "
+        f"({pinch.axis[0]:+.2f}, {pinch.axis[1]:+.2f}) at ({100 * pinch.centre[0]:+.1f}, "
+        f"{100 * pinch.centre[1]:+.1f}) cm"
+    )
 
 
 def _pinch_meta(pinch: Pinch) -> dict:
-    return {"pinch_axis": tuple(pinch.axis[:2]), "pinch_centre": tuple(pinch.centre),
-            "separation": pinch.separation}
+    return {
+        "pinch_axis": tuple(pinch.axis[:2]),
+        "pinch_centre": tuple(pinch.centre),
+        "separation": pinch.separation,
+    }
 
 
 def info_wrts(parts: Sequence[Primitive]) -> tuple[WRT, ...]:
     """Up to N_INFO diverse top-down pinch WRTs ("info1", …) generated from the primitives."""
-    return tuple(WRT(f"info{k + 1}", "info", poses, spread=pinch.spread, description=_describe(pinch),
-                     meta=_pinch_meta(pinch))
-                 for k, (pinch, poses) in enumerate(_info_pinches(tuple(parts))))
+    return tuple(
+        WRT(
+            f"info{k + 1}",
+            "info",
+            poses,
+            spread=pinch.spread,
+            description=_describe(pinch),
+            meta=_pinch_meta(pinch),
+        )
+        for k, (pinch, poses) in enumerate(_info_pinches(tuple(parts)))
+    )
 
 
 def designed_pinch_wrt(parts: Sequence[Primitive], name: str, pinch: Pinch, what: str) -> WRT:
@@ -176,18 +220,26 @@ def designed_pinch_wrt(parts: Sequence[Primitive], name: str, pinch: Pinch, what
     poses = top_down_poses(parts, pinch)
     if poses is None:
         raise ValueError(f"{name}: the top-down pinch of {what} collides on the way down")
-    return WRT(name, "info", poses, spread=pinch.spread, description=f"{_describe(pinch)}: {what}",
-               meta=_pinch_meta(pinch))
+    return WRT(
+        name,
+        "info",
+        poses,
+        spread=pinch.spread,
+        description=f"{_describe(pinch)}: {what}",
+        meta=_pinch_meta(pinch),
+    )
 
 
-def reorient_wrts(parts: Sequence[Primitive], angle: float = REORIENT_ANGLE,
-                  away_from: np.ndarray | None = None) -> tuple[WRT, ...]:
+def reorient_wrts(
+    parts: Sequence[Primitive], angle: float = REORIENT_ANGLE, away_from: np.ndarray | None = None
+) -> tuple[WRT, ...]:
     """Two reorientation WRTs ("reorient_ccw" +angle, "reorient_cw" -angle): the collision-free
     top-down pinch nearest the object's centre, then a turn about the object's vertical axis.
     ``away_from``: a horizontal direction (x, y) in the object frame, e.g. towards a handle;
     the pinch is then the one whose centre lies most opposite it, finger 3 on its inner side
     (on a ring every wall pinch is equally central)."""
     if away_from is None:
+
         def key(p: Pinch) -> float:
             return round(float(np.hypot(*p.centre[:2])), 4)
     else:
@@ -195,20 +247,31 @@ def reorient_wrts(parts: Sequence[Primitive], angle: float = REORIENT_ANGLE,
 
         def key(p: Pinch) -> float:
             outward = p.axis[:2] @ p.centre[:2] > 0.0
-            return round(float(p.centre[:2] @ away / np.hypot(*p.centre[:2])), 4) + (0.0 if outward else 10.0)
+            return round(float(p.centre[:2] @ away / np.hypot(*p.centre[:2])), 4) + (
+                0.0 if outward else 10.0
+            )
+
     candidates = sorted(pinch_candidates(parts), key=key)
     for pinch in candidates:
         poses = top_down_poses(parts, pinch)
         if poses is not None:
-            return tuple(WRT(name, "reorient", poses, spread=pinch.spread, reorient_angle=sign * angle,
-                             description=f"{_describe(pinch)}, then turn {sign * angle:+.2f} rad",
-                             meta=_pinch_meta(pinch))
-                         for name, sign in (("reorient_ccw", 1.0), ("reorient_cw", -1.0)))
+            return tuple(
+                WRT(
+                    name,
+                    "reorient",
+                    poses,
+                    spread=pinch.spread,
+                    reorient_angle=sign * angle,
+                    description=f"{_describe(pinch)}, then turn {sign * angle:+.2f} rad",
+                    meta=_pinch_meta(pinch),
+                )
+                for name, sign in (("reorient_ccw", 1.0), ("reorient_cw", -1.0))
+            )
     raise ValueError("no collision-free top-down pinch for a reorientation grasp")
 
 
 def sweep_wrt(parts: Sequence[Primitive]) -> WRT:
-    """"sweep": the hand, fingers down and spread, fingertips SWEEP_TIP_HEIGHT over the table,
+    """ "sweep": the hand, fingers down and spread, fingertips SWEEP_TIP_HEIGHT over the table,
     crosses the object's region along the object's -y, from where an object SWEEP_REACH
     toward the start would still be ahead to where one SWEEP_REACH the other way is passed."""
     bounds = union_bounds(parts)
@@ -223,7 +286,12 @@ def sweep_wrt(parts: Sequence[Primitive]) -> WRT:
     z_high = bounds[1, 2] + APPROACH_CLEARANCE + reach
     positions = np.array([[x, y_start, z_high], [x, y_start, z_low], [x, y_end, z_low]])
     poses = make_pose(positions, Rotation.concatenate([rotation] * 3))
-    return WRT("sweep", "info", poses, spread=SWEEP_SPREAD,
-               description=f"horizontal sweep along -y, fingertips {100 * SWEEP_TIP_HEIGHT:.0f} cm "
-                           f"over the table, from y = {100 * y_start:+.0f} to {100 * y_end:+.0f} cm",
-               meta={"sweep_reach": SWEEP_REACH})
+    return WRT(
+        "sweep",
+        "info",
+        poses,
+        spread=SWEEP_SPREAD,
+        description=f"horizontal sweep along -y, fingertips {100 * SWEEP_TIP_HEIGHT:.0f} cm "
+        f"over the table, from y = {100 * y_start:+.0f} to {100 * y_end:+.0f} cm",
+        meta={"sweep_reach": SWEEP_REACH},
+    )

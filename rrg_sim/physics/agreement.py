@@ -7,6 +7,7 @@ at w and diffs the observation against ``GeometricSimulator.simulate(w, e)``;
 ``python -m rrg_sim.physics.agreement [--offsets N] [--json]`` measures them over the
 catalogue's goal and info WRTs at seeded estimate errors.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -16,13 +17,14 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from rrg_sim.executor.trajectory import InfeasiblePath
+
 from ..config import HAND, WORLD
 from ..geometric_sim import GeometricSimulator
 from ..objects import OBJECT_NAMES, get_object
 from ..observation import Observation
 from ..poses import compose_planar
 from ..wrt import WRT
-from rrg_sim.executor.trajectory import InfeasiblePath
 from .world import PhysicsWorld
 
 log = logging.getLogger(__name__)
@@ -58,22 +60,31 @@ class ObservationDiff:
     moved: float
 
 
-def diff(physics: Observation, predicted: Observation, obj: str, wrt: str, moved: float) -> ObservationDiff:
+def diff(
+    physics: Observation, predicted: Observation, obj: str, wrt: str, moved: float
+) -> ObservationDiff:
     """Diff one physics observation against the geometric prediction."""
     both = (physics.closure < OPEN_LIMIT) & (predicted.closure < OPEN_LIMIT)
     return ObservationDiff(
-        obj=obj, wrt=wrt, contact_agree=physics.contact == predicted.contact,
+        obj=obj,
+        wrt=wrt,
+        contact_agree=physics.contact == predicted.contact,
         both_contact=bool(physics.contact and predicted.contact),
         progress=float(physics.progress - predicted.progress),
         hamming=int(np.sum(physics.sensors != predicted.sensors)),
-        detected=int(np.sum(physics.sensors & predicted.sensors)), predicted=int(predicted.sensors.sum()),
+        detected=int(np.sum(physics.sensors & predicted.sensors)),
+        predicted=int(predicted.sensors.sum()),
         false_alarms=int(np.sum(physics.sensors & ~predicted.sensors)),
         unpredicted=int((~predicted.sensors).sum()),
         closure=np.where(both, np.abs(physics.closure - predicted.closure), np.nan).tolist(),
-        tip=np.linalg.norm(physics.tip_points - predicted.tip_points, axis=1).tolist(), moved=moved)
+        tip=np.linalg.norm(physics.tip_points - predicted.tip_points, axis=1).tolist(),
+        moved=moved,
+    )
 
 
-def compare(world: PhysicsWorld, wrt: WRT, w, e, geo: GeometricSimulator | None = None) -> ObservationDiff:
+def compare(
+    world: PhysicsWorld, wrt: WRT, w, e, geo: GeometricSimulator | None = None
+) -> ObservationDiff:
     """Run τ(e) in physics with the object placed at w (then retreat), and diff it against
     the geometric prediction for the same (w, e)."""
     w = np.asarray(w, dtype=float)
@@ -93,12 +104,15 @@ def agreement_stats(diffs: list[ObservationDiff]) -> dict:
     progress = np.abs([d.progress for d in still if d.both_contact])
     closure, tip = closure[np.isfinite(closure)], tip[np.isfinite(tip)]
     return dict(
-        runs=len(diffs), still=len(still),
+        runs=len(diffs),
+        still=len(still),
         contact_agreement=float(np.mean([d.contact_agree for d in still])),
         progress_abs_max=float(progress.max(initial=0.0)),
         hamming_hist=np.bincount([d.hamming for d in still], minlength=3).tolist(),
         p_detect=float(sum(d.detected for d in still) / max(1, sum(d.predicted for d in still))),
-        p_false_alarm=float(sum(d.false_alarms for d in still) / max(1, sum(d.unpredicted for d in still))),
+        p_false_alarm=float(
+            sum(d.false_alarms for d in still) / max(1, sum(d.unpredicted for d in still))
+        ),
         closure_abs_mean=float(closure.mean()) if closure.size else float("nan"),
         closure_abs_p90=float(np.percentile(closure, 90)) if closure.size else float("nan"),
         tip_dist_median=float(np.median(tip)) if tip.size else float("nan"),
@@ -106,8 +120,13 @@ def agreement_stats(diffs: list[ObservationDiff]) -> dict:
     )
 
 
-def measure(names=OBJECT_NAMES, kinds=("goal", "info"), offsets: int = 3, sigma=(0.015, 0.015, 0.1),
-            seed: int = 0) -> list[ObservationDiff]:
+def measure(
+    names=OBJECT_NAMES,
+    kinds=("goal", "info"),
+    offsets: int = 3,
+    sigma=(0.015, 0.015, 0.1),
+    seed: int = 0,
+) -> list[ObservationDiff]:
     """Diffs for every (object, WRT of the given kinds) at Δ = 0 and offsets-1 seeded Gaussian
     estimate errors Δ = e ⊖ w (σ in m, m, rad), the object at the nominal pose; an execution
     the arm cannot make (InfeasiblePath) is skipped."""
@@ -125,7 +144,9 @@ def measure(names=OBJECT_NAMES, kinds=("goal", "info"), offsets: int = 3, sigma=
                 try:
                     out.append(compare(world, wrt, w, compose_planar(w, error), geo))
                 except InfeasiblePath:  # the arm cannot run τ(e) there: nothing to compare
-                    log.info("%s/%s infeasible at Δ=%s", name, wrt.name, np.round(error, 3).tolist())
+                    log.info(
+                        "%s/%s infeasible at Δ=%s", name, wrt.name, np.round(error, 3).tolist()
+                    )
     return out
 
 

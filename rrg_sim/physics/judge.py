@@ -9,27 +9,31 @@ After a goal WRT has closed the hand, the grasp succeeds iff
 * the object stays in the hand while the arm lifts it PHYSICS.lift_height and holds it
   PHYSICS.hold_time: still touching the hand and risen by at least HELD_FRACTION of the lift.
 """
+
 from __future__ import annotations
 
 import numpy as np
+
+from rrg_sim.executor.trajectory import InfeasiblePath
 
 from ..config import PHYSICS, SENSOR_NAMES
 from ..objects import ObjectModel
 from ..observation import Observation, fingers_in_contact
 from ..poses import invert, raised, relative_planar
-from rrg_sim.executor.trajectory import InfeasiblePath
-
 from .world import PhysicsWorld
 
 #: The object counts as lifted when it rose at least this fraction of the lift (chosen: a
 #: grasp that lets it slide half-way out has failed).
 HELD_FRACTION = 0.5
+
+
 def _object_in_hand_frame(world: PhysicsWorld) -> np.ndarray:
     return invert(world.hand_pose()) @ world.object_pose()
 
 
-def judge_grasp(world: PhysicsWorld, obj: ObjectModel, e_used,
-                observation: Observation | None = None) -> tuple[bool, dict]:
+def judge_grasp(
+    world: PhysicsWorld, obj: ObjectModel, e_used, observation: Observation | None = None
+) -> tuple[bool, dict]:
     """Lift and hold the grasp the last goal WRT left in ``world``; returns (success, info).
     ``observation``: that WRT's observation (default: the last one the world's own executor
     made; the simulator node passes the one the executor node published).
@@ -49,17 +53,29 @@ def judge_grasp(world: PhysicsWorld, obj: ObjectModel, e_used,
     z0, grip0 = world.object_height(), _object_in_hand_frame(world)
     lift = {0: (PHYSICS.lift_speed, PHYSICS.turn_speed)}
     try:
-        world.move_through(raised(world.hand_pose(), PHYSICS.lift_height)[None], speeds=lift, rigid_from=1)
+        world.move_through(
+            raised(world.hand_pose(), PHYSICS.lift_height)[None], speeds=lift, rigid_from=1
+        )
         lift_feasible = True
     except InfeasiblePath:  # the arm cannot lift from this grasp: it cannot be held either
         lift_feasible = False
     world.hold(PHYSICS.hold_time)
     lift_dz = world.object_height() - z0
-    held = lift_feasible and world.object_in_hand() and lift_dz >= HELD_FRACTION * PHYSICS.lift_height
+    held = (
+        lift_feasible and world.object_in_hand() and lift_dz >= HELD_FRACTION * PHYSICS.lift_height
+    )
     slip = float(np.linalg.norm(_object_in_hand_frame(world)[:3, 3] - grip0[:3, 3]))
     success = held and in_region and fingers >= obj.goal.min_fingers and required_ok
-    info = dict(delta=delta.tolist(), in_region=in_region, fingers=fingers, required_ok=required_ok,
-                held=held, lift_feasible=lift_feasible, lift_dz=lift_dz, slip=slip, early_contact=obs.contact,
-                w_true=w_true.tolist())
+    info = dict(
+        delta=delta.tolist(),
+        in_region=in_region,
+        fingers=fingers,
+        required_ok=required_ok,
+        held=held,
+        lift_feasible=lift_feasible,
+        lift_dz=lift_dz,
+        slip=slip,
+        early_contact=obs.contact,
+        w_true=w_true.tolist(),
+    )
     return success, info
-

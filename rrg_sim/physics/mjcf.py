@@ -1,4 +1,5 @@
 """Small helpers to write MJCF with ElementTree: number formatting and sub-elements."""
+
 from __future__ import annotations
 
 import math

@@ -16,6 +16,7 @@ Layout follows mujoco_menagerie: ``<default>`` classes and a robot file that a s
 Robot geoms (contype 1, conaffinity 2) never touch each other, only the table and the object
 (collision bits in rrg_sim.physics.scene).
 """
+
 from __future__ import annotations
 
 import math
@@ -55,7 +56,9 @@ def dh_local(i: int) -> np.ndarray:
     """Fixed part Tz(d) Tx(a) Rx(α) of joint i's DH transform (0-based): body i → DH frame i."""
     alpha, a, d = WAM.dh[i]
     ca, sa = math.cos(alpha), math.sin(alpha)
-    return np.array([[1.0, 0.0, 0.0, a], [0.0, ca, -sa, 0.0], [0.0, sa, ca, d], [0.0, 0.0, 0.0, 1.0]])
+    return np.array(
+        [[1.0, 0.0, 0.0, a], [0.0, ca, -sa, 0.0], [0.0, sa, ca, d], [0.0, 0.0, 0.0, 1.0]]
+    )
 
 
 def _inertia_frame(i: int) -> np.ndarray:
@@ -79,11 +82,17 @@ def _arm_geoms(i: int) -> list[dict]:
         [dict(type="cylinder", size=(0.09, 0.12), pos=(0, 0, -0.1))],  # shoulder yaw housing
         [dict(type="sphere", size=(0.09,))],  # shoulder pitch
         [dict(type="capsule", fromto=(0, 0, 0.12, 0, 0, upper - 0.08), size=(r,))],  # upper arm
-        [dict(type="sphere", size=(r,)),  # elbow, then the forearm along -y from x = -a
-         dict(type="capsule", fromto=(-elbow, -0.06, 0, -elbow, -(fore - 0.08), 0), size=(0.045,))],
+        [
+            dict(type="sphere", size=(r,)),  # elbow, then the forearm along -y from x = -a
+            dict(
+                type="capsule", fromto=(-elbow, -0.06, 0, -elbow, -(fore - 0.08), 0), size=(0.045,)
+            ),
+        ],
         [dict(type="sphere", size=(0.05,))],  # wrist yaw
         [dict(type="sphere", size=(0.045,))],  # wrist pitch
-        [dict(type="cylinder", size=(0.04, flange / 2), pos=(0, 0, flange / 2))],  # wrist roll to the hand
+        [
+            dict(type="cylinder", size=(0.04, flange / 2), pos=(0, 0, flange / 2))
+        ],  # wrist roll to the hand
     ][i]
 
 
@@ -91,13 +100,28 @@ def _defaults(root: ET.Element) -> None:
     d = sub(root, "default")
     wam = sub(d, "default", **{"class": "wam"})
     sub(wam, "joint", type="hinge", axis="0 0 1")
-    sub(wam, "geom", contype=ROBOT_CONTYPE, conaffinity=ROBOT_CONAFFINITY, group=1, rgba="0.78 0.78 0.8 1",
-        friction=f"{PHYSICS.hand_friction} 0.005 0.0001")
+    sub(
+        wam,
+        "geom",
+        contype=ROBOT_CONTYPE,
+        conaffinity=ROBOT_CONAFFINITY,
+        group=1,
+        rgba="0.78 0.78 0.8 1",
+        friction=f"{PHYSICS.hand_friction} 0.005 0.0001",
+    )
     sub(wam, "position", ctrllimited="false")
     bh = sub(d, "default", **{"class": "bhand"})
     sub(bh, "joint", type="hinge", armature=PHYSICS.hand_armature)
-    sub(bh, "geom", contype=ROBOT_CONTYPE, conaffinity=ROBOT_CONAFFINITY, group=1, condim=4,
-        friction=f"{PHYSICS.hand_friction} 0.005 0.0001", rgba="0.25 0.25 0.28 1")
+    sub(
+        bh,
+        "geom",
+        contype=ROBOT_CONTYPE,
+        conaffinity=ROBOT_CONAFFINITY,
+        group=1,
+        condim=4,
+        friction=f"{PHYSICS.hand_friction} 0.005 0.0001",
+        rgba="0.25 0.25 0.28 1",
+    )
     sub(bh, "site", group=4, rgba="0.9 0.2 0.2 0.3")
     pad = sub(bh, "default", **{"class": "pad"})
     sub(pad, "geom", rgba="0.1 0.1 0.1 1")
@@ -105,24 +129,46 @@ def _defaults(root: ET.Element) -> None:
     sub(tip, "geom", rgba="0.75 0.75 0.78 1")
     sub(tip, "site", type="sphere", size=0.002)
     finger = sub(bh, "default", **{"class": "finger"})
-    sub(finger, "position", kp=PHYSICS.finger_kp, kv=PHYSICS.finger_kv,
-        forcerange=f"{-HAND.close_torque} {HAND.close_torque}")
+    sub(
+        finger,
+        "position",
+        kp=PHYSICS.finger_kp,
+        kv=PHYSICS.finger_kv,
+        forcerange=f"{-HAND.close_torque} {HAND.close_torque}",
+    )
 
 
 def _arm(worldbody: ET.Element) -> ET.Element:
     """WAM base and links 1-7 under worldbody; returns link 7's body (the flange carrier)."""
     base = sub(worldbody, "body", name="wam/base", childclass="wam")
-    sub(base, "geom", name="wam/base", type="box", size=(0.12, 0.12, (WAM.base_height - 0.2) / 2),
-        pos=(-0.04, 0, (WAM.base_height - 0.2) / 2))
+    sub(
+        base,
+        "geom",
+        name="wam/base",
+        type="box",
+        size=(0.12, 0.12, (WAM.base_height - 0.2) / 2),
+        pos=(-0.04, 0, (WAM.base_height - 0.2) / 2),
+    )
     parent, T = base, np.eye(4)
     T[2, 3] = WAM.base_height
     for i in range(7):
         body = sub(parent, "body", name=f"wam/link{i + 1}", gravcomp=1, **pose_attrs(T))
         link = WAM_LINKS[i]
         F = _inertia_frame(i)
-        sub(body, "inertial", pos=(F @ np.r_[link.com, 1.0])[:3], mass=link.mass,
-            fullinertia=full_inertia_in(F, link.inertia))
-        sub(body, "joint", name=ARM_JOINTS[i], range=(WAM.lower[i], WAM.upper[i]), armature=WAM_ARMATURE[i])
+        sub(
+            body,
+            "inertial",
+            pos=(F @ np.r_[link.com, 1.0])[:3],
+            mass=link.mass,
+            fullinertia=full_inertia_in(F, link.inertia),
+        )
+        sub(
+            body,
+            "joint",
+            name=ARM_JOINTS[i],
+            range=(WAM.lower[i], WAM.upper[i]),
+            armature=WAM_ARMATURE[i],
+        )
         for k, g in enumerate(_arm_geoms(i)):
             sub(body, "geom", name=f"wam/link{i + 1}_{k}", **g)
         parent, T = body, dh_local(i)
@@ -131,8 +177,17 @@ def _arm(worldbody: ET.Element) -> ET.Element:
 
 def _geom(body: ET.Element, g: GeomSpec, density: float) -> None:
     cls = "nano17" if g.name.endswith("_tip") else ("pad" if g.sensor >= 0 else None)
-    sub(body, "geom", name=f"bh/{g.name}", type=g.kind, size=g.size, pos=g.pos, quat=g.quat,
-        density=density, **({"class": cls} if cls else {}))
+    sub(
+        body,
+        "geom",
+        name=f"bh/{g.name}",
+        type=g.kind,
+        size=g.size,
+        pos=g.pos,
+        quat=g.quat,
+        density=density,
+        **({"class": cls} if cls else {}),
+    )
 
 
 def _body_mass(b: BodySpec) -> float:
@@ -148,7 +203,15 @@ def _body_mass(b: BodySpec) -> float:
 def _touch_site(body: ET.Element, g: GeomSpec) -> None:
     """A site enclosing pad geom g (touch sensors sum contact forces inside a site's volume)."""
     size = [s + TOUCH_SITE_MARGIN for s in g.size]
-    sub(body, "site", name=f"bh/{SENSOR_NAMES[g.sensor]}_pad", type=g.kind, size=size, pos=g.pos, quat=g.quat)
+    sub(
+        body,
+        "site",
+        name=f"bh/{SENSOR_NAMES[g.sensor]}_pad",
+        type=g.kind,
+        size=size,
+        pos=g.pos,
+        quat=g.quat,
+    )
 
 
 def _hand(flange: ET.Element) -> None:
@@ -161,7 +224,9 @@ def _hand(flange: ET.Element) -> None:
         el = sub(parent, "body", name=f"bh/{b.name}", gravcomp=1, **attrs, **extra)
         bodies[b.name] = el
         if b.geoms:
-            massive = [g for g in b.geoms if not (b.name == "palm" and g.sensor >= 0)]  # pad: a skin
+            massive = [
+                g for g in b.geoms if not (b.name == "palm" and g.sensor >= 0)
+            ]  # pad: a skin
             density = _body_mass(b) / sum(primitive_volume(g.kind, g.size) for g in massive)
             for g in b.geoms:
                 _geom(el, g, density if g in massive else 0.0)
@@ -178,24 +243,58 @@ def _hand(flange: ET.Element) -> None:
 
 def _coupling(root: ET.Element) -> None:
     eq = sub(root, "equality")
-    sub(eq, "joint", name="bh/spread_coupling", joint1="bh/f2_spread", joint2=SPREAD_JOINT,
-        polycoef="0 1 0 0 0")
+    sub(
+        eq,
+        "joint",
+        name="bh/spread_coupling",
+        joint1="bh/f2_spread",
+        joint2=SPREAD_JOINT,
+        polycoef="0 1 0 0 0",
+    )
     for b in hand_tree():
         if b.joint is not None and b.joint.coupled_to is not None:
             driver, ratio = b.joint.coupled_to
-            sub(eq, "joint", name=f"bh/{b.joint.name}_coupling", joint1=f"bh/{b.joint.name}",
-                joint2=f"bh/{driver}", polycoef=f"0 {ratio:.9g} 0 0 0")
+            sub(
+                eq,
+                "joint",
+                name=f"bh/{b.joint.name}_coupling",
+                joint1=f"bh/{b.joint.name}",
+                joint2=f"bh/{driver}",
+                polycoef=f"0 {ratio:.9g} 0 0 0",
+            )
 
 
 def _actuators(root: ET.Element) -> None:
     act = sub(root, "actuator")
     for i in range(7):
-        sub(act, "position", name=ARM_ACTUATORS[i], joint=ARM_JOINTS[i], kp=PHYSICS.arm_kp[i],
-            kv=PHYSICS.arm_kv[i], **{"class": "wam"})
-    sub(act, "position", name=SPREAD_ACTUATOR, joint=SPREAD_JOINT, kp=PHYSICS.spread_kp,
-        kv=PHYSICS.spread_kv, ctrlrange=HAND.spread_range, **{"class": "bhand"})
+        sub(
+            act,
+            "position",
+            name=ARM_ACTUATORS[i],
+            joint=ARM_JOINTS[i],
+            kp=PHYSICS.arm_kp[i],
+            kv=PHYSICS.arm_kv[i],
+            **{"class": "wam"},
+        )
+    sub(
+        act,
+        "position",
+        name=SPREAD_ACTUATOR,
+        joint=SPREAD_JOINT,
+        kp=PHYSICS.spread_kp,
+        kv=PHYSICS.spread_kv,
+        ctrlrange=HAND.spread_range,
+        **{"class": "bhand"},
+    )
     for name, joint in zip(FINGER_ACTUATORS, FINGER_JOINTS):
-        sub(act, "position", name=name, joint=joint, ctrlrange=HAND.proximal_range, **{"class": "finger"})
+        sub(
+            act,
+            "position",
+            name=name,
+            joint=joint,
+            ctrlrange=HAND.proximal_range,
+            **{"class": "finger"},
+        )
 
 
 def _sensors(root: ET.Element) -> None:
@@ -212,7 +311,14 @@ def robot_xml() -> str:
     root = ET.Element("mujoco", model="wam_barretthand")
     sub(root, "compiler", angle="radian", autolimits="true")
     # Elliptic friction cones with impratio 10: MuJoCo's recommended setting for grasping.
-    sub(root, "option", timestep=PHYSICS.timestep, integrator="implicitfast", cone="elliptic", impratio=10)
+    sub(
+        root,
+        "option",
+        timestep=PHYSICS.timestep,
+        integrator="implicitfast",
+        cone="elliptic",
+        impratio=10,
+    )
     _defaults(root)
     flange = _arm(sub(root, "worldbody"))
     _hand(flange)

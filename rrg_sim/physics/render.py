@@ -7,6 +7,7 @@ and saves one picture per object (``python -m rrg_sim.physics.render --out docs/
 The GL context is created here from MUJOCO_GL's backend module (egl, or osmesa), so
 rendering works whatever imported mujoco first.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -27,7 +28,9 @@ DEFAULT_SIZE = (640, 480)  # px
 class OffscreenRenderer:
     """An offscreen MuJoCo renderer for one model (framebuffer up to the model's offwidth/height)."""
 
-    def __init__(self, model: mujoco.MjModel, width: int = DEFAULT_SIZE[0], height: int = DEFAULT_SIZE[1]):
+    def __init__(
+        self, model: mujoco.MjModel, width: int = DEFAULT_SIZE[0], height: int = DEFAULT_SIZE[1]
+    ):
         backend = os.environ.get("MUJOCO_GL", "egl").lower()
         if backend not in ("egl", "osmesa"):
             backend = "egl"
@@ -41,11 +44,15 @@ class OffscreenRenderer:
         self.context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self.context)
 
-    def render(self, data: mujoco.MjData, camera: mujoco.MjvCamera, shadows: bool = True) -> np.ndarray:
+    def render(
+        self, data: mujoco.MjData, camera: mujoco.MjvCamera, shadows: bool = True
+    ) -> np.ndarray:
         """(height, width, 3) uint8 RGB image of ``data`` seen from ``camera``."""
         self._gl.make_current()
         self.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = shadows
-        mujoco.mjv_updateScene(self.model, data, self.option, None, camera, mujoco.mjtCatBit.mjCAT_ALL, self.scene)
+        mujoco.mjv_updateScene(
+            self.model, data, self.option, None, camera, mujoco.mjtCatBit.mjCAT_ALL, self.scene
+        )
         rect = mujoco.MjrRect(0, 0, self.width, self.height)
         mujoco.mjr_render(rect, self.scene, self.context)
         rgb = np.empty((self.height, self.width, 3), dtype=np.uint8)
@@ -57,8 +64,9 @@ class OffscreenRenderer:
         self._gl.free()
 
 
-def object_camera(world: PhysicsWorld, distance: float = 0.75, azimuth: float = 135.0,
-                  elevation: float = -20.0) -> mujoco.MjvCamera:
+def object_camera(
+    world: PhysicsWorld, distance: float = 0.75, azimuth: float = 135.0, elevation: float = -20.0
+) -> mujoco.MjvCamera:
     """A free camera looking at the object (azimuth/elevation in degrees, distance in m)."""
     cam = mujoco.MjvCamera()
     cam.type = mujoco.mjtCamera.mjCAMERA_FREE
@@ -81,8 +89,13 @@ def grasp_camera(world: PhysicsWorld, elevation: float = -25.0) -> mujoco.MjvCam
     return cam
 
 
-def render_png(world: PhysicsWorld, path: str | Path, camera: mujoco.MjvCamera | None = None,
-               size: tuple[int, int] = DEFAULT_SIZE, shadows: bool = True) -> Path:
+def render_png(
+    world: PhysicsWorld,
+    path: str | Path,
+    camera: mujoco.MjvCamera | None = None,
+    size: tuple[int, int] = DEFAULT_SIZE,
+    shadows: bool = True,
+) -> Path:
     """Write a PNG of the world's current state (default camera: ``grasp_camera``)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -95,7 +108,9 @@ def render_png(world: PhysicsWorld, path: str | Path, camera: mujoco.MjvCamera |
     return path
 
 
-def render_goal_grasps(out_dir: str | Path = "docs/img", names: tuple[str, ...] = OBJECT_NAMES) -> list[Path]:
+def render_goal_grasps(
+    out_dir: str | Path = "docs/img", names: tuple[str, ...] = OBJECT_NAMES
+) -> list[Path]:
     """Execute each object's goal WRT at its true (nominal) pose, noise-free, and save
     ``goal_<name>.png`` showing the closed hand on the object."""
     paths = []

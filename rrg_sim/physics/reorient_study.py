@@ -19,17 +19,19 @@ reorientation grasp holds only within a few millimetres: 32 of 40 probe trials a
 writes ``rrg_sim/objects/reorientation.json`` (the committed fits the catalogue loads into
 its reorientation WRTs).
 """
+
 from __future__ import annotations
 
 import numpy as np
 
 from rrg_sim.config import REORIENT_MIN_FINGERS, WORLD
-from ..objects import OBJECT_NAMES, get_object
+from rrg_sim.executor.trajectory import InfeasiblePath
 from rrg_sim.objects.object_model import REORIENTATION_FILE
+
+from ..objects import OBJECT_NAMES, get_object
 from ..observation import holds_object
 from ..poses import compose_planar, relative_planar, wrap_angle
 from .settle import run_study, study_args
-from rrg_sim.executor.trajectory import InfeasiblePath
 from .world import PhysicsWorld
 
 #: σ of the start offsets Δ [m, m, rad] (chosen: the low uncertainty level's 1 cm in x, y and
@@ -73,15 +75,23 @@ def fit(object_name: str, records: list[dict]) -> dict:
         rows = [r for r in records if r["wrt"] == wrt.name]
         start = np.array([r["start"] for r in rows]).reshape(-1, 3)
         after = np.array([r["after"] for r in rows]).reshape(-1, 3)
-        off = np.minimum(np.abs(wrap_angle(after[:, 2] - start[:, 2])), np.abs(wrap_angle(after[:, 2])))
+        off = np.minimum(
+            np.abs(wrap_angle(after[:, 2] - start[:, 2])), np.abs(wrap_angle(after[:, 2]))
+        )
         full = off < FULL_TURN_FRACTION * abs(wrt.reorient_angle)
         if full.sum() < 8:
-            raise ValueError(f"{object_name}/{wrt.name}: only {full.sum()} full turns; too few to fit")
+            raise ValueError(
+                f"{object_name}/{wrt.name}: only {full.sum()} full turns; too few to fit"
+            )
         moved = after[full] - start[full]
         moved[:, 2] = 0.0 if ignores else wrap_angle(moved[:, 2])
-        out[wrt.name] = dict(held=len(rows), full=int(full.sum()), box=(BOX_SIGMAS * START_SIGMA).tolist(),
-                             shift=np.round(moved.mean(axis=0), 5).tolist(),
-                             sigma=np.round(moved.std(axis=0, ddof=1), 5).tolist())
+        out[wrt.name] = dict(
+            held=len(rows),
+            full=int(full.sum()),
+            box=(BOX_SIGMAS * START_SIGMA).tolist(),
+            shift=np.round(moved.mean(axis=0), 5).tolist(),
+            sigma=np.round(moved.std(axis=0, ddof=1), 5).tolist(),
+        )
     return out
 
 
@@ -91,16 +101,35 @@ def _measure_job(args: tuple[str, int, int]) -> tuple[str, list[dict]]:
 
 
 def _report(name: str, fits: dict, records: list[dict]) -> str:
-    return "\n".join(f"{name}/{w}: {f['full']}/{f['held']} full turns; shift {f['shift']} σ {f['sigma']}"
-                     for w, f in fits.items())
+    return "\n".join(
+        f"{name}/{w}: {f['full']}/{f['held']} full turns; shift {f['shift']} σ {f['sigma']}"
+        for w, f in fits.items()
+    )
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = study_args(argv, __doc__, [n for n in OBJECT_NAMES if get_object(n).reorient_wrts], "runs", 40,
-                      "runs per reorientation WRT", REORIENTATION_FILE)
-    run_study(args.objects, args.runs, args.seed, args.workers, args.out, _measure_job, fit, _report, "reorientation",
-              f"python -m rrg_sim.physics.reorient_study --runs {args.runs} --seed {args.seed} "
-              "(MuJoCo, reorientation WRTs at the nominal pose)")
+    args = study_args(
+        argv,
+        __doc__,
+        [n for n in OBJECT_NAMES if get_object(n).reorient_wrts],
+        "runs",
+        40,
+        "runs per reorientation WRT",
+        REORIENTATION_FILE,
+    )
+    run_study(
+        args.objects,
+        args.runs,
+        args.seed,
+        args.workers,
+        args.out,
+        _measure_job,
+        fit,
+        _report,
+        "reorientation",
+        f"python -m rrg_sim.physics.reorient_study --runs {args.runs} --seed {args.seed} "
+        "(MuJoCo, reorientation WRTs at the nominal pose)",
+    )
 
 
 if __name__ == "__main__":

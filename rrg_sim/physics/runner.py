@@ -5,6 +5,7 @@ the guarded moves and the closing, optionally judges the grasp (lift and hold), 
 retreats to home. ``python -m rrg_sim.physics.runner powerdrill --offset 0.02 0 0.1`` runs an
 object's goal WRT relative to an estimate offset from the true pose and prints the result.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -13,13 +14,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rrg_sim.executor.trajectory import InfeasiblePath
+from rrg_sim.physics.judge import judge_grasp
+
 from .. import wam
 from ..observation import Observation
 from ..poses import compose_planar
 from ..wrt import WRT
-from rrg_sim.executor.trajectory import InfeasiblePath
 from .world import PhysicsWorld
-from rrg_sim.physics.judge import judge_grasp
 
 
 @dataclass
@@ -69,19 +71,31 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=main.__doc__)
     parser.add_argument("object")
     parser.add_argument("--wrt", default=None, help="WRT name (default: the goal WRT)")
-    parser.add_argument("--offset", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("DX", "DY", "DTH"),
-                        help="estimate error e ⊖ w in the object frame [m m rad]")
+    parser.add_argument(
+        "--offset",
+        type=float,
+        nargs=3,
+        default=(0.0, 0.0, 0.0),
+        metavar=("DX", "DY", "DTH"),
+        help="estimate error e ⊖ w in the object frame [m m rad]",
+    )
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
     world = PhysicsWorld(args.object, seed=args.seed)
     wrt = world.obj.goal_wrt if args.wrt is None else world.obj.wrt(args.wrt)
     e = compose_planar(world.true_object_pose(), np.asarray(args.offset))
     run = run_wrt(world, wrt, e, judge=wrt.kind == "goal")
-    print(f"{args.object} / {wrt.name} ({wrt.kind}) at e = {np.round(e, 4)}: feasible {run.feasible}")
+    print(
+        f"{args.object} / {wrt.name} ({wrt.kind}) at e = {np.round(e, 4)}: feasible {run.feasible}"
+    )
     if run.observation is not None:
         o = run.observation
-        print(f"  contact {o.contact}  progress {o.progress:.3f} m  closure {np.round(o.closure, 3)}")
-        print(f"  sensors {np.nonzero(o.sensors)[0].tolist()}  motion_dir {np.round(o.motion_dir, 3)}")
+        print(
+            f"  contact {o.contact}  progress {o.progress:.3f} m  closure {np.round(o.closure, 3)}"
+        )
+        print(
+            f"  sensors {np.nonzero(o.sensors)[0].tolist()}  motion_dir {np.round(o.motion_dir, 3)}"
+        )
     if run.judge is not None:
         print(f"  success {run.success}  {run.judge}")
     print(f"  wall {run.wall_s * 1000:.0f} ms  simulated {run.sim_s:.2f} s")

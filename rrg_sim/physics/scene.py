@@ -6,6 +6,7 @@ robot, the bare scene and one scene per object to ``rrg_sim/assets/`` for MuJoCo
 (``python -m mujoco.viewer --mjcf rrg_sim/assets/scene_powerdrill.xml``); a test keeps them
 identical to what the code builds.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -44,12 +45,38 @@ def _visual_assets(root: ET.Element) -> None:
     sub(visual, "quality", shadowsize=4096)
     sub(root, "statistic", center="0.6 0 0.2", extent=1.0)
     asset = sub(root, "asset")
-    sub(asset, "texture", type="skybox", builtin="gradient", rgb1="0.3 0.5 0.7", rgb2="0 0 0",
-        width=512, height=3072)
-    sub(asset, "texture", type="2d", name="groundplane", builtin="checker", mark="edge",
-        rgb1="0.2 0.3 0.4", rgb2="0.1 0.2 0.3", markrgb="0.8 0.8 0.8", width=300, height=300)
-    sub(asset, "material", name="groundplane", texture="groundplane", texuniform="true",
-        texrepeat="5 5", reflectance=0.2)
+    sub(
+        asset,
+        "texture",
+        type="skybox",
+        builtin="gradient",
+        rgb1="0.3 0.5 0.7",
+        rgb2="0 0 0",
+        width=512,
+        height=3072,
+    )
+    sub(
+        asset,
+        "texture",
+        type="2d",
+        name="groundplane",
+        builtin="checker",
+        mark="edge",
+        rgb1="0.2 0.3 0.4",
+        rgb2="0.1 0.2 0.3",
+        markrgb="0.8 0.8 0.8",
+        width=300,
+        height=300,
+    )
+    sub(
+        asset,
+        "material",
+        name="groundplane",
+        texture="groundplane",
+        texuniform="true",
+        texrepeat="5 5",
+        reflectance=0.2,
+    )
     sub(asset, "material", name="table", rgba="0.62 0.5 0.38 1")
 
 
@@ -60,16 +87,49 @@ def _environment(worldbody: ET.Element) -> None:
     sub(worldbody, "light", pos="0.6 0 2.5", dir="0 0 -1", directional="true")
     hx, hy = (w.table_x[1] - w.table_x[0]) / 2, (w.table_y[1] - w.table_y[0]) / 2
     cx, cy = (w.table_x[0] + w.table_x[1]) / 2, (w.table_y[0] + w.table_y[1]) / 2
-    sub(worldbody, "geom", name="table", type="plane", material="table", size=(hx, hy, 0.05),
-        pos=(cx, cy, w.table_top_z), friction=f"{w.table_friction} 0.005 0.0001",
-        contype=TABLE_CONTYPE, conaffinity=TABLE_CONAFFINITY)
+    sub(
+        worldbody,
+        "geom",
+        name="table",
+        type="plane",
+        material="table",
+        size=(hx, hy, 0.05),
+        pos=(cx, cy, w.table_top_z),
+        friction=f"{w.table_friction} 0.005 0.0001",
+        contype=TABLE_CONTYPE,
+        conaffinity=TABLE_CONAFFINITY,
+    )
     visual = dict(contype=0, conaffinity=0)
-    sub(worldbody, "geom", name="table_slab", type="box", material="table", size=(hx, hy, w.table_thickness / 2),
-        pos=(cx, cy, w.table_top_z - w.table_thickness / 2 - 1e-4), **visual)
-    sub(worldbody, "geom", name="floor", type="plane", size="0 0 0.05", pos=(0, 0, w.table_top_z - TABLE_HEIGHT),
-        material="groundplane", **visual)
-    sub(worldbody, "geom", name="pedestal", type="box", size=(0.15, 0.15, TABLE_HEIGHT / 2),
-        pos=(-0.04, 0, w.table_top_z - TABLE_HEIGHT / 2), rgba="0.3 0.3 0.32 1", **visual)
+    sub(
+        worldbody,
+        "geom",
+        name="table_slab",
+        type="box",
+        material="table",
+        size=(hx, hy, w.table_thickness / 2),
+        pos=(cx, cy, w.table_top_z - w.table_thickness / 2 - 1e-4),
+        **visual,
+    )
+    sub(
+        worldbody,
+        "geom",
+        name="floor",
+        type="plane",
+        size="0 0 0.05",
+        pos=(0, 0, w.table_top_z - TABLE_HEIGHT),
+        material="groundplane",
+        **visual,
+    )
+    sub(
+        worldbody,
+        "geom",
+        name="pedestal",
+        type="box",
+        size=(0.15, 0.15, TABLE_HEIGHT / 2),
+        pos=(-0.04, 0, w.table_top_z - TABLE_HEIGHT / 2),
+        rgba="0.3 0.3 0.32 1",
+        **visual,
+    )
 
 
 def _object(worldbody: ET.Element, obj: ObjectModel) -> None:
@@ -81,11 +141,35 @@ def _object(worldbody: ET.Element, obj: ObjectModel) -> None:
     volume = sum(primitive_volume(p.kind, p.size) for p in obj.parts)
     friction = f"{obj.friction} 0.005 0.0001"
     for k, p in enumerate(obj.parts):
-        sub(body, "geom", name=f"object/{k}", type=p.kind, size=p.size, pos=p.pos, quat=p.quat,
-            density=obj.mass / volume, friction=friction, condim=4, rgba=OBJECT_RGBA,
-            contype=PARTS_CONTYPE, conaffinity=PARTS_CONAFFINITY)
-    sub(body, "geom", name="object/hull", type="mesh", mesh="object_hull", density=0, friction=friction,
-        condim=4, group=3, rgba="0 0 0 0", contype=HULL_CONTYPE, conaffinity=HULL_CONAFFINITY)
+        sub(
+            body,
+            "geom",
+            name=f"object/{k}",
+            type=p.kind,
+            size=p.size,
+            pos=p.pos,
+            quat=p.quat,
+            density=obj.mass / volume,
+            friction=friction,
+            condim=4,
+            rgba=OBJECT_RGBA,
+            contype=PARTS_CONTYPE,
+            conaffinity=PARTS_CONAFFINITY,
+        )
+    sub(
+        body,
+        "geom",
+        name="object/hull",
+        type="mesh",
+        mesh="object_hull",
+        density=0,
+        friction=friction,
+        condim=4,
+        group=3,
+        rgba="0 0 0 0",
+        contype=HULL_CONTYPE,
+        conaffinity=HULL_CONAFFINITY,
+    )
 
 
 def _hull_asset(root: ET.Element, obj: ObjectModel) -> None:

@@ -6,13 +6,15 @@ F/T sensor is, which removes the fingertip's own weight. A contact point on a fi
 recovered from its wrench: the force's line of action (p × F = τ) enters the fingertip's
 capsule surface at the contact; the normal there points from the object into the tip.
 """
+
 from __future__ import annotations
 
 import mujoco
 import numpy as np
 
-from ..config import PHYSICS, SENSING, SENSOR_NAMES
 from rrg_sim.executor.wrt_executor import Reading
+
+from ..config import PHYSICS, SENSING, SENSOR_NAMES
 from ..hand import hand_tree
 from .mjcf_robot import PAD_TOUCH, PALM_BODY, TIP_BODIES, TIP_FORCE, TIP_TORQUE
 
@@ -75,23 +77,45 @@ QUIET_SIGMAS = 6.0
 class HandSensors:
     """Noisy readings of the touch pads and Nano17s of one MuJoCo model/data pair."""
 
-    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, rng: np.random.Generator, noise: float = 1.0):
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        data: mujoco.MjData,
+        rng: np.random.Generator,
+        noise: float = 1.0,
+    ):
         self.model, self.data, self.rng, self.noise = model, data, rng, noise
-        adr = lambda name: int(model.sensor_adr[model.sensor(name).id])  # noqa: E731
+        adr = lambda name: int(model.sensor_adr[model.sensor(name).id])
         self._pad = np.array([adr(n) for n in PAD_TOUCH])
         self._force = np.array([adr(n) for n in TIP_FORCE])[:, None] + np.arange(3)
         self._torque = np.array([adr(n) for n in TIP_TORQUE])[:, None] + np.arange(3)
         self._tip_body = np.array([model.body(b).id for b in TIP_BODIES])
         self._palm_body = model.body(PALM_BODY).id
-        self._sigma = np.r_[np.full(7, PHYSICS.pad_force_noise), np.full(9, SENSING.nano17_force_noise),
-                            np.full(9, PHYSICS.nano17_torque_noise)] * noise
+        self._sigma = (
+            np.r_[
+                np.full(7, PHYSICS.pad_force_noise),
+                np.full(9, SENSING.nano17_force_noise),
+                np.full(9, PHYSICS.nano17_torque_noise),
+            ]
+            * noise
+        )
         self.bias = np.zeros((3, 6))
-        self._thresholds = np.r_[np.full(7, SENSING.pad_force_threshold), np.full(3, SENSING.tip_force_threshold)]
+        self._thresholds = np.r_[
+            np.full(7, SENSING.pad_force_threshold), np.full(3, SENSING.tip_force_threshold)
+        ]
         self._all = np.concatenate([self._pad, self._force.ravel(), self._torque.ravel()])
         self._bias_force = np.zeros((3, 3))
-        self._quiet_pad = SENSING.pad_force_threshold - QUIET_SIGMAS * PHYSICS.pad_force_noise * noise
-        self._quiet_tip2 = max(0.0, SENSING.tip_force_threshold
-                               - QUIET_SIGMAS * np.sqrt(3) * SENSING.nano17_force_noise * noise) ** 2
+        self._quiet_pad = (
+            SENSING.pad_force_threshold - QUIET_SIGMAS * PHYSICS.pad_force_noise * noise
+        )
+        self._quiet_tip2 = (
+            max(
+                0.0,
+                SENSING.tip_force_threshold
+                - QUIET_SIGMAS * np.sqrt(3) * SENSING.nano17_force_noise * noise,
+            )
+            ** 2
+        )
 
     def _raw(self) -> np.ndarray:
         """Pads (7,), then tip forces (9,) and torques (9,), with noise."""
@@ -136,7 +160,7 @@ class HandSensors:
         noisy = external + (self.rng.normal(0.0, sigma, external.shape) if sigma > 0 else 0.0)
         return bool((np.abs(noisy) > SENSING.arm_torque_threshold).any())
 
-    def reading(self) -> "Reading":
+    def reading(self) -> Reading:
         """One noisy reading of every sensor, with the Nano17 contact points and normals."""
         pads, wrench = self.read()
         force = np.linalg.norm(wrench[:, :3], axis=1)
@@ -157,4 +181,3 @@ class HandSensors:
         sites = [m.site(f"bh/{name}_pad").id for name in SENSOR_NAMES[:7]]
         sites += [m.site(f"{body}_ft").id for body in TIP_BODIES]
         return d.site_xpos[sites]
-

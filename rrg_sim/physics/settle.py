@@ -14,6 +14,7 @@ with which the goal model and the belief's settling correct the affine maps near
 ``python -m rrg_sim.physics.settle [objects…] [--grasps N] [--workers W]`` measures and
 writes ``rrg_sim/objects/settling.json`` (the committed fits the catalogue loads).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -27,12 +28,13 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from rrg_sim.executor.trajectory import InfeasiblePath
+from rrg_sim.objects.object_model import SETTLING_FILE, SETTLING_THETA_BOX
+
 from ..config import WORLD
 from ..objects import OBJECT_NAMES, get_object
-from rrg_sim.objects.object_model import SETTLING_FILE, SETTLING_THETA_BOX
 from ..observation import fingers_in_contact
 from ..poses import compose_planar, relative_planar, wrap_angle
-from rrg_sim.executor.trajectory import InfeasiblePath
 from .world import PhysicsWorld
 
 log = logging.getLogger(__name__)
@@ -65,8 +67,15 @@ def measure(object_name: str, grasps: int, seed: int = 0) -> list[dict]:
         closed = relative_planar(e, world.true_object_pose())
         world.retreat()
         after = relative_planar(e, world.true_object_pose())
-        records.append(dict(start=delta.tolist(), closed=closed.tolist(), retreated=after.tolist(),
-                            contact=bool(obs.contact), fingers=int(fingers_in_contact(obs.sensors))))
+        records.append(
+            dict(
+                start=delta.tolist(),
+                closed=closed.tolist(),
+                retreated=after.tolist(),
+                contact=bool(obs.contact),
+                fingers=int(fingers_in_contact(obs.sensors)),
+            )
+        )
     return records
 
 
@@ -96,21 +105,33 @@ def fit(object_name: str, records: list[dict]) -> dict:
     retreat, fitted to the grasps that arrived (no early contact)."""
     arrived = [r for r in records if not r["contact"]]
     if len(arrived) < 8:
-        raise ValueError(f"{object_name}: only {len(arrived)} of {len(records)} grasps arrived; too few to fit")
+        raise ValueError(
+            f"{object_name}: only {len(arrived)} of {len(records)} grasps arrived; too few to fit"
+        )
     start = np.array([r["start"] for r in arrived])
     closed = np.array([r["closed"] for r in arrived])
     retreated = np.array([r["retreated"] for r in arrived])
     ignores = get_object(object_name).goal.ignores_theta
-    return dict(box=start_box(object_name).tolist(), grasps=len(records), arrived=len(arrived),
-                closed=fit_affine(start, closed, ignores), retreated=fit_affine(start, retreated, ignores),
-                samples=dict(start=np.round(start, 5).tolist(), closed=np.round(_unwrapped(closed, start), 5).tolist(),
-                             retreated=np.round(_unwrapped(retreated, start), 5).tolist()))
+    return dict(
+        box=start_box(object_name).tolist(),
+        grasps=len(records),
+        arrived=len(arrived),
+        closed=fit_affine(start, closed, ignores),
+        retreated=fit_affine(start, retreated, ignores),
+        samples=dict(
+            start=np.round(start, 5).tolist(),
+            closed=np.round(_unwrapped(closed, start), 5).tolist(),
+            retreated=np.round(_unwrapped(retreated, start), 5).tolist(),
+        ),
+    )
 
 
 def _dumps(fits: dict) -> str:
     """The fits as indented JSON with every innermost list of numbers on one line."""
     text = json.dumps(fits, indent=1)
-    return re.sub(r"\[\s*([-+0-9.eE,\s]+?)\s*\]", lambda m: "[" + re.sub(r"\s+", " ", m.group(1)) + "]", text)
+    return re.sub(
+        r"\[\s*([-+0-9.eE,\s]+?)\s*\]", lambda m: "[" + re.sub(r"\s+", " ", m.group(1)) + "]", text
+    )
 
 
 def _measure_job(args: tuple[str, int, int]) -> tuple[str, list[dict]]:
@@ -118,8 +139,18 @@ def _measure_job(args: tuple[str, int, int]) -> tuple[str, list[dict]]:
     return name, measure(name, grasps, seed)
 
 
-def run_study(objects: list[str], count: int, seed: int, workers: int, out: Path, measure_job, fit_fn,
-              report, desc: str, source: str) -> None:
+def run_study(
+    objects: list[str],
+    count: int,
+    seed: int,
+    workers: int,
+    out: Path,
+    measure_job,
+    fit_fn,
+    report,
+    desc: str,
+    source: str,
+) -> None:
     """Measure ``objects`` in parallel (measure_job((name, count, seed)) → (name, records)), fit
     each (fit_fn(name, records)), print report(name, fit, records), and update the JSON ``out``
     (sorted, with its ``_source``). Shared by this study and physics.reorient_study."""
@@ -127,7 +158,9 @@ def run_study(objects: list[str], count: int, seed: int, workers: int, out: Path
     t0 = time.perf_counter()
     jobs = [(name, count, seed) for name in objects]
     with mp.get_context("fork").Pool(workers) as pool:
-        for name, records in tqdm(pool.imap_unordered(measure_job, jobs), total=len(jobs), desc=desc):
+        for name, records in tqdm(
+            pool.imap_unordered(measure_job, jobs), total=len(jobs), desc=desc
+        ):
             fits[name] = fit_fn(name, records)
             print(report(name, fits[name], records), flush=True)
     fits = {k: fits[k] for k in sorted(fits)}
@@ -138,15 +171,26 @@ def run_study(objects: list[str], count: int, seed: int, workers: int, out: Path
 
 def _report(name: str, f: dict, records: list[dict]) -> str:
     c = f["closed"]
-    return (f"{name}: {f['arrived']}/{len(records)} arrived; closed b={np.round(c['b'], 3).tolist()} "
-            f"σ={np.round(c['sigma'], 3).tolist()} diag(A)={np.round(np.diag(c['A']), 2).tolist()}")
+    return (
+        f"{name}: {f['arrived']}/{len(records)} arrived; closed b={np.round(c['b'], 3).tolist()} "
+        f"σ={np.round(c['sigma'], 3).tolist()} diag(A)={np.round(np.diag(c['A']), 2).tolist()}"
+    )
 
 
-def study_args(argv: list[str] | None, doc: str, objects: list[str], count: str, count_default: int,
-               count_help: str, out: Path) -> argparse.Namespace:
+def study_args(
+    argv: list[str] | None,
+    doc: str,
+    objects: list[str],
+    count: str,
+    count_default: int,
+    count_help: str,
+    out: Path,
+) -> argparse.Namespace:
     """The command line of a study: objects, --<count>, --seed, --workers, --out."""
     parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
-    parser.add_argument("objects", nargs="*", default=objects, help="objects (default: %(default)s)")
+    parser.add_argument(
+        "objects", nargs="*", default=objects, help="objects (default: %(default)s)"
+    )
     parser.add_argument(f"--{count}", type=int, default=count_default, help=count_help)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=2)
@@ -155,10 +199,22 @@ def study_args(argv: list[str] | None, doc: str, objects: list[str], count: str,
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = study_args(argv, __doc__, list(OBJECT_NAMES), "grasps", 60, "goal grasps per object", SETTLING_FILE)
-    run_study(args.objects, args.grasps, args.seed, args.workers, args.out, _measure_job, fit, _report, "settling",
-              f"python -m rrg_sim.physics.settle --grasps {args.grasps} --seed {args.seed} "
-              "(MuJoCo, goal WRT at the nominal pose)")
+    args = study_args(
+        argv, __doc__, list(OBJECT_NAMES), "grasps", 60, "goal grasps per object", SETTLING_FILE
+    )
+    run_study(
+        args.objects,
+        args.grasps,
+        args.seed,
+        args.workers,
+        args.out,
+        _measure_job,
+        fit,
+        _report,
+        "settling",
+        f"python -m rrg_sim.physics.settle --grasps {args.grasps} --seed {args.seed} "
+        "(MuJoCo, goal WRT at the nominal pose)",
+    )
 
 
 if __name__ == "__main__":

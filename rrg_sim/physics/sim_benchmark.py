@@ -6,6 +6,7 @@ line is one JSON object: wrt_exec_ms (median wall time of one execution), wrt_ex
 realtime_factor (simulated / wall time over all executions), sim_s_per_exec, steps_per_s
 (raw free-space stepping), successes, runs, objects.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -16,8 +17,8 @@ import mujoco
 import numpy as np
 
 from rrg_sim.objects import OBJECT_NAMES
-from rrg_sim.physics.world import PhysicsWorld
 from rrg_sim.physics.judge import judge_grasp
+from rrg_sim.physics.world import PhysicsWorld
 
 
 def _time_goal(world: PhysicsWorld) -> tuple[float, float, bool]:
@@ -35,7 +36,9 @@ def bench_sim(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="rrg-bench sim", description="Physics world speed.")
     parser.add_argument("--objects", nargs="*", default=list(OBJECT_NAMES))
     parser.add_argument("--runs", type=int, default=1, help="timed executions per object")
-    parser.add_argument("--json", action="store_true", help="print the figures as JSON on the last line")
+    parser.add_argument(
+        "--json", action="store_true", help="print the figures as JSON on the last line"
+    )
     args = parser.parse_args(argv)
 
     walls, sims, oks, steps_per_s = [], [], [], []
@@ -47,21 +50,30 @@ def bench_sim(argv: list[str] | None = None) -> int:
         walls += w.tolist()
         sims += s.tolist()
         oks += ok.tolist()
-        print(f"{name:14s} goal WRT + judged lift: {1000 * np.median(w):6.1f} ms wall, {np.mean(s):.2f} s "
-              f"simulated, success {int(ok.sum())}/{len(ok)}")
+        print(
+            f"{name:14s} goal WRT + judged lift: {1000 * np.median(w):6.1f} ms wall, {np.mean(s):.2f} s "
+            f"simulated, success {int(ok.sum())}/{len(ok)}"
+        )
         world.reset()
         t = time.perf_counter()
         mujoco.mj_step(world.model, world.data, nstep=1000)
         steps_per_s.append(1000 / (time.perf_counter() - t))
 
-    figures = dict(objects=len(args.objects), runs=len(walls), successes=int(np.sum(oks)),
-                   wrt_exec_ms=round(1000 * float(np.median(walls)), 1),
-                   wrt_exec_ms_max=round(1000 * float(np.max(walls)), 1),
-                   realtime_factor=round(float(np.sum(sims) / np.sum(walls)), 1),
-                   sim_s_per_exec=round(float(np.mean(sims)), 3), steps_per_s=round(float(np.median(steps_per_s))))
-    print(f"one goal WRT execution: median {figures['wrt_exec_ms']} ms, max {figures['wrt_exec_ms_max']} ms "
-          f"(target ≤ 100 ms); real-time factor {figures['realtime_factor']}× (target ≥ 20×); "
-          f"free-space stepping {figures['steps_per_s']} steps/s")
+    figures = dict(
+        objects=len(args.objects),
+        runs=len(walls),
+        successes=int(np.sum(oks)),
+        wrt_exec_ms=round(1000 * float(np.median(walls)), 1),
+        wrt_exec_ms_max=round(1000 * float(np.max(walls)), 1),
+        realtime_factor=round(float(np.sum(sims) / np.sum(walls)), 1),
+        sim_s_per_exec=round(float(np.mean(sims)), 3),
+        steps_per_s=round(float(np.median(steps_per_s))),
+    )
+    print(
+        f"one goal WRT execution: median {figures['wrt_exec_ms']} ms, max {figures['wrt_exec_ms_max']} ms "
+        f"(target ≤ 100 ms); real-time factor {figures['realtime_factor']}× (target ≥ 20×); "
+        f"free-space stepping {figures['steps_per_s']} steps/s"
+    )
     if args.json:
         print(json.dumps(figures))
     return 0

@@ -13,24 +13,42 @@ Control: the WAM's position servos run every 2 ms control period; a guarded move
 pads and Nano17s after every period and stops (holds the current joint angles) as soon as
 one crosses its threshold.
 """
+
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import mujoco
 import numpy as np
 
+from rrg_sim.executor.trajectory import (
+    DensePath,
+    InfeasiblePath,
+    TimedPath,
+    plan_path,
+    servo_targets,
+    timed_controls,
+)
+from rrg_sim.executor.wrt_executor import Reading, WrtExecutor
+
 from .. import wam
 from ..config import HAND, N_SENSORS, PHYSICS, WORLD
-from rrg_sim.executor.wrt_executor import Reading, WrtExecutor
 from ..objects import ObjectModel, get_object
 from ..observation import Observation, finger_contacts
 from ..wrt import WRT
-from .mjcf_robot import (ARM_ACTUATORS, ARM_JOINTS, FINGER_ACTUATORS, FINGER_JOINTS, PALM_BODY,
-                         ROBOT_CONAFFINITY, ROBOT_CONTYPE, SPREAD_ACTUATOR, SPREAD_JOINT)
+from .mjcf_robot import (
+    ARM_ACTUATORS,
+    ARM_JOINTS,
+    FINGER_ACTUATORS,
+    FINGER_JOINTS,
+    PALM_BODY,
+    ROBOT_CONAFFINITY,
+    ROBOT_CONTYPE,
+    SPREAD_ACTUATOR,
+    SPREAD_JOINT,
+)
 from .scene import OBJECT_BODY, OBJECT_JOINT, build_model
 from .sensing import HandSensors
-from rrg_sim.executor.trajectory import DensePath, InfeasiblePath, TimedPath, plan_path, servo_targets, timed_controls
 
 __all__ = ["PhysicsWorld", "InfeasiblePath"]
 
@@ -53,8 +71,8 @@ class PhysicsWorld:
         self.rng = np.random.default_rng(seed)
         self.sensors = HandSensors(self.model, self.data, self.rng, sensor_noise)
         m = self.model
-        qadr = lambda j: int(m.jnt_qposadr[m.joint(j).id])  # noqa: E731
-        vadr = lambda j: int(m.jnt_dofadr[m.joint(j).id])  # noqa: E731
+        qadr = lambda j: int(m.jnt_qposadr[m.joint(j).id])
+        vadr = lambda j: int(m.jnt_dofadr[m.joint(j).id])
         self._arm_q = np.array([qadr(j) for j in ARM_JOINTS])
         self._finger_q = np.array([qadr(j) for j in FINGER_JOINTS])
         self._finger_v = np.array([vadr(j) for j in FINGER_JOINTS])
@@ -67,7 +85,9 @@ class PhysicsWorld:
             raise RuntimeError("actuator order must be: 7 arm, spread, 3 fingers")
         self._palm = m.body(PALM_BODY).id
         self._obj_body = m.body(OBJECT_BODY).id
-        self._robot_geom = (m.geom_contype == ROBOT_CONTYPE) & (m.geom_conaffinity == ROBOT_CONAFFINITY)
+        self._robot_geom = (m.geom_contype == ROBOT_CONTYPE) & (
+            m.geom_conaffinity == ROBOT_CONAFFINITY
+        )
         self._obj_geom = m.geom_bodyid == self._obj_body
         self._placed = np.asarray(WORLD.nominal_pose, dtype=float)
         self.executor = WrtExecutor(self)
@@ -94,8 +114,16 @@ class PhysicsWorld:
         self._placed = np.asarray(w, dtype=float)
         x, y, th = self._placed
         d = self.data
-        d.qpos[self._obj_q:self._obj_q + 7] = [x, y, WORLD.table_top_z, np.cos(th / 2), 0.0, 0.0, np.sin(th / 2)]
-        d.qvel[self._obj_v:self._obj_v + 6] = 0.0
+        d.qpos[self._obj_q : self._obj_q + 7] = [
+            x,
+            y,
+            WORLD.table_top_z,
+            np.cos(th / 2),
+            0.0,
+            0.0,
+            np.sin(th / 2),
+        ]
+        d.qvel[self._obj_v : self._obj_v + 6] = 0.0
         mujoco.mj_forward(self.model, d)
         mujoco.mj_step(self.model, d, nstep=int(round(PHYSICS.settle_time / PHYSICS.timestep)))
 
@@ -143,8 +171,12 @@ class PhysicsWorld:
         """True while any hand or arm geom touches the object."""
         n = self.data.ncon
         g = self.data.contact.geom[:n]
-        return bool(np.any((self._robot_geom[g[:, 0]] & self._obj_geom[g[:, 1]])
-                           | (self._robot_geom[g[:, 1]] & self._obj_geom[g[:, 0]])))
+        return bool(
+            np.any(
+                (self._robot_geom[g[:, 0]] & self._obj_geom[g[:, 1]])
+                | (self._robot_geom[g[:, 1]] & self._obj_geom[g[:, 0]])
+            )
+        )
 
     @property
     def sim_time(self) -> float:
@@ -169,8 +201,13 @@ class PhysicsWorld:
         speed = np.array([PHYSICS.spread_speed] + [HAND.close_speed] * 3)
         return max(1, int(np.ceil(np.max(travel / speed) / PHYSICS.timestep)))
 
-    def _run(self, arm: np.ndarray, hand: np.ndarray | None = None, guard: bool = False,
-             monitor: Callable[[], bool] | None = None) -> int | None:
+    def _run(
+        self,
+        arm: np.ndarray,
+        hand: np.ndarray | None = None,
+        guard: bool = False,
+        monitor: Callable[[], bool] | None = None,
+    ) -> int | None:
         """Step through arm servo targets (N,7) and hand targets (N',4), each held past its end.
         With ``guard``, stop at the first period any sensor fires or the arm's collision
         detection trips (HandSensors.arm_collision): hold the arm where it is
@@ -182,6 +219,7 @@ class PhysicsWorld:
         ctrl[:, :7] = arm[np.minimum(np.arange(n), len(arm) - 1)]
         if hand is not None:
             ctrl[:, 7:] = hand[np.minimum(np.arange(n), len(hand) - 1)]
+
         def fired() -> bool:  # a hand sensor, or the arm's collision detection (unsensed parts)
             return self.sensors.any_fired() or self.sensors.arm_collision(self._arm_v)
 
@@ -201,8 +239,14 @@ class PhysicsWorld:
         """Servo the arm to where it is now (a stop)."""
         self.data.ctrl[:7] = self.data.qpos[self._arm_q]
 
-    def move_through(self, waypoints: np.ndarray, guard: bool = False, speeds: dict | None = None,
-                     rigid_from: int = 0, reconfigure: bool = False) -> tuple[DensePath, TimedPath, int | None]:
+    def move_through(
+        self,
+        waypoints: np.ndarray,
+        guard: bool = False,
+        speeds: dict | None = None,
+        rigid_from: int = 0,
+        reconfigure: bool = False,
+    ) -> tuple[DensePath, TimedPath, int | None]:
         """Move the hand from where it is along straight lines through hand waypoints (K,4,4)
         (trajectory.plan_path; segments before ``rigid_from`` may swivel the elbow, and with
         ``reconfigure`` the arm may first change IK branch by a joint-space move), optionally
@@ -215,8 +259,13 @@ class PhysicsWorld:
             self.sensors.tare()
         return path, timed, self._run(timed.ctrl, guard=guard)
 
-    def follow(self, q: np.ndarray, t: np.ndarray, guard: bool = False,
-               monitor: Callable[[], bool] | None = None) -> float | None:
+    def follow(
+        self,
+        q: np.ndarray,
+        t: np.ndarray,
+        guard: bool = False,
+        monitor: Callable[[], bool] | None = None,
+    ) -> float | None:
         """Track joint via-points q (M,7) (q[0]: the current configuration) reached at times t
         (M,) [s], optionally guarded (the Nano17s are tared first); ``monitor`` as in ``_run``.
         Returns the fractional via-point index commanded when the move stopped early, or None."""
@@ -233,7 +282,9 @@ class PhysicsWorld:
         self.model.actuator_biasprm[a, 1] = -kp
         self.model.actuator_forcerange[a] = (-torque, torque)
 
-    def close_hand(self, monitor: Callable[[], bool] | None = None, guarded: bool = False) -> np.ndarray:
+    def close_hand(
+        self, monitor: Callable[[], bool] | None = None, guarded: bool = False
+    ) -> np.ndarray:
         """Close every finger at the hand's speed until it stops: stalled (closing slower than
         PHYSICS.stall_speed for PHYSICS.stall_time, e.g. at the torque limit on the object,
         or pushed back) or at its joint limit. A stopped finger keeps its stall torque and
@@ -255,7 +306,9 @@ class PhysicsWorld:
         grace = int(round(CLOSE_START_TIME / dt))
         speed = HAND.careful_close_speed if guarded else HAND.close_speed
         for k in range(int(round(PHYSICS.close_timeout * HAND.close_speed / speed / dt))):
-            target = np.where(stalled, target, np.minimum(target + speed * dt, HAND.proximal_range[1]))
+            target = np.where(
+                stalled, target, np.minimum(target + speed * dt, HAND.proximal_range[1])
+            )
             d.ctrl[8:11] = target
             mujoco.mj_step(m, d)
             if monitor is not None:
@@ -281,7 +334,11 @@ class PhysicsWorld:
     def _brake(self, finger: int) -> None:
         """Hold finger where it is with the torque it pushes with now (worm-drive brake)."""
         a, q = 8 + finger, self.data.qpos[self._finger_q[finger]]
-        torque = float(np.clip(PHYSICS.finger_kp * (self.data.ctrl[a] - q), -HAND.close_torque, HAND.close_torque))
+        torque = float(
+            np.clip(
+                PHYSICS.finger_kp * (self.data.ctrl[a] - q), -HAND.close_torque, HAND.close_torque
+            )
+        )
         self._finger_servo(finger, PHYSICS.brake_kp, PHYSICS.brake_torque)
         self.data.ctrl[a] = q + torque / PHYSICS.brake_kp
 
@@ -291,8 +348,12 @@ class PhysicsWorld:
         the arm; ``monitor`` as in ``_run``."""
         for i in range(3):
             self._finger_servo(i, PHYSICS.finger_kp, HAND.close_torque)
-        n = self._hand_ramp_steps(spread, proximal) + int(round(CLOSE_START_TIME / PHYSICS.timestep))
-        self._run(self.data.ctrl[None, :7].copy(), self._hand_ramp(n, spread, proximal), monitor=monitor)
+        n = self._hand_ramp_steps(spread, proximal) + int(
+            round(CLOSE_START_TIME / PHYSICS.timestep)
+        )
+        self._run(
+            self.data.ctrl[None, :7].copy(), self._hand_ramp(n, spread, proximal), monitor=monitor
+        )
 
     def open_hand(self, proximal: float = 0.0) -> None:
         """Open the fingers to ``proximal`` [rad] (spread unchanged), holding the arm."""

@@ -21,12 +21,13 @@ The world is stepped inside the action and service callbacks under one lock; a
 MultiThreadedExecutor keeps the node responsive meanwhile, and the state topics are published
 from inside the stepping loop.
 """
+
 from __future__ import annotations
 
 import sys
 import threading
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped, WrenchStamped
@@ -40,19 +41,29 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from rrg_msgs.action import GuardedMove
-from rrg_msgs.msg import ContactPads, GraspOutcome, Observation as ObservationMsg
+from rrg_msgs.msg import ContactPads, GraspOutcome
+from rrg_msgs.msg import Observation as ObservationMsg
 from rrg_msgs.srv import HandCommand, ResetSim
+from rrg_sim.executor.trajectory import DensePath, sample_times
+from rrg_sim.ros_common.msg_conversions import (
+    ARM_JOINT_NAMES,
+    WORLD_FRAME,
+    observation_from_msg,
+    planar_from_msg,
+    planar_to_msg,
+    pose_to_msg,
+    tip_contacts_to_msg,
+    vector_to_msg,
+)
+from rrg_sim.ros_common.node_main import keep_serving, run_node
 
 from .. import wam
 from ..config import HAND, PHYSICS, SENSING, WORLD
 from ..objects import OBJECT_NAMES
+from ..physics.judge import judge_grasp
 from ..physics.mjcf_robot import TIP_BODIES
 from ..physics.sensing import HandSensors
-from rrg_sim.executor.trajectory import DensePath, sample_times
-from ..physics.judge import judge_grasp
 from ..physics.world import PhysicsWorld
-from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES, WORLD_FRAME, observation_from_msg, planar_from_msg, planar_to_msg, pose_to_msg, tip_contacts_to_msg, vector_to_msg
-from rrg_sim.ros_common.node_main import keep_serving, run_node
 
 NODE_NAME = "sim"
 NAMESPACE = "rrg"
@@ -80,20 +91,47 @@ class SimNode(Node):
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME, namespace=NAMESPACE)
-        self.declare_parameter("object_name", "powerdrill", ParameterDescriptor(
-            description=f"Object in the scene at start ({', '.join(OBJECT_NAMES)}); reset_sim may change it"))
-        self.declare_parameter("seed", 0, ParameterDescriptor(
-            description="Seed of the sensor noise", read_only=True,
-            integer_range=[IntegerRange(from_value=0, to_value=2**31 - 1, step=1)]))
-        self.declare_parameter("sensor_noise", 1.0, ParameterDescriptor(
-            description="Scale of every sensor's noise sigma (1: config values, 0: noiseless)", read_only=True,
-            floating_point_range=[FloatingPointRange(from_value=0.0, to_value=10.0)]))
-        self.declare_parameter("state_rate", 50.0, ParameterDescriptor(
-            description="Rate [Hz, wall time] of joint states, wrenches, pads and the true pose",
-            floating_point_range=[FloatingPointRange(from_value=1.0, to_value=500.0)]))
-        self.declare_parameter("real_time_factor", 0.0, ParameterDescriptor(
-            description="Simulated seconds per wall second (1: real time); 0: as fast as it steps",
-            floating_point_range=[FloatingPointRange(from_value=0.0, to_value=100.0)]))
+        self.declare_parameter(
+            "object_name",
+            "powerdrill",
+            ParameterDescriptor(
+                description=f"Object in the scene at start ({', '.join(OBJECT_NAMES)}); reset_sim may change it"
+            ),
+        )
+        self.declare_parameter(
+            "seed",
+            0,
+            ParameterDescriptor(
+                description="Seed of the sensor noise",
+                read_only=True,
+                integer_range=[IntegerRange(from_value=0, to_value=2**31 - 1, step=1)],
+            ),
+        )
+        self.declare_parameter(
+            "sensor_noise",
+            1.0,
+            ParameterDescriptor(
+                description="Scale of every sensor's noise sigma (1: config values, 0: noiseless)",
+                read_only=True,
+                floating_point_range=[FloatingPointRange(from_value=0.0, to_value=10.0)],
+            ),
+        )
+        self.declare_parameter(
+            "state_rate",
+            50.0,
+            ParameterDescriptor(
+                description="Rate [Hz, wall time] of joint states, wrenches, pads and the true pose",
+                floating_point_range=[FloatingPointRange(from_value=1.0, to_value=500.0)],
+            ),
+        )
+        self.declare_parameter(
+            "real_time_factor",
+            0.0,
+            ParameterDescriptor(
+                description="Simulated seconds per wall second (1: real time); 0: as fast as it steps",
+                floating_point_range=[FloatingPointRange(from_value=0.0, to_value=100.0)],
+            ),
+        )
         self.frame_id = WORLD_FRAME
         self._lock = threading.Lock()
         self._move_active = False
@@ -101,24 +139,41 @@ class SimNode(Node):
         self.world = self._make_world(self.get_parameter("object_name").value)
         group = ReentrantCallbackGroup()
         self.joint_pub = self.create_publisher(JointState, "joint_states", 10)
-        self.wrench_pubs = [self.create_publisher(WrenchStamped, f"fingertip{i}/wrench", 10) for i in (1, 2, 3)]
+        self.wrench_pubs = [
+            self.create_publisher(WrenchStamped, f"fingertip{i}/wrench", 10) for i in (1, 2, 3)
+        ]
         self.pads_pub = self.create_publisher(ContactPads, "contact_pads", 10)
         self.truth_pub = self.create_publisher(PoseStamped, "eval/object_pose", 10)
         self.outcome_pub = self.create_publisher(GraspOutcome, "eval/grasp_outcome", 10)
-        self.create_subscription(ObservationMsg, "observation", self.on_observation, 10, callback_group=group)
+        self.create_subscription(
+            ObservationMsg, "observation", self.on_observation, 10, callback_group=group
+        )
         self.create_service(ResetSim, "reset_sim", self.on_reset_sim, callback_group=group)
         self.create_service(HandCommand, "hand_command", self.on_hand_command, callback_group=group)
         self.create_service(Trigger, "eval/judge_grasp", self.on_judge_grasp, callback_group=group)
-        ActionServer(self, GuardedMove, "guarded_move", execute_callback=self.execute_guarded_move,
-                     goal_callback=self.on_move_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
-                     callback_group=group)
-        self.create_timer(1.0 / self.get_parameter("state_rate").value, self.on_idle_timer, callback_group=group)
-        self.get_logger().info(f"simulator ready: {self.world.obj.name} at "
-                               f"{np.round(self.world.true_object_pose(), 3).tolist()}")
+        ActionServer(
+            self,
+            GuardedMove,
+            "guarded_move",
+            execute_callback=self.execute_guarded_move,
+            goal_callback=self.on_move_goal,
+            cancel_callback=lambda _: CancelResponse.ACCEPT,
+            callback_group=group,
+        )
+        self.create_timer(
+            1.0 / self.get_parameter("state_rate").value, self.on_idle_timer, callback_group=group
+        )
+        self.get_logger().info(
+            f"simulator ready: {self.world.obj.name} at "
+            f"{np.round(self.world.true_object_pose(), 3).tolist()}"
+        )
 
     def _make_world(self, object_name: str) -> PhysicsWorld:
-        world = PhysicsWorld(object_name, seed=self.get_parameter("seed").value,
-                             sensor_noise=self.get_parameter("sensor_noise").value)
+        world = PhysicsWorld(
+            object_name,
+            seed=self.get_parameter("seed").value,
+            sensor_noise=self.get_parameter("sensor_noise").value,
+        )
         m = world.model
         robot = [j for j in range(m.njnt) if m.joint(j).name.startswith(("wam/", "bh/"))]
         self._joint_names = [ros_joint_name(m.joint(j).name) for j in robot]
@@ -129,8 +184,11 @@ class SimNode(Node):
 
     # ------------------------------------------------------------------ state
     def joint_state(self) -> JointState:
-        msg = JointState(name=self._joint_names, position=self.world.data.qpos[self._qadr].tolist(),
-                         velocity=self.world.data.qvel[self._vadr].tolist())
+        msg = JointState(
+            name=self._joint_names,
+            position=self.world.data.qpos[self._qadr].tolist(),
+            velocity=self.world.data.qvel[self._vadr].tolist(),
+        )
         msg.header.stamp = self.get_clock().now().to_msg()
         return msg
 
@@ -145,9 +203,14 @@ class SimNode(Node):
         for i, pub in enumerate(self.wrench_pubs):
             w = WrenchStamped()
             w.header.stamp, w.header.frame_id = stamp, ros_joint_name(TIP_BODIES[i])
-            w.wrench.force, w.wrench.torque = vector_to_msg(wrench[i, :3]), vector_to_msg(wrench[i, 3:])
+            w.wrench.force, w.wrench.torque = (
+                vector_to_msg(wrench[i, :3]),
+                vector_to_msg(wrench[i, 3:]),
+            )
             pub.publish(w)
-        p = ContactPads(in_contact=[bool(f) for f in pads > SENSING.pad_force_threshold], force=pads.tolist())
+        p = ContactPads(
+            in_contact=[bool(f) for f in pads > SENSING.pad_force_threshold], force=pads.tolist()
+        )
         p.header.stamp, p.header.frame_id = stamp, ros_joint_name("bh/palm")
         self.pads_pub.publish(p)
         truth = PoseStamped(pose=pose_to_msg(self.world.object_pose()))
@@ -161,8 +224,11 @@ class SimNode(Node):
             finally:
                 self._lock.release()
 
-    def monitor(self, interrupted: Callable[[], bool] | None = None,
-                on_tick: Callable[[], None] | None = None) -> Callable[[], bool]:
+    def monitor(
+        self,
+        interrupted: Callable[[], bool] | None = None,
+        on_tick: Callable[[], None] | None = None,
+    ) -> Callable[[], bool]:
         """The per-period callback of a motion: every CHECK_EVERY periods it paces the
         simulation (real_time_factor), publishes the state (state_rate) and asks
         ``interrupted()`` whether to stop."""
@@ -203,21 +269,28 @@ class SimNode(Node):
         R = GuardedMove.Result
         traj = goal.trajectory
         if sorted(traj.joint_names) != sorted(ARM_JOINT_NAMES) or len(traj.joint_names) != 7:
-            raise ValueError(f"joint_names must be the 7 arm joints {list(ARM_JOINT_NAMES)}, got "
-                             f"{list(traj.joint_names)}", R.INVALID_TRAJECTORY)
+            raise ValueError(
+                f"joint_names must be the 7 arm joints {list(ARM_JOINT_NAMES)}, got "
+                f"{list(traj.joint_names)}",
+                R.INVALID_TRAJECTORY,
+            )
         if not traj.points:
             raise ValueError("the trajectory has no points", R.INVALID_TRAJECTORY)
         if any(len(p.positions) != 7 for p in traj.points):
             raise ValueError("every point needs 7 positions", R.INVALID_TRAJECTORY)
         order = [list(traj.joint_names).index(n) for n in ARM_JOINT_NAMES]
         q = np.array([np.asarray(p.positions)[order] for p in traj.points])
-        t = np.array([p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec for p in traj.points])
+        t = np.array(
+            [p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec for p in traj.points]
+        )
         if not np.all(np.isfinite(q)):
             raise ValueError("non-finite positions", R.INVALID_TRAJECTORY)
         if not np.all(wam.within_limits(q)):
             bad = int(np.argmin(wam.within_limits(q)))
-            raise ValueError(f"point {bad} is outside the joint limits: {np.round(q[bad], 3).tolist()}",
-                             R.JOINT_LIMITS)
+            raise ValueError(
+                f"point {bad} is outside the joint limits: {np.round(q[bad], 3).tolist()}",
+                R.JOINT_LIMITS,
+            )
         if np.any(np.diff(t) < 0.0):
             raise ValueError("time_from_start must not decrease", R.INVALID_TRAJECTORY)
         q0 = self.world.arm_q()
@@ -225,16 +298,23 @@ class SimNode(Node):
         if not np.any(t > 0.0):  # no timing: the server's default speeds
             return q, sample_times(DensePath(wam.fk(q), q, np.zeros(len(q), int)))
         if t[0] == 0.0 and np.abs(q[1] - q0).max() > START_TOLERANCE:
-            raise ValueError("the first point is away from the arm's configuration at time 0", R.INVALID_TRAJECTORY)
+            raise ValueError(
+                "the first point is away from the arm's configuration at time 0",
+                R.INVALID_TRAJECTORY,
+            )
         return q, np.r_[0.0, t]
 
     def execute_guarded_move(self, handle: ServerGoalHandle) -> GuardedMove.Result:
         goal, result = handle.request, GuardedMove.Result()
-        for name, value, default in (("tip_force_threshold", goal.tip_force_threshold, SENSING.tip_force_threshold),
-                                     ("pad_force_threshold", goal.pad_force_threshold, SENSING.pad_force_threshold)):
+        for name, value, default in (
+            ("tip_force_threshold", goal.tip_force_threshold, SENSING.tip_force_threshold),
+            ("pad_force_threshold", goal.pad_force_threshold, SENSING.pad_force_threshold),
+        ):
             if value > 0.0 and not np.isclose(value, default):
                 result.error_code = GuardedMove.Result.INVALID_TRAJECTORY
-                result.error_msg = f"{name}: the simulator's thresholds are fixed at {default} N (config.SENSING)"
+                result.error_msg = (
+                    f"{name}: the simulator's thresholds are fixed at {default} N (config.SENSING)"
+                )
                 handle.abort()
                 return result
         self._move_active = True
@@ -251,19 +331,28 @@ class SimNode(Node):
 
                 def feedback() -> None:
                     index = float(np.interp(self.world.sim_time - start, t, np.arange(len(t))))
-                    handle.publish_feedback(GuardedMove.Feedback(path_fraction=client_fraction(index, n),
-                                                                 current_point=min(n - 1, int(np.ceil(index - 1)))))
+                    handle.publish_feedback(
+                        GuardedMove.Feedback(
+                            path_fraction=client_fraction(index, n),
+                            current_point=min(n - 1, int(np.ceil(index - 1))),
+                        )
+                    )
 
-                interrupted = lambda: handle.is_cancel_requested or not self.context.ok()  # noqa: E731
-                stop = self.world.follow(q, t, guard=goal.stop_on_contact, monitor=self.monitor(interrupted, feedback))
+                interrupted = lambda: handle.is_cancel_requested or not self.context.ok()
+                stop = self.world.follow(
+                    q, t, guard=goal.stop_on_contact, monitor=self.monitor(interrupted, feedback)
+                )
                 canceled = stop is not None and interrupted()
                 result.path_fraction = client_fraction(len(q) - 1.0 if stop is None else stop, n)
                 result.stopped_on_contact = stop is not None and not canceled
                 self.fill_hand(result)
                 result.final_joint_state = self.joint_state()
                 self.publish_state()
-        except Exception as exc:  # noqa: BLE001 - answer, log and keep serving
-            result.error_code, result.error_msg = GuardedMove.Result.UNKNOWN, f"{type(exc).__name__}: {exc}"
+        except Exception as exc:
+            result.error_code, result.error_msg = (
+                GuardedMove.Result.UNKNOWN,
+                f"{type(exc).__name__}: {exc}",
+            )
             self.get_logger().error(f"guarded_move failed: {result.error_msg}")
             handle.abort()
             return result
@@ -285,17 +374,31 @@ class SimNode(Node):
 
     # ------------------------------------------------------------------ hand, reset, judge
     @keep_serving
-    def on_hand_command(self, req: HandCommand.Request, resp: HandCommand.Response) -> HandCommand.Response:
+    def on_hand_command(
+        self, req: HandCommand.Request, resp: HandCommand.Response
+    ) -> HandCommand.Response:
         R = HandCommand.Response
         proximal = np.asarray(req.proximal, dtype=float)
         lo, hi = HAND.proximal_range
-        if req.mode not in (HandCommand.Request.MODE_POSITION, HandCommand.Request.MODE_OPEN,
-                            HandCommand.Request.MODE_CLOSE, HandCommand.Request.MODE_CLOSE_GUARDED):
+        if req.mode not in (
+            HandCommand.Request.MODE_POSITION,
+            HandCommand.Request.MODE_OPEN,
+            HandCommand.Request.MODE_CLOSE,
+            HandCommand.Request.MODE_CLOSE_GUARDED,
+        ):
             resp.error_code, resp.error_msg = R.INVALID_MODE, f"unknown mode {req.mode}"
         elif not HAND.spread_range[0] <= req.spread <= HAND.spread_range[1]:
-            resp.error_code, resp.error_msg = R.OUT_OF_RANGE, f"spread {req.spread} outside {HAND.spread_range} rad"
-        elif req.mode == HandCommand.Request.MODE_POSITION and not np.all((proximal >= lo) & (proximal <= hi)):
-            resp.error_code, resp.error_msg = R.OUT_OF_RANGE, f"proximal {proximal.tolist()} outside {(lo, hi)} rad"
+            resp.error_code, resp.error_msg = (
+                R.OUT_OF_RANGE,
+                f"spread {req.spread} outside {HAND.spread_range} rad",
+            )
+        elif req.mode == HandCommand.Request.MODE_POSITION and not np.all(
+            (proximal >= lo) & (proximal <= hi)
+        ):
+            resp.error_code, resp.error_msg = (
+                R.OUT_OF_RANGE,
+                f"proximal {proximal.tolist()} outside {(lo, hi)} rad",
+            )
         if resp.error_code != R.NONE:
             self.get_logger().warn(f"hand_command refused: {resp.error_msg}")
             return resp
@@ -308,7 +411,9 @@ class SimNode(Node):
             else:
                 if abs(req.spread - self.world.hand_angles()[0]) > SPREAD_TOLERANCE:
                     self.world.move_hand(req.spread, self.world.finger_angles(), monitor)
-                touched = self.world.close_hand(monitor, guarded=req.mode == HandCommand.Request.MODE_CLOSE_GUARDED)
+                touched = self.world.close_hand(
+                    monitor, guarded=req.mode == HandCommand.Request.MODE_CLOSE_GUARDED
+                )
                 resp.touched = [bool(t) for t in touched]
             self.fill_hand(resp)
             resp.joint_state = self.joint_state()
@@ -321,11 +426,16 @@ class SimNode(Node):
         if req.object_name not in OBJECT_NAMES:
             resp.error_code = ResetSim.Response.UNKNOWN_OBJECT
             resp.error_msg = f"unknown object {req.object_name!r}; valid: {list(OBJECT_NAMES)}"
-        elif not (np.all(np.isfinite(pose)) and WORLD.table_x[0] <= pose[0] <= WORLD.table_x[1]
-                  and WORLD.table_y[0] <= pose[1] <= WORLD.table_y[1]):
+        elif not (
+            np.all(np.isfinite(pose))
+            and WORLD.table_x[0] <= pose[0] <= WORLD.table_x[1]
+            and WORLD.table_y[0] <= pose[1] <= WORLD.table_y[1]
+        ):
             resp.error_code = ResetSim.Response.INVALID_POSE
-            resp.error_msg = (f"pose {pose.tolist()} is not on the table (x {WORLD.table_x} m, "
-                              f"y {WORLD.table_y} m)")
+            resp.error_msg = (
+                f"pose {pose.tolist()} is not on the table (x {WORLD.table_x} m, "
+                f"y {WORLD.table_y} m)"
+            )
         if resp.error_code != ResetSim.Response.NONE:
             self.get_logger().warn(f"reset_sim refused: {resp.error_msg}")
             return resp
@@ -335,7 +445,9 @@ class SimNode(Node):
             self.world.reset(pose)
             self._last_observation = None
             self.publish_state()
-        self.get_logger().info(f"reset: {req.object_name} at {np.round(pose, 4).tolist()}, arm home")
+        self.get_logger().info(
+            f"reset: {req.object_name} at {np.round(pose, 4).tolist()}, arm home"
+        )
         return resp
 
     def on_observation(self, msg: ObservationMsg) -> None:
@@ -345,28 +457,47 @@ class SimNode(Node):
     def on_judge_grasp(self, req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
         obs = self._last_observation
         obj = self.world.obj
-        kind = None if obs is None else next((w.kind for w in obj.wrts() if w.name == obs.wrt_name), None)
+        kind = (
+            None
+            if obs is None
+            else next((w.kind for w in obj.wrts() if w.name == obs.wrt_name), None)
+        )
         if obs is None:
             resp.message = "nothing to judge: no WRT observation since the last reset"
         elif obs.object_name != obj.name or kind != "goal":
             resp.message = f"nothing to judge: the last WRT was {obs.object_name}/{obs.wrt_name}, not a goal grasp"
         else:
             with self._lock:
-                ok, info = judge_grasp(self.world, obj, planar_from_msg(obs.estimate), observation_from_msg(obs))
+                ok, info = judge_grasp(
+                    self.world, obj, planar_from_msg(obs.estimate), observation_from_msg(obs)
+                )
                 self.publish_state()
             resp.success = bool(ok)
-            resp.message = (f"{'SUCCESS' if ok else 'FAILURE'}: in goal region {info['in_region']} "
-                            f"(offset {np.round(info['delta'], 4).tolist()}), {info['fingers']} fingers in "
-                            f"contact, required sensors {info['required_ok']}, held {info['held']} "
-                            f"(lifted {info['lift_dz']:.3f} m of {PHYSICS.lift_height} m, slip {info['slip']:.4f} m)")
-            self.outcome_pub.publish(GraspOutcome(
-                header=Header(stamp=self.get_clock().now().to_msg(), frame_id=WORLD_FRAME),
-                object_name=obj.name, wrt_name=obs.wrt_name, success=bool(ok), in_region=bool(info["in_region"]),
-                offset=planar_to_msg(info["delta"]), fingers_in_contact=int(info["fingers"]),
-                required_contacts=bool(info["required_ok"]), held=bool(info["held"]),
-                lift_feasible=bool(info["lift_feasible"]), lift_dz=float(info["lift_dz"]), slip=float(info["slip"]),
-                early_contact=bool(info["early_contact"]), true_pose=planar_to_msg(info["w_true"]),
-                message=resp.message))
+            resp.message = (
+                f"{'SUCCESS' if ok else 'FAILURE'}: in goal region {info['in_region']} "
+                f"(offset {np.round(info['delta'], 4).tolist()}), {info['fingers']} fingers in "
+                f"contact, required sensors {info['required_ok']}, held {info['held']} "
+                f"(lifted {info['lift_dz']:.3f} m of {PHYSICS.lift_height} m, slip {info['slip']:.4f} m)"
+            )
+            self.outcome_pub.publish(
+                GraspOutcome(
+                    header=Header(stamp=self.get_clock().now().to_msg(), frame_id=WORLD_FRAME),
+                    object_name=obj.name,
+                    wrt_name=obs.wrt_name,
+                    success=bool(ok),
+                    in_region=bool(info["in_region"]),
+                    offset=planar_to_msg(info["delta"]),
+                    fingers_in_contact=int(info["fingers"]),
+                    required_contacts=bool(info["required_ok"]),
+                    held=bool(info["held"]),
+                    lift_feasible=bool(info["lift_feasible"]),
+                    lift_dz=float(info["lift_dz"]),
+                    slip=float(info["slip"]),
+                    early_contact=bool(info["early_contact"]),
+                    true_pose=planar_to_msg(info["w_true"]),
+                    message=resp.message,
+                )
+            )
         if resp.success:
             self.get_logger().info(f"judge_grasp: {resp.message}")
         else:

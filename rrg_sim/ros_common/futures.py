@@ -5,11 +5,12 @@ response, so the clients must be in a reentrant callback group. Waits poll in sh
 that a cancel request or a shutdown interrupts them. Action clients must be
 ``ThreadSafeActionClient``s (see there).
 """
+
 from __future__ import annotations
 
 import threading
 import time
-from typing import Callable
+from collections.abc import Callable
 
 from rclpy.action import ActionClient
 from rclpy.task import Future

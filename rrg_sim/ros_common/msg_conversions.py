@@ -1,6 +1,7 @@
 """Conversions between rrg_sim's types and ROS messages (planar and 3-D poses, observations,
 fingertip contacts). Plain functions, no node: the sim, executor and estimator nodes share them.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -8,8 +9,8 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, Pose, Vector3
 from scipy.spatial.transform import Rotation
 
-from rrg_msgs.msg import FingertipContact, Observation as ObservationMsg, PlanarPose
-
+from rrg_msgs.msg import FingertipContact, PlanarPose
+from rrg_msgs.msg import Observation as ObservationMsg
 from rrg_sim.config import N_SENSORS
 from rrg_sim.observation import Observation
 
@@ -38,7 +39,12 @@ def pose_to_msg(T: np.ndarray) -> Pose:
     x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
     msg = Pose()
     msg.position.x, msg.position.y, msg.position.z = (float(v) for v in T[:3, 3])
-    msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = float(x), float(y), float(z), float(w)
+    msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = (
+        float(x),
+        float(y),
+        float(z),
+        float(w),
+    )
     return msg
 
 
@@ -68,8 +74,9 @@ def xyz(msg: Point | Vector3) -> np.ndarray:
     return np.array([msg.x, msg.y, msg.z], dtype=float)
 
 
-def tip_contacts_to_msg(points: np.ndarray, normals: np.ndarray,
-                        wrenches: np.ndarray | None = None) -> list[FingertipContact]:
+def tip_contacts_to_msg(
+    points: np.ndarray, normals: np.ndarray, wrenches: np.ndarray | None = None
+) -> list[FingertipContact]:
     """Fingertip contacts of fingers 1-3: points and normals (3,3) in the hand frame (NaN rows:
     no contact), optional wrenches (3,6) [N, N m] in each sensor's frame."""
     out = []
@@ -78,7 +85,10 @@ def tip_contacts_to_msg(points: np.ndarray, normals: np.ndarray,
         if c.valid:
             c.point, c.normal = point_to_msg(points[i]), vector_to_msg(normals[i])
         if wrenches is not None:
-            c.wrench.force, c.wrench.torque = vector_to_msg(wrenches[i, :3]), vector_to_msg(wrenches[i, 3:])
+            c.wrench.force, c.wrench.torque = (
+                vector_to_msg(wrenches[i, :3]),
+                vector_to_msg(wrenches[i, 3:]),
+            )
         out.append(c)
     return out
 
@@ -92,16 +102,24 @@ def tip_contacts_from_msg(contacts: list[FingertipContact]) -> tuple[np.ndarray,
     return points, normals
 
 
-def observation_to_msg(obs: Observation, object_name: str, wrt_name: str, e, stamp: Time,
-                       frame_id: str = WORLD_FRAME) -> ObservationMsg:
+def observation_to_msg(
+    obs: Observation, object_name: str, wrt_name: str, e, stamp: Time, frame_id: str = WORLD_FRAME
+) -> ObservationMsg:
     """An Observation of WRT ``wrt_name`` executed at estimate e → rrg_msgs/Observation."""
-    msg = ObservationMsg(object_name=object_name, wrt_name=wrt_name, estimate=planar_to_msg(e),
-                         contact=bool(obs.contact), progress=float(obs.progress),
-                         hand_pose=pose_to_msg(obs.hand_pose))
+    msg = ObservationMsg(
+        object_name=object_name,
+        wrt_name=wrt_name,
+        estimate=planar_to_msg(e),
+        contact=bool(obs.contact),
+        progress=float(obs.progress),
+        hand_pose=pose_to_msg(obs.hand_pose),
+    )
     msg.header.stamp, msg.header.frame_id = stamp, frame_id
     msg.sensors = [bool(s) for s in obs.sensors]
     msg.closure = np.asarray(obs.closure, dtype=float)
-    valid = np.all(np.isfinite(obs.tip_points), axis=1) & np.all(np.isfinite(obs.tip_normals), axis=1)
+    valid = np.all(np.isfinite(obs.tip_points), axis=1) & np.all(
+        np.isfinite(obs.tip_normals), axis=1
+    )
     msg.tip_valid = [bool(v) for v in valid]
     msg.tip_points = [point_to_msg(p) if v else Point() for p, v in zip(obs.tip_points, valid)]
     msg.tip_normals = [vector_to_msg(n) if v else Vector3() for n, v in zip(obs.tip_normals, valid)]
@@ -119,7 +137,13 @@ def observation_from_msg(msg: ObservationMsg) -> Observation:
     valid = np.asarray(msg.tip_valid, dtype=bool)
     points = np.where(valid[:, None], np.array([xyz(p) for p in msg.tip_points]), np.nan)
     normals = np.where(valid[:, None], np.array([xyz(n) for n in msg.tip_normals]), np.nan)
-    return Observation(contact=bool(msg.contact), progress=float(msg.progress),
-                       hand_pose=pose_from_msg(msg.hand_pose), sensors=np.asarray(msg.sensors, dtype=bool),
-                       closure=np.asarray(msg.closure, dtype=float), tip_points=points,
-                       tip_normals=normals, motion_dir=xyz(msg.motion_dir))
+    return Observation(
+        contact=bool(msg.contact),
+        progress=float(msg.progress),
+        hand_pose=pose_from_msg(msg.hand_pose),
+        sensors=np.asarray(msg.sensors, dtype=bool),
+        closure=np.asarray(msg.closure, dtype=float),
+        tip_points=points,
+        tip_normals=normals,
+        motion_dir=xyz(msg.motion_dir),
+    )

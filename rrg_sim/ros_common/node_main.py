@@ -5,15 +5,21 @@ persistent executor until shutdown, and exit cleanly on Ctrl-C or SIGINT/SIGTERM
 sometimes missed the first SIGINT (shared/notes/ros2-on-pip.md). In Jazzy SIGINT raises
 ExternalShutdownException, so both it and KeyboardInterrupt end the loop.
 """
+
 from __future__ import annotations
 
 import functools
 import logging
 import sys
-from typing import Callable
+from collections.abc import Callable
 
 import rclpy
-from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.executors import (
+    Executor,
+    ExternalShutdownException,
+    MultiThreadedExecutor,
+    SingleThreadedExecutor,
+)
 from rclpy.node import Node
 
 
@@ -26,7 +32,7 @@ def keep_serving(method: Callable) -> Callable:
     def callback(node: Node, request, response):
         try:
             return method(node, request, response)
-        except Exception as exc:  # noqa: BLE001 - the point is to catch anything
+        except Exception as exc:
             text = f"{type(exc).__name__}: {exc}"
             node.get_logger().error(f"{method.__name__} failed: {text}")
             if hasattr(response, "error_code"):
@@ -38,8 +44,9 @@ def keep_serving(method: Callable) -> Callable:
     return callback
 
 
-def run_node(make_node: Callable[[], Node], multi_threaded: bool = False,
-             argv: list[str] | None = None) -> int:
+def run_node(
+    make_node: Callable[[], Node], multi_threaded: bool = False, argv: list[str] | None = None
+) -> int:
     """Run one node in this process until shutdown; returns the exit status.
 
     multi_threaded: use a MultiThreadedExecutor (nodes whose callbacks block, e.g. action
@@ -48,7 +55,9 @@ def run_node(make_node: Callable[[], Node], multi_threaded: bool = False,
     logging.basicConfig(level=logging.INFO, format="[%(levelname)s] [%(name)s]: %(message)s")
     rclpy.init(args=sys.argv if argv is None else argv)
     node = None
-    executor: Executor = MultiThreadedExecutor(num_threads=4) if multi_threaded else SingleThreadedExecutor()
+    executor: Executor = (
+        MultiThreadedExecutor(num_threads=4) if multi_threaded else SingleThreadedExecutor()
+    )
     try:
         node = make_node()
         executor.add_node(node)
