@@ -31,7 +31,8 @@ class Belief:
         w = np.array(self.weights, dtype=np.float64).ravel()
         if w.shape != (self.grid.size,):
             raise ValueError(
-                f"belief needs {self.grid.size} weights for grid shape {self.grid.shape}, got {w.shape}"
+                f"belief needs {self.grid.size} weights for grid shape {self.grid.shape}, "
+                f"got {w.shape}"
             )
         if not np.all(np.isfinite(w)):
             raise ValueError("belief weights contain NaN or inf")
@@ -58,7 +59,8 @@ class Belief:
 
     @classmethod
     def for_level(cls, level: UncertaintyLevel, mean) -> Belief:
-        """The initial belief of an uncertainty level: its Gaussian on its grid centred on the mean."""
+        """The initial belief of an uncertainty level: its Gaussian on its grid centred on the
+        mean."""
         return cls.gaussian(Grid.for_level(level, center=mean), mean, level.sigma)
 
     def with_weights(self, weights: np.ndarray) -> Belief:

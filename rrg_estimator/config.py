@@ -23,23 +23,23 @@ class UncertaintyLevel:
     shape: tuple[int, int, int] = (31, 31, 25)
 
 
-#: Paper: σ = 5 cm, 5 cm, 30°, grid 1 cm and 0.1 rad. The paper's 25 θ points span only
-#: ±1.2 rad = ±2.3σ, so about 2 % of true poses drawn from the prior lie off the grid and can
-#: never be found (campaign 4282222: 26 of 1,000 high-uncertainty RRG-Info trials, 12 of them
-#: failures); 33 span ±1.6 rad = ±3σ. x and y span ±20 cm = ±4σ (41 points; the paper's
-#: 31 span ±3σ): with ±3σ, 0.54 % of drawn poses lie off the grid in x or y, and 5 of the
-#: 6 such poses in the 1,000 high RRG-Info trials of campaign efece7d failed (teacup #3,
-#: #65, #86, cup #33, drill #80); ±4σ leaves 0.013 %.
+#: Paper: σ = 5 cm, 5 cm, 30°, grid 1 cm and 0.1 rad. A true pose off the grid can never be
+#: found. The paper's 25 θ points span only ±1.2 rad = ±2.3σ, so about 2 % of true poses
+#: drawn from the prior lie off the grid (MuJoCo: 26 of 1,000 high-uncertainty RRG-Info
+#: trials, 12 of them failures); 33 span ±1.6 rad = ±3σ. x and y span ±20 cm = ±4σ (41
+#: points; the paper's 31 span ±3σ): with ±3σ, 0.54 % of drawn poses lie off the grid in x or
+#: y, and 5 of the 6 such poses in 1,000 high-uncertainty RRG-Info trials failed; ±4σ leaves
+#: 0.013 % (docs/design.md §3).
 HIGH = UncertaintyLevel("high", (0.05, 0.05, math.radians(30.0)), (0.01, 0.01, 0.1), (41, 41, 33))
 #: Paper: σ = 1 cm, 1 cm, 3°; design §3: about 2 mm and 0.013 rad.
 LOW = UncertaintyLevel("low", (0.01, 0.01, math.radians(3.0)), (0.002, 0.002, 0.013))
 #: Chosen: the variable-resolution grid's middle step, ±3σ like LOW (±7.5 cm, ±0.6 rad at
-#: 5 mm and 0.05 rad). With HIGH and LOW alone a belief stayed on HIGH's 0.1 rad until 99 %
-#: of it fit LOW's ±0.156 rad, which is finer than the goal tolerances it must resolve
-#: (the teacup's ±0.14 rad): in campaign efece7d 41 of 100 pitcher and half the teacup
-#: trials at high uncertainty used all 10 actions, and in a session 15 replay of pitcher#38
-#: HIGH's belief settled 0.15 rad off the truth, then refined to a LOW grid the truth lay
-#: 0.065 rad beyond.
+#: 5 mm and 0.05 rad). With HIGH and LOW alone a belief stays on HIGH's 0.1 rad until 99 %
+#: of it fits LOW's ±0.156 rad, and 0.1 rad is coarse against the goal tolerances it must
+#: resolve (the teacup's ±0.14 rad). Measured in MuJoCo with HIGH and LOW alone: 41 of 100
+#: pitcher and half the teacup trials at high uncertainty used all 10 actions, and in one
+#: pitcher trial HIGH's belief settled 0.15 rad off the truth, then refined to a LOW grid the
+#: truth lay 0.065 rad beyond (docs/design.md §3).
 MID = UncertaintyLevel("mid", (0.025, 0.025, 0.2), (0.005, 0.005, 0.05))
 LEVELS = {"high": HIGH, "mid": MID, "low": LOW}
 

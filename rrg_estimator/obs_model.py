@@ -233,7 +233,8 @@ def log_likelihood_over_table(
         )
         cost = np.minimum(f32(0.5) * zp * zp, f32(-np.log(params.outlier_progress)))
         logl -= np.where(feats.contact[:, None] & t_contact[None, :], cost, f32(0.0))
-    # sensors: Σ_s log P(o_s | q_s) = Σ_s log P(silent | q_s) + Σ_s o_s (log P(fired | q_s) - log P(silent | q_s))
+    # sensors: Σ_s log P(o_s | q_s)
+    #   = Σ_s log P(silent | q_s) + Σ_s o_s (log P(fired | q_s) - log P(silent | q_s))
     silent, gain = sensor_log_likelihood(table, params)
     logl += silent[None, :]
     logl += feats.sensors.astype(f32) @ gain

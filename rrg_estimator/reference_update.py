@@ -96,7 +96,8 @@ def sensor_prediction_reference(table: TableLike, j: int, s: int) -> float:
 def likelihood_reference(
     table: TableLike, j: int, obs: dict, params: LikelihoodParams = LIKELIHOOD
 ) -> float:
-    """Floored likelihood of one observation (dict of plain values) at table entry j, term by term."""
+    """Floored likelihood of one observation (dict of plain values) at table entry j, term by
+    term."""
     like = 1.0
     predicted_contact = bool(table.contact[j])
     like *= (

@@ -87,9 +87,9 @@ def goal_probability(
 ) -> float:
     """P_b(G) of a goal WRT executed relative to e: Σ_w b(w)·G[idx(e, w)].
 
-    goal_indicator: (N_table,) P(G | Δ) (or bool) over the goal WRT's table offsets; table_grid defaults
-    to the level grid of the belief's spacing and shape, centred at (0, 0, 0), as the
-    tables are built.
+    goal_indicator: (N_table,) P(G | Δ) (or bool) over the goal WRT's table offsets;
+    table_grid defaults to the level grid of the belief's spacing and shape, centred at
+    (0, 0, 0), as the tables are built.
     """
     if table_grid is None:
         table_grid = Grid((0.0, 0.0, 0.0), belief.grid.spacing, belief.grid.shape)

@@ -89,9 +89,9 @@ def maybe_refine(
     re-centred on its mean once the mean is more than VARRES_RECENTER of the grid's half
     extent off its centre on some axis (the fixed grid of the paper cannot follow an object
     that moves further than that), even when that drops more than eps: mass piling up on
-    one border says the object lies beyond it (MuJoCo, powerdrill/high#0 in session 15: a
-    sweep-pushed drill 0.2 rad off a MID grid whose tail kept every eps-box where it was,
-    until the belief collapsed on the border and the goal grasp was made 0.2 rad off).
+    one border says the object lies beyond it (MuJoCo, without re-centring: a sweep pushed the
+    drill 0.2 rad off a MID grid whose tail kept every eps-box where it was, until the belief
+    collapsed on the border and the goal grasp ran 0.2 rad off).
 
     Weights on the fine grid are the coarse density interpolated trilinearly, renormalized
     (the ≤ eps of mass outside the box is dropped).

@@ -94,9 +94,9 @@ class RobustGraspAgent:
         """P_b(G) of the goal grasp at the most likely state where it is feasible (0 if none):
         the root's value of grasping now when it cannot run at w*(b) or its aim. The search
         values a goal grasp only there, so without this it keeps gathering information, or
-        turns the object, while a grasp a cell or two away would already succeed (MuJoCo:
-        brita_pitcher/high/rrg-info#63 of campaign 9d89825 read the pitcher six more times
-        and never grasped it; with this rule it grasps at θ 0.25 rad from w* and succeeds)."""
+        turns the object, while a grasp a cell or two away would already succeed (MuJoCo: without
+        this rule a pitcher run at high uncertainty read the pitcher six more times and never
+        grasped it; with it, the same run grasps at θ 0.25 rad from w* and succeeds)."""
         alt = self.most_likely_feasible(belief, self.goal)
         return 0.0 if alt is None else self.grasp_probability(belief, self.goal, alt)
 
@@ -181,8 +181,7 @@ class RobustGraspAgent:
         """Note that ``action`` ran at e: an information-gathering WRT's reading at e is spent
         (ForwardSearch.spend). It left the object in place, or (an early contact) nudged it
         a few mm where it stopped; run again, it reads the same or nearly. In MuJoCo, counting
-        a repeat as a second reading made the drill's belief certain of a θ 0.12 rad off
-        (probe trial powerdrill/high/rrg-info#28), and a teacup was swept three times with
-        one reading, twice at the same estimate (campaign cc990d4, giant_teacup#10)."""
+        a repeat as a second reading made the drill's belief certain of a θ 0.12 rad off, and a
+        teacup was swept three times with one reading, twice at the same estimate."""
         if self.model.actions[action].kind == "info":
             self.search.spend(action, e)

@@ -14,9 +14,10 @@ from dataclasses import dataclass
 #: fraction of the best (rrg_planner.planning_model.goal_aim; chosen: the flat top of the measured
 #: map, not one noisy peak).
 GOAL_AIM_FRACTION = 0.98
-#: P(G | Δ) below this counts as 0 (rrg_planner.planning_model.goal_weights; chosen: the Gaussian tails
-#: of a grid cell's spread are never exactly 0, and keeping them made the search evaluate the
-#: goal over 4-8× as many table entries at high uncertainty, for nothing a δ of 0.1 can see).
+#: P(G | Δ) below this counts as 0 (rrg_planner.planning_model.goal_weights; chosen: the
+#: Gaussian tails of a grid cell's spread are never exactly 0, and keeping them makes the search
+#: evaluate the goal over 4-8× as many table entries at high uncertainty, for nothing a δ of 0.1
+#: can see).
 GOAL_MIN_PROBABILITY = 1e-4
 
 
@@ -29,10 +30,10 @@ class SearchParams:
     delta: float = 0.1
     #: The search charges each action this times δ, in success probability (V_h in
     #: rrg_planner/search.py): a run stops once P(G) > 1 − δ, so δ is what the user trades
-    #: for actions. Chosen (session 18, MuJoCo, powerdrill at high uncertainty, trials 0-59):
-    #: 0.5 against a fixed 0.01, with a declared goal grasp ending its branch, H = 2 took
-    #: 5.08 actions for 93 % at δ 0.3 (was 5.50 for 98 %) and 6.3 for 97 % at δ 0.1 (6.73,
-    #: 98 %), H = 1 5.28 for 85 % at δ 0.3 (5.17, 95 %); the one value probed.
+    #: for actions. Chosen: 0.5, the only value measured; against a fixed cost of 0.01 per
+    #: action it lets H = 2 stop in fewer actions (MuJoCo, drill at high uncertainty: 5.08
+    #: actions for 93 % at δ 0.3, against 5.50 for 98 %; the measurements are in
+    #: docs/design.md, "Measurements behind chosen search parameters").
     cost_per_delta: float = 0.5
     max_actions: int = 10
     offline_prune: float = 0.01
@@ -45,17 +46,17 @@ class SearchParams:
     #: An execution found infeasible at e rules its WRT out within this box around e (x [m],
     #: y [m], θ [rad]) for the rest of the run: the feasibility maps check IK at every path
     #: sample, the executor also needs a continuous IK chain, and where that breaks it breaks
-    #: for a region, not a point (chosen: in a session 15 replay of pitcher#28, 12 goal grasps
-    #: in a row found no chain, all within 0.5 cm, 1 cm and 0.013 rad of the first, and the
-    #: run ended with no feasible action instead of reorienting; the box also holds HIGH's
+    #: for a region, not a point (chosen: in a MuJoCo pitcher trial without the box, 12 goal
+    #: grasps in a row found no chain, all within 0.5 cm, 1 cm and 0.013 rad of the first, and
+    #: the run ended with no feasible action instead of reorienting; the box also holds HIGH's
     #: neighbouring grid points).
     block_box: tuple[float, float, float] = (0.015, 0.015, 0.06)
     #: A reorientation runs only when at least this much of the belief lies where its turn is
     #: measured (WRT.reorient_outcome's box about w*): a grasp that holds the object from
-    #: further off drags and turns it unpredictably (MuJoCo, session 17: of 120 pitcher
-    #: reorientations from uniform starts within ±6 cm, ±0.5 rad, 37 held from outside the
-    #: box; 4 of those turned rigidly, the rest ended spread over σ ≈ 3-4 cm and 0.4-0.55 rad
-    #: about the turned estimate). Chosen: half; the one value probed.
+    #: further off drags and turns it unpredictably (MuJoCo: of 120 pitcher reorientations
+    #: from uniform starts within ±6 cm, ±0.5 rad, 37 held from outside the box; 4 of those
+    #: turned rigidly, the rest ended spread over σ ≈ 3-4 cm and 0.4-0.55 rad about the turned
+    #: estimate). Chosen: half, the only value measured.
     reorient_min_in_box: float = 0.5
 
 

@@ -25,7 +25,8 @@ from .search import full_turn
 def add_sensor_noise(
     obs: Observation, rng: np.random.Generator, noise: SensingParams = SENSING
 ) -> Observation:
-    """A noisy copy of an observation: Gaussian on the continuous parts, random flips of binary sensors."""
+    """A noisy copy of an observation: Gaussian on the continuous parts, random flips of binary
+    sensors."""
     flips = rng.random(N_SENSORS) < noise.sensor_flip
     tips = obs.tip_points + rng.normal(0.0, noise.tip_point_noise, (3, 3))
     return Observation(

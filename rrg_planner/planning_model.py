@@ -151,7 +151,8 @@ class PlanningModel:
         wrt_names: tuple[str, ...] | None = None,
         closures_as_predicted: bool = False,
     ):
-        """levels: level names from config.LEVELS, or UncertaintyLevel objects (e.g. small test grids).
+        """levels: level names from config.LEVELS, or UncertaintyLevel objects (e.g. small test
+        grids).
         wrt_names: restrict the actions to these WRTs (default: all of the object's WRTs).
         closures_as_predicted: the world reads every WRT's closures exactly as the geometric
         model predicts (the GeometricEnvironment, where nothing moves), so even the goal
@@ -230,7 +231,8 @@ class PlanningModel:
         return self.actions[self.index(name)].wrt
 
     def table(self, wrt_name: str, grid: Grid) -> ObservationTable:
-        """The WRT's observation table at the level whose spacing ``grid`` has (ValueError if none)."""
+        """The WRT's observation table at the level whose spacing ``grid`` has (ValueError if
+        none)."""
         return self.actions[self.index(wrt_name)].tables[self.level_of(grid)]
 
     def feasible(self, action: int, e) -> bool:

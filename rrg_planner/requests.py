@@ -80,6 +80,7 @@ def max_actions(requested: int) -> int:
     if not 0 <= requested <= SEARCH.max_actions:
         raise InvalidRequest(
             "INVALID_MAX_ACTIONS",
-            f"max_actions must be 1-{SEARCH.max_actions} (0: {SEARCH.max_actions}), got {requested}",
+            f"max_actions must be 1-{SEARCH.max_actions} (0: {SEARCH.max_actions}), "
+            f"got {requested}",
         )
     return requested or SEARCH.max_actions

@@ -174,7 +174,8 @@ REORIENT_MIN_FINGERS = 2
 # ----------------------------------------------------------- geometric simulator
 @dataclass(frozen=True)
 class GeometricSimParams:
-    """Resolution of the geometric sweep (chosen: well below the 2 mm fine grid after refinement)."""
+    """Resolution of the geometric sweep (chosen: well below the 2 mm fine grid after
+    refinement)."""
 
     path_step: float = 0.005  # m between swept hand copies
     refine_iters: int = 5  # bisection steps inside the first colliding step (0.16 mm)
@@ -186,8 +187,9 @@ class GeometricSimParams:
     rotation_sample_radius: float = 0.2
     #: A grasp (goal or reorientation WRT) whose guarded move stopped within this distance [m]
     #: of its end has arrived: it closes firmly and its observation reports no early contact,
-    #: in the tables and in execution alike (chosen: handle grasps touch in their last cm; a
-    #: pitcher grasp stopped by its palm 5 mm short read as a failed grasp before).
+    #: in the tables and in execution alike (chosen: handle grasps touch in their last cm;
+    #: without this margin a pitcher grasp stopped by its palm 5 mm short reads as a failed
+    #: grasp).
     grasp_arrival_tolerance: float = 0.02
 
 
@@ -351,7 +353,7 @@ class PhysicsParams:
     arm_torque_noise: float = 0.2
     #: Sliding friction of the hand's rubber-coated links (chosen: rubber on plastic/cardboard).
     hand_friction: float = 0.8
-    #: Judging: lift height [m], lift speed [m/s] and hold time [s] (issue: hold 2 s).
+    #: Judging: lift height [m], lift speed [m/s] and hold time [s] (requirement: hold 2 s).
     lift_height: float = 0.10
     lift_speed: float = 0.25
     hold_time: float = 2.0

@@ -248,7 +248,8 @@ def local_half_extents(p: PrimitiveLike) -> np.ndarray:
 
 
 def box_sphere_cover(lo: np.ndarray, hi: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
-    """Spheres (centres (k,3), radii (k,)) covering the box [lo, hi], cells of half extent ≤ cell."""
+    """Spheres (centres (k,3), radii (k,)) covering the box [lo, hi], cells of half
+    extent ≤ cell."""
     half = (hi - lo) / 2
     n = np.maximum(1, np.ceil(half / cell - 1e-9)).astype(int)
     axes = [lo[i] + (np.arange(n[i]) + 0.5) * (2 * half[i] / n[i]) for i in range(3)]
@@ -448,7 +449,8 @@ class GeometricSimulator:
 
     # ------------------------------------------------------------ culling
     def _sweep_candidates(self, framed: _FramedPath, w: np.ndarray) -> np.ndarray:
-        """(N, S_coarse) bool: coarse samples where the hand may touch the object at w[n] or the table.
+        """(N, S_coarse) bool: coarse samples where the hand may touch the object at w[n] or the
+        table.
 
         Samples not flagged are certainly free, so the sweep only tests flagged ones. The union
         box suffices here: the sweep stops at its first touching sample anyway.
@@ -572,7 +574,8 @@ class GeometricSimulator:
         return final, touched
 
     def _contact_arrays(self):
-        """Current contacts (after a _collide): geoms (n,2), positions (n,3), normals (n,3), depths (n,)."""
+        """Current contacts (after a _collide): geoms (n,2), positions (n,3), normals (n,3),
+        depths (n,)."""
         n, con = self.data.ncon, self.data.contact
         return con.geom[:n], con.pos[:n], con.frame[:n, :3], con.dist[:n]
 
@@ -649,7 +652,8 @@ class GeometricSimulator:
 
     @staticmethod
     def _motion_dirs(poses: np.ndarray, stops: np.ndarray, points: np.ndarray) -> np.ndarray:
-        """(N,3) unit direction the contact point (else the palm origin) moved in the last fine step."""
+        """(N,3) unit direction the contact point (else the palm origin) moved in the last fine
+        step."""
         a = np.where(stops > 0, stops - 1, 0)
         b = np.where(stops > 0, stops, min(1, len(poses) - 1))
         Ta, Tb = poses[a], poses[b]

@@ -34,7 +34,8 @@ IDENTITY_QUAT = (1.0, 0.0, 0.0, 0.0)
 class GeomSpec:
     """One collision/visual geom in its body frame (MuJoCo semantics for ``size``).
 
-    kind: box (half sizes x,y,z) | capsule / cylinder (radius, half length along z) | sphere (radius,).
+    kind: box (half sizes x,y,z) | capsule / cylinder (radius, half length along z) |
+    sphere (radius,).
     sensor: index into config.SENSOR_NAMES, or -1 for an unsensed part.
     """
 

@@ -53,7 +53,8 @@ CLEARANCE_Z = WORLD.table_top_z + WAM.link_radius + WAM.table_clearance
 
 
 def dh_transform(alpha, a, d, theta) -> np.ndarray:
-    """Standard DH link transform Rz(θ) Tz(d) Tx(a) Rx(α), broadcast over all arguments → (…,4,4)."""
+    """Standard DH link transform Rz(θ) Tz(d) Tx(a) Rx(α), broadcast over all
+    arguments → (…,4,4)."""
     alpha, a, d, theta = np.broadcast_arrays(
         *(np.asarray(v, dtype=float) for v in (alpha, a, d, theta))
     )
@@ -297,7 +298,8 @@ def ik_solutions(T, q_pref=None, check_j1: bool = True) -> IkSolutions:
     )
 
 
-#: Poses per ik_solutions call (chosen: keeps the ~ 40 temporaries cache-sized; 3x faster than 2048).
+#: Poses per ik_solutions call (chosen: keeps the ~ 40 temporaries cache-sized;
+#: 3x faster than 2048).
 BATCH_CHUNK = 128
 
 

@@ -1,13 +1,14 @@
 #!/usr/bin/env python3
-"""Ask RRG's planner for the next action, as other robot software would.
+r"""Ask RRG's planner for the next action, as other robot software would.
 
 Builds a Gaussian belief over the object's pose (x, y, theta) on the level's grid itself
-(31 x 31 x 33 at high uncertainty, 31 x 31 x 25 at low),
+(41 x 41 x 33 at high uncertainty, 31 x 31 x 25 at low),
 sends it to the ``/rrg/select_action`` service (rrg_msgs/SelectAction), and prints the answer.
 It needs only rclpy, numpy and the rrg_msgs interfaces, not RRG's Python packages.
 
     # with the graph running (rrg-launch) in the same ROS_DOMAIN_ID:
-    .venv/bin/python scripts/example_select_action.py --object powerdrill --x 0.64 --y -0.02 --theta 0.2
+    .venv/bin/python scripts/example_select_action.py \
+        --object powerdrill --x 0.64 --y -0.02 --theta 0.2
 
 The planner has observation tables for two grid spacings only (RRG's uncertainty levels):
 high = 1 cm, 1 cm, 0.1 rad and low = 2 mm, 2 mm, 0.013 rad.
@@ -39,7 +40,8 @@ SIGMA = {
 
 
 def gaussian_belief(mean: tuple[float, float, float], level: str) -> BeliefGrid:
-    """N(mean, diag(sigma^2)) sampled on a grid centred at the mean, weights in C order (x, y, theta)."""
+    """N(mean, diag(sigma^2)) sampled on a grid centred at the mean, weights in C
+    order (x, y, theta)."""
     spacing, sigma = np.array(SPACING[level]), np.array(SIGMA[level])
     axes = [
         (np.arange(n) - (n - 1) / 2) * s for n, s in zip(GRID_SHAPE[level], spacing)

@@ -28,7 +28,8 @@ class InvalidBelief(ValueError):
 
 
 def float64_array(values) -> array.array:
-    """An ``array('d')`` for an unbounded float64[] field (assigning one skips rclpy's per-element checks)."""
+    """An ``array('d')`` for an unbounded float64[] field (assigning one skips rclpy's per-element
+    checks)."""
     out = array.array("d")
     out.frombytes(np.ascontiguousarray(values, dtype=np.float64).tobytes())
     return out

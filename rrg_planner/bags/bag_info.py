@@ -42,7 +42,8 @@ class BagInfo:
 
 
 def find_mcap(bag: Path) -> Path:
-    """The bag's MCAP file: ``bag`` itself, or ``<bag>/<bag>_0.mcap`` (else the folder's only one)."""
+    """The bag's MCAP file: ``bag`` itself, or ``<bag>/<bag>_0.mcap`` (else the
+    folder's only one)."""
     if bag.is_file():
         return bag
     if not bag.is_dir():

@@ -62,7 +62,8 @@ def belief_frames(bag: str | Path) -> list[BeliefFrame]:
 
 
 def draw_belief(ax_xy, ax_theta, frame: BeliefFrame, title: str) -> None:
-    """x–y marginal heat map (cm) and θ marginal (deg) of one belief, true pose in red, w* in white."""
+    """x–y marginal heat map (cm) and θ marginal (deg) of one belief, true pose in red, w* in
+    white."""
     b = frame.belief
     ax, ay, at = b.grid.axes()
     dx, dy, _ = b.grid.spacing

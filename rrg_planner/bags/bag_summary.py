@@ -66,7 +66,8 @@ def summarize(bag: str | Path) -> GraspSummary:
                 if s.steps and s.steps[-1].wrt == r.wrt_name and s.steps[-1].contact is None:
                     s.steps.pop()
                 s.replanned.append(
-                    f"step {r.step}: {r.wrt_name} infeasible at e = {np.round(estimate, 4).tolist()}"
+                    f"step {r.step}: {r.wrt_name} infeasible at e = "
+                    f"{np.round(estimate, 4).tolist()}"
                 )
             elif r.event == r.EVENT_DECISION:
                 if (

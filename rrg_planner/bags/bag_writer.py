@@ -4,7 +4,8 @@ Layout: ``<bag>/<name>_0.mcap`` plus ``<bag>/metadata.yaml`` (rosbag2 metadata v
 where ``<name>`` is the bag folder's name. The MCAP file has profile ``ros2``, ``cdr``
 messages, ``ros2msg`` schemas with their full dependency text, ``offered_qos_profiles`` and
 ``topic_type_hash`` in each channel's metadata, and rosbag2's ``rosbag2`` metadata record, so
-rosbags and Foxglove read it as they read rosbag2's own bags. ROS-free: it takes already serialized messages.
+rosbags and Foxglove read it as they read rosbag2's own bags. ROS-free: it takes already
+serialized messages.
 """
 
 from __future__ import annotations

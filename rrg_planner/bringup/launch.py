@@ -3,7 +3,7 @@ run one robust grasp (design §8).
 
     rrg-launch                                      # the simulated graph, until Ctrl-C
     rrg-launch --grasp powerdrill --level high --strategy rrg-info
-    rrg-launch --mode hw                            # needs rrg_hw_bridge (not written yet): fails clearly
+    rrg-launch --mode hw                            # fails clearly: rrg_hw_bridge not written yet
 
 Children: the arm/hand interface (``rrg_sim`` node in sim mode), the executor, the estimator,
 the planner and the bag recorder, each in its own process and session, on loopback
@@ -147,7 +147,8 @@ class Graph:
         if self.log_dir is not None:
             self.log_dir.mkdir(parents=True, exist_ok=True)
             log = (self.log_dir / f"{name}.log").open("w")
-        # Own session: a terminal's Ctrl-C reaches only the launcher, which stops the children in order.
+        # Own session: a terminal's Ctrl-C reaches only the launcher, which stops
+        # the children in order.
         proc = subprocess.Popen(
             [sys.executable, *args],
             env=self.env,
@@ -166,7 +167,8 @@ class Graph:
         real_time_factor: float,
         sensor_noise: float = 1.0,
     ) -> None:
-        """Start the recorder (if recording) and the four nodes (the launch time counts from here)."""
+        """Start the recorder (if recording) and the four nodes (the launch time counts from
+        here)."""
         self.started = time.monotonic()
         if self.bag_dir is not None:
             self.spawn(
@@ -251,7 +253,8 @@ class Graph:
             self.node = None
 
     def spin_until(self, condition: Callable[[], bool], timeout_s: float, what: str) -> None:
-        """Spin the launcher's node until ``condition()``; LaunchError on timeout or a dead child."""
+        """Spin the launcher's node until ``condition()``; LaunchError on timeout or a dead
+        child."""
         deadline = time.monotonic() + timeout_s
         while not condition():
             self.check_children()
@@ -361,7 +364,8 @@ class Graph:
             if fb.step == 1 and on_first_action is not None:
                 on_first_action()
             print(
-                f"[rrg-launch] step {fb.step}: {fb.wrt_name} (P(goal) = {fb.p_goal:.3f}, value = {fb.value:.3f})",
+                f"[rrg-launch] step {fb.step}: {fb.wrt_name} "
+                f"(P(goal) = {fb.p_goal:.3f}, value = {fb.value:.3f})",
                 flush=True,
             )
 
@@ -519,8 +523,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.mode == "hw":
         print(
-            "rrg-launch: --mode hw needs the rrg_hw_bridge node (the arm/hand interface on the real "
-            "WAM, BarrettHand and Nano17 drivers), which does not exist yet; use --mode sim",
+            "rrg-launch: --mode hw needs the rrg_hw_bridge node (the arm/hand interface on the "
+            "real WAM, BarrettHand and Nano17 drivers), which does not exist yet; use --mode sim",
             file=sys.stderr,
         )
         return 2
@@ -543,8 +547,8 @@ def main(argv: list[str] | None = None) -> int:
     outcome = None
     try:
         print(
-            f"[rrg-launch] observation tables of {object_name} at levels {levels} (built once, ~1 min per "
-            "level when missing)",
+            f"[rrg-launch] observation tables of {object_name} at levels {levels} "
+            "(built once, ~1 min per level when missing)",
             flush=True,
         )
         warm_tables(object_name, levels)
@@ -558,8 +562,8 @@ def main(argv: list[str] | None = None) -> int:
         graph.start(object_name, levels, args.seed, args.real_time_factor, args.sensor_noise)
         graph.connect()
         print(
-            f"[rrg-launch] started {len(graph.children)} processes in domain {args.domain_id}; waiting for "
-            "the graph (the planner loads its models first)",
+            f"[rrg-launch] started {len(graph.children)} processes in domain {args.domain_id}; "
+            "waiting for the graph (the planner loads its models first)",
             flush=True,
         )
         ready_s = graph.wait_ready(args.ready_timeout)
@@ -577,8 +581,8 @@ def main(argv: list[str] | None = None) -> int:
                 bag=str(bag_dir or ""),
             )
             print(
-                f"[rrg-launch] robust grasp of {args.grasp} ({args.level} uncertainty, {args.strategy}), "
-                f"true pose {outcome.true_pose}",
+                f"[rrg-launch] robust grasp of {args.grasp} "
+                f"({args.level} uncertainty, {args.strategy}), true pose {outcome.true_pose}",
                 flush=True,
             )
 
@@ -609,14 +613,16 @@ def main(argv: list[str] | None = None) -> int:
 
         info = bag_info(bag_dir)
         print(
-            f"[rrg-launch] bag {bag_dir}: {info.message_count} messages on {len(info.topics)} topics, "
-            f"{'finalized' if info.finalized else 'NOT finalized'}",
+            f"[rrg-launch] bag {bag_dir}: {info.message_count} messages on "
+            f"{len(info.topics)} topics, {'finalized' if info.finalized else 'NOT finalized'}",
             flush=True,
         )
     if outcome is not None:
         print(
-            f"[rrg-launch] outcome: actions {outcome.actions}, P(goal) = {outcome.p_goal:.3f}, planner "
-            f"{'succeeded' if outcome.planner_success else 'did not succeed'}; simulator judged the grasp a "
+            f"[rrg-launch] outcome: actions {outcome.actions}, "
+            f"P(goal) = {outcome.p_goal:.3f}, planner "
+            f"{'succeeded' if outcome.planner_success else 'did not succeed'}; "
+            "simulator judged the grasp a "
             f"{'SUCCESS' if outcome.success else 'FAILURE'}"
             + (f" ({outcome.judge})" if outcome.judge else "")
             + (f"; {outcome.error}" if outcome.error else ""),

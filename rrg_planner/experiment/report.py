@@ -86,7 +86,8 @@ def failure_table(
     lines = [
         f"**why {STRATEGY_LABELS[strategy]} trials failed** (a trial may have several reasons)",
         "",
-        "| object | level | failed | declared success | no grasp judged | out of goal region | not held |",
+        "| object | level | failed | declared success | no grasp judged | out of goal region "
+        "| not held |",
         "|---|---|---|---|---|---|---|",
     ]
     for level in levels:
@@ -96,8 +97,8 @@ def failure_table(
                 continue
             f = s["failures"]
             lines.append(
-                f"| {obj} | {level} | {f['failed']}/{s['trials']} | {f['declared']} | {f['no_grasp']} | "
-                f"{f['out_of_region']} | {f['not_held']} |"
+                f"| {obj} | {level} | {f['failed']}/{s['trials']} | {f['declared']} | "
+                f"{f['no_grasp']} | {f['out_of_region']} | {f['not_held']} |"
             )
     return "\n".join(lines) + "\n"
 
@@ -109,7 +110,8 @@ def markdown_table(summary: dict[str, dict], objects: list[str], levels: list[st
         lines += [
             f"**{level} uncertainty**",
             "",
-            "| object | open-loop | RRG-Goal | RRG-Info (H=2) | paper RRG-Info | mean actions (Info) |",
+            "| object | open-loop | RRG-Goal | RRG-Info (H=2) | paper RRG-Info "
+            "| mean actions (Info) |",
             "|---|---|---|---|---|---|",
         ]
         for obj in objects:

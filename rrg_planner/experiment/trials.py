@@ -77,7 +77,8 @@ class TrialSpec:
 
     @property
     def seed(self) -> int:
-        """Depends on the object, level and index only: strategies are compared on the same poses."""
+        """Depends on the object, level and index only: strategies are compared on the same
+        poses."""
         return zlib.crc32(
             f"{self.base_seed}/{self.cell.object}/{self.cell.level}/{self.index}".encode()
         )

@@ -182,7 +182,8 @@ class GraphClient:
 
     # ------------------------------------------------------------------ Estimator
     def update(self, wrt_name: str, e: np.ndarray, obs: Observation) -> Belief:
-        """The estimator's update with the observation just executed (it reads it from the topic)."""
+        """The estimator's update with the observation just executed (it reads it from the
+        topic)."""
         return self._wait_for_belief(self._observation_stamp)
 
     def retreated(self) -> Belief:

@@ -1,4 +1,5 @@
-"""The planner's typed per-step records of a robust grasp (rrg_msgs/GraspStep on /rrg/grasp_step)."""
+"""The planner's typed per-step records of a robust grasp (rrg_msgs/GraspStep on
+/rrg/grasp_step)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,8 @@
-"""The planner node (design §7): the select-action service that other robot software calls, and
+r"""The planner node (design §7): the select-action service that other robot software calls, and
 the robust-grasp action that runs the whole loop.
 
-    python -m rrg_planner.ros.planner_node [--ros-args -p preload:="['powerdrill']" -p levels:="['high','mid','low']"]
+    python -m rrg_planner.ros.planner_node \
+        [--ros-args -p preload:="['powerdrill']" -p levels:="['high','mid','low']"]
 
 Services and actions:
 * ``/rrg/select_action`` (rrg_msgs/SelectAction): the next WRT for a given belief (or the
@@ -80,7 +81,8 @@ class PlannerNode(Node):
             "levels",
             list(LEVELS),
             ParameterDescriptor(
-                description="Uncertainty levels whose tables are loaded (beliefs must use one of their grids)",
+                description="Uncertainty levels whose tables are loaded "
+                "(beliefs must use one of their grids)",
                 read_only=True,
             ),
         )
@@ -97,7 +99,8 @@ class PlannerNode(Node):
             "reset_timeout",
             300.0,
             ParameterDescriptor(
-                description="Longest wait [s] for the estimator's reset (it may load or build tables)",
+                description="Longest wait [s] for the estimator's reset "
+                "(it may load or build tables)",
                 floating_point_range=[FloatingPointRange(from_value=1.0, to_value=3600.0)],
             ),
         )
@@ -113,7 +116,8 @@ class PlannerNode(Node):
             "belief_timeout",
             120.0,
             ParameterDescriptor(
-                description="Longest wait [s] for the estimator's belief after an observation or a retreat",
+                description="Longest wait [s] for the estimator's belief "
+                "after an observation or a retreat",
                 floating_point_range=[FloatingPointRange(from_value=0.1, to_value=3600.0)],
             ),
         )
@@ -290,8 +294,8 @@ class PlannerNode(Node):
             else:
                 handle.abort()
             text = (
-                f"robust grasp ended: success={result.success} actions={list(result.actions_taken)} "
-                f"P(goal)={result.final_p_goal:.3f}"
+                f"robust grasp ended: success={result.success} "
+                f"actions={list(result.actions_taken)} P(goal)={result.final_p_goal:.3f}"
             )
             if result.error_code == RG.NONE:
                 self.get_logger().info(text)

@@ -9,9 +9,9 @@ via-points sent as guarded moves to ``/rrg/guarded_move``, closing through
 hand is left where the WRT stopped (a goal grasp closed on the object, so that it can be judged
 or lifted): ``/rrg/retreat`` (rrg_msgs/Retreat), or the next execution, retreats from it. Every
 retreat is published on ``/rrg/retreated`` (rrg_msgs/Retreated), so the estimator applies its
-transition. The sequence is
-the ROS-free ``rrg_sim.executor.wrt_executor.WrtExecutor`` (the physics world runs the same one in-process);
-this node drives it through ``RosRobot``, so it runs unchanged against a hardware bridge.
+transition. The sequence is the ROS-free ``rrg_sim.executor.wrt_executor.WrtExecutor`` (the
+physics world runs the same one in-process); this node drives it through ``RosRobot``, so it
+runs unchanged against a hardware bridge.
 
 It lives in rrg_sim because everything it needs is there (the object catalogue with the
 WRTs, the WAM's IK, the path planning), and it is robot-side software: it never reads a belief.

@@ -1,6 +1,6 @@
-"""The executor core's ``Robot`` (rrg_sim.executor.wrt_executor) over ROS: action and service clients of the
-arm/hand interface node (the simulator, or the hardware bridge), for use inside a callback of
-a MultiThreadedExecutor (the clients must be in a reentrant callback group).
+"""The executor core's ``Robot`` (rrg_sim.executor.wrt_executor) over ROS: action and service
+clients of the arm/hand interface node (the simulator, or the hardware bridge), for use inside
+a callback of a MultiThreadedExecutor (the clients must be in a reentrant callback group).
 
 Joint angles come from ``/rrg/joint_states`` and from the results of the commands themselves,
 whichever is newer; the sensor reading is the one the last command returned (at a guarded

@@ -122,7 +122,8 @@ def local_signed_distance(kind: str, size: Sequence[float], p: np.ndarray) -> np
 
 
 def signed_distance(parts: Sequence[Primitive], points) -> np.ndarray:
-    """Signed distance (…) [m] of object-frame points (…,3) to the union of ``parts`` (< 0 inside)."""
+    """Signed distance (…) [m] of object-frame points (…,3) to the union of
+    ``parts`` (< 0 inside)."""
     points = np.asarray(points, dtype=float)
     return np.min([part.signed_distance(points) for part in parts], axis=0)
 

@@ -81,7 +81,8 @@ def powerdrill() -> ObjectModel:
         pitch=0.15,
         roll=0.0,
         standoff=0.015,
-        description="side grasp of the handle from behind, palm 2 cm off its back, finger 1 (upper) at the trigger",
+        description="side grasp of the handle from behind, palm 2 cm off its back, "
+        "finger 1 (upper) at the trigger",
     )
     return ObjectModel(
         "powerdrill",
@@ -89,12 +90,14 @@ def powerdrill() -> ObjectModel:
         mass=0.895,
         friction=0.6,
         dimensions=_dims(0.184, 0.057, 0.188, handle_depth=0.045, handle_width=0.040),
-        source=f"{YCB}: power drill 18.4 x 18.8 x 5.7 cm, 0.895 kg, modelled standing on its battery",
+        source=f"{YCB}: power drill 18.4 x 18.8 x 5.7 cm, 0.895 kg, "
+        "modelled standing on its battery",
         goal=GoalRegion((0.01, 0.01, 10 * DEG)),
         goal_wrt=goal_wrt,
         reorient_wrts=reorient_wrts(parts),
         placement_yaw=SIDE_APPROACH_YAW,
-        description="power drill; goal: the handle within 1 cm and 10 deg so finger 1 reaches the trigger",
+        description="power drill; goal: the handle within 1 cm and 10 deg so finger 1 reaches the "
+        "trigger",
     )
 
 
@@ -141,7 +144,8 @@ def brita_pitcher() -> ObjectModel:
         pitch=-0.05,
         roll=0.0,
         standoff=0.0,
-        description="side grasp of the handle bar: fingers 1+2 through the handle, finger 3 outside",
+        description="side grasp of the handle bar: fingers 1+2 through the handle, "
+        "finger 3 outside",
     )
     return ObjectModel(
         "brita_pitcher",
@@ -155,16 +159,18 @@ def brita_pitcher() -> ObjectModel:
             handle_gap=y_in - hy,
             handle_opening_height=z_high - z_low - 2 * arm,
         ),
-        source=f"{YCB}: pitcher 14.9 x 14.5 x 24.2 cm (body 14.5 x 8.5 cm); chosen: a 7.6 cm deep handle "
+        source=f"{YCB}: pitcher 14.9 x 14.5 x 24.2 cm (body 14.5 x 8.5 cm); "
+        "chosen: a 7.6 cm deep handle "
         "(YCB: 6.4 cm) so two fingers fit through it",
         goal=GoalRegion((0.01, 0.01, 6 * DEG)),
         goal_wrt=goal_wrt,
         reorient_wrts=reorient_wrts(parts),
         placement_yaw=SIDE_APPROACH_YAW,
         # Each goal grasp and retreat turns the pitcher ~0.06 rad (settling.json: +0.06 rad at
-        # Δ = 0, coupled to x). Tracked with the affine fit alone (σ 0.05 rad) this hurt (22/40
-        # against 24/40 at both levels, session 4); with the kernel-corrected map it helps at
-        # low uncertainty (35/40 against 32/40, 24/40 against 26/40 at high; 40-trial probes).
+        # Δ = 0, coupled to x). MuJoCo, 40 trials per level, tracked against untracked: with
+        # the affine fit alone (σ 0.05 rad) 22/40 against 24/40 at both levels; with the
+        # kernel-corrected map 35/40 against 32/40 at low uncertainty, 24/40 against 26/40 at
+        # high.
         track_settling=True,
         description="Brita-style pitcher; goal: held by the handle, fingers 1+2 through it",
     )
@@ -184,7 +190,8 @@ def cooler() -> ObjectModel:
         parts,
         top_down_rotation(np.pi / 2),
         (0.0, 0.0, 0.28),
-        description="from above, fingers either side of the handle bar down to the lid, closing under it",
+        description="from above, fingers either side of the handle bar down to the lid, "
+        "closing under it",
     )
     return ObjectModel(
         "cooler",
@@ -206,7 +213,8 @@ def taperoll() -> ObjectModel:
         parts,
         top_down_rotation(-np.pi / 2),
         (-FINGER_OFFSET, 0.0, 0.048),
-        description="from above, finger 3 through the hole, fingers 1+2 outside the robot-side wall",
+        description="from above, finger 3 through the hole, fingers 1+2 outside the robot-side "
+        "wall",
     )
     return ObjectModel(
         "taperoll",
@@ -230,7 +238,8 @@ def can() -> ObjectModel:
         side_rotation(pitch=0.15, roll=np.pi / 2, yaw=SIDE_APPROACH_YAW),
         (0.0, 0.0, 0.072),
         spread=np.pi / 2,
-        description="side envelope: fingers 1, 2 wrap the can at spread pi/2, finger 3 over its top",
+        description="side envelope: fingers 1, 2 wrap the can at spread pi/2, "
+        "finger 3 over its top",
     )
     return ObjectModel(
         "can",
@@ -239,7 +248,7 @@ def can() -> ObjectModel:
         friction=0.4,
         dimensions=_dims(0.068, 0.068, 0.102),
         source=f"{YCB}: soup can 6.8 x 6.8 x 10.2 cm, 0.349 kg",
-        # x ±2.5 cm: MuJoCo holds every start tried; y: starts beyond -1.8 cm slip out on the lift.
+        # x ±2.5 cm: MuJoCo holds every start tested; y: starts beyond -1.8 cm slip out on the lift.
         goal=GoalRegion((0.025, 0.015, np.inf)),
         goal_wrt=goal_wrt,
         symmetric=True,
@@ -377,7 +386,8 @@ def giant_teacup() -> ObjectModel:
         pitch=0.2,
         roll=-np.pi / 2,
         standoff=0.03,
-        description="side pinch of the handle's upper arm: finger 3 through the handle under it, fingers 1+2 on top",
+        description="side pinch of the handle's upper arm: finger 3 through the handle under it, "
+        "fingers 1+2 on top",
     )
     # The rim pinches the generator finds tell where the round cup is, not how it is turned:
     # only the handle does. Fingers 1+2 and finger 3 come down on either side of the upper arm,
@@ -417,7 +427,8 @@ def giant_teacup() -> ObjectModel:
         reorient_wrts=reorient_wrts(parts, away_from=turn.apply((0.0, 1.0, 0.0))),
         designed_info_wrts=(handle_pinch,),
         placement_yaw=SIDE_APPROACH_YAW,
-        description="giant teacup; goal: held by the handle's upper arm, finger 3 through the handle",
+        description="giant teacup; goal: held by the handle's upper arm, "
+        "finger 3 through the handle",
     )
 
 

@@ -34,7 +34,8 @@ DIVERSE_DISTANCE = 0.04  # m between pinch positions along a long pair of surfac
 
 @dataclass(frozen=True, eq=False)
 class SurfacePatch:
-    """Exposed samples (M,3) [m] of one roughly vertical face, with its horizontal outward normal."""
+    """Exposed samples (M,3) [m] of one roughly vertical face, with its horizontal outward
+    normal."""
 
     points: np.ndarray
     normal: np.ndarray
@@ -74,7 +75,8 @@ def _horizontal(v: np.ndarray) -> np.ndarray:
 
 
 def _face_patches(part: Primitive) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(object-frame samples, outward unit normal) of each roughly vertical face of one primitive."""
+    """(object-frame samples, outward unit normal) of each roughly vertical face of one
+    primitive."""
     R, s = part.rotation, part.size
     out = []
     if part.kind == "box":
@@ -141,7 +143,8 @@ def finger_gap(spread: float) -> float:
 
 
 def _lateral_span(spread: float) -> float:
-    """Half-extent [m] of the fingers across the pinch axis (fingers 1, 2 side by side at spread 0)."""
+    """Half-extent [m] of the fingers across the pinch axis (fingers 1, 2 side by
+    side at spread 0)."""
     if spread == 0.0:
         return HAND.spread_axis_x + HAND.finger_width / 2
     return HAND.finger_width / 2

@@ -56,7 +56,8 @@ def top_down_rotation(yaw: float) -> Rotation:
 def side_rotation(pitch: float = 0.0, roll: float = 0.0, yaw: float = 0.0) -> Rotation:
     """Hand approaching horizontally along the object's +x (turned by ``yaw`` about z),
     tilted down by ``pitch`` [rad], rolled by ``roll`` about its approach axis. At roll 0,
-    hand x points up and hand y = object -y (finger 3 on the +y side); roll π/2 puts finger 3 on top."""
+    hand x points up and hand y = object -y (finger 3 on the +y side); roll π/2 puts finger 3
+    on top."""
     base = Rotation.from_matrix(np.array([[0.0, 0.0, 1.0], [0.0, -1.0, 0.0], [1.0, 0.0, 0.0]]))
     return Rotation.from_euler("ZY", [yaw, pitch]) * base * Rotation.from_euler("z", roll)
 

@@ -26,7 +26,8 @@ DEFAULT_SIZE = (640, 480)  # px
 
 
 class OffscreenRenderer:
-    """An offscreen MuJoCo renderer for one model (framebuffer up to the model's offwidth/height)."""
+    """An offscreen MuJoCo renderer for one model (framebuffer up to the model's
+    offwidth/height)."""
 
     def __init__(
         self, model: mujoco.MjModel, width: int = DEFAULT_SIZE[0], height: int = DEFAULT_SIZE[1]

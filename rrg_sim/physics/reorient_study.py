@@ -12,8 +12,9 @@ retreat. ``fit`` keeps the full turns (Δ'_θ within FULL_TURN_FRACTION of the a
 or of 0; partial and failed turns are the transition's mixture) and gives the mean and σ of
 Δ' - Δ, valid in a box of BOX_SIGMAS × START_SIGMA: the WRT's ``ReorientOutcome``. (An
 affine fit Δ' = A·Δ + b explains more of the spread, the grasp pulling the object toward the
-palm, but it let the planner count on reorientations to localize the teacup, whose
-reorientation grasp holds only within a few millimetres: 32 of 40 probe trials against 36.)
+palm, but it lets the planner count on reorientations to localize the teacup, whose
+reorientation grasp holds only within a few millimetres: in MuJoCo 32 of 40 teacup trials
+succeed with it, against 36 with the mean shift.)
 
 ``python -m rrg_sim.physics.reorient_study [objects…] [--runs N] [--workers W]`` measures and
 writes ``rrg_sim/objects/reorientation.json`` (the committed fits the catalogue loads into

@@ -110,7 +110,8 @@ class PhysicsWorld:
         self.place_object(self._placed if w is None else w)
 
     def place_object(self, w) -> None:
-        """Put the object at the true planar pose w = (x [m], y [m], θ [rad]) at rest, and let it settle."""
+        """Put the object at the true planar pose w = (x [m], y [m], θ [rad]) at rest, and let it
+        settle."""
         self._placed = np.asarray(w, dtype=float)
         x, y, th = self._placed
         d = self.data

@@ -1,7 +1,8 @@
-"""The simulated arm/hand interface (design §7): the MuJoCo world behind the same ROS interface a
+r"""The simulated arm/hand interface (design §7): the MuJoCo world behind the same ROS interface a
 hardware bridge offers, plus simulation-only reset and evaluation.
 
-    python -m rrg_sim.ros.sim_node [--ros-args -p object_name:=powerdrill -p seed:=0 -p real_time_factor:=0.0]
+    python -m rrg_sim.ros.sim_node \
+        [--ros-args -p object_name:=powerdrill -p seed:=0 -p real_time_factor:=0.0]
 
 Publishes (every 1/state_rate s of wall time, also during motions): ``/rrg/joint_states``
 (sensor_msgs/JointState, arm and hand), ``/rrg/fingertip{1,2,3}/wrench``
@@ -95,7 +96,8 @@ class SimNode(Node):
             "object_name",
             "powerdrill",
             ParameterDescriptor(
-                description=f"Object in the scene at start ({', '.join(OBJECT_NAMES)}); reset_sim may change it"
+                description=f"Object in the scene at start ({', '.join(OBJECT_NAMES)}); "
+                "reset_sim may change it"
             ),
         )
         self.declare_parameter(
@@ -120,7 +122,8 @@ class SimNode(Node):
             "state_rate",
             50.0,
             ParameterDescriptor(
-                description="Rate [Hz, wall time] of joint states, wrenches, pads and the true pose",
+                description="Rate [Hz, wall time] of joint states, wrenches, pads "
+                "and the true pose",
                 floating_point_range=[FloatingPointRange(from_value=1.0, to_value=500.0)],
             ),
         )
@@ -128,7 +131,8 @@ class SimNode(Node):
             "real_time_factor",
             0.0,
             ParameterDescriptor(
-                description="Simulated seconds per wall second (1: real time); 0: as fast as it steps",
+                description="Simulated seconds per wall second (1: real time); "
+                "0: as fast as it steps",
                 floating_point_range=[FloatingPointRange(from_value=0.0, to_value=100.0)],
             ),
         )
@@ -465,7 +469,10 @@ class SimNode(Node):
         if obs is None:
             resp.message = "nothing to judge: no WRT observation since the last reset"
         elif obs.object_name != obj.name or kind != "goal":
-            resp.message = f"nothing to judge: the last WRT was {obs.object_name}/{obs.wrt_name}, not a goal grasp"
+            resp.message = (
+                f"nothing to judge: the last WRT was {obs.object_name}/{obs.wrt_name}, "
+                "not a goal grasp"
+            )
         else:
             with self._lock:
                 ok, info = judge_grasp(
@@ -477,7 +484,8 @@ class SimNode(Node):
                 f"{'SUCCESS' if ok else 'FAILURE'}: in goal region {info['in_region']} "
                 f"(offset {np.round(info['delta'], 4).tolist()}), {info['fingers']} fingers in "
                 f"contact, required sensors {info['required_ok']}, held {info['held']} "
-                f"(lifted {info['lift_dz']:.3f} m of {PHYSICS.lift_height} m, slip {info['slip']:.4f} m)"
+                f"(lifted {info['lift_dz']:.3f} m of {PHYSICS.lift_height} m, "
+                f"slip {info['slip']:.4f} m)"
             )
             self.outcome_pub.publish(
                 GraspOutcome(

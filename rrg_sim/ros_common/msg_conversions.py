@@ -15,8 +15,9 @@ from rrg_sim.config import N_SENSORS
 from rrg_sim.observation import Observation
 
 WORLD_FRAME = "world"
-#: Joint names of the arm/hand interface (sim node and hardware bridge alike): the WAM's 7 joints,
-#: and the BarrettHand's spread (finger 1's spread joint; finger 2's mirrors it) and proximal joints.
+#: Joint names of the arm/hand interface (sim node and hardware bridge alike): the WAM's 7
+#: joints, and the BarrettHand's spread (finger 1's spread joint; finger 2's mirrors it) and
+#: proximal joints.
 ARM_JOINT_NAMES = tuple(f"wam_j{i}" for i in range(1, 8))
 SPREAD_JOINT_NAME = "bh_f1_spread"
 PROXIMAL_JOINT_NAMES = tuple(f"bh_f{i}_prox" for i in (1, 2, 3))
