@@ -101,7 +101,8 @@ class CachedTables:
         return self.obj.wrt(name)
 
     def table(self, wrt_name: str, grid: Grid) -> ObservationTable:
-        """The WRT's table at the grid's level (from memory, the disk cache, or built: ~1 min, logged)."""
+        """The WRT's table at the grid's level (from memory, the disk cache, or built: ~1 min,
+        logged)."""
         level = level_of_grid(grid)
         key = (wrt_name, level.name)
         if key not in self._tables:
@@ -164,9 +165,9 @@ class BeliefTracker:
     def update(self, wrt_name: str, e, obs: Observation) -> Belief:
         """The belief after WRT ``wrt_name`` ran at estimate e and observed ``obs``. Raises
         KeyError for a WRT the object does not have and ValueError for an observation the belief
-        cannot explain; the belief is kept then."""
+        cannot explain; the belief (and a pending retreat) is kept then."""
         wrt = self.tables.wrt(wrt_name)
-        prior = self.retreated()
+        prior = self._after_retreat()
         post = wrt_posterior(prior, self.tables.table(wrt_name, prior.grid), wrt, e, obs)
         self.belief, self._pending = post, (wrt, np.asarray(e, dtype=float), bool(obs.contact))
         return post
@@ -175,8 +176,17 @@ class BeliefTracker:
         """The belief once the hand retreated from the last WRT: re-gridded finer if it has
         concentrated, then moved as a goal grasp that arrived settles the object. Nothing
         changes when no update is pending."""
+        self.belief, self._pending = self._after_retreat(), None
+        return self.belief
+
+    def _after_retreat(self) -> Belief:
+        """The pending retreat's transition applied to the belief (the belief itself if none)."""
         if self._pending is None:
             return self.belief
+        belief = self.belief
+        if self.variable_resolution:
+            belief = maybe_refine(belief, self.levels) or belief
+        return settle_after_grasp(belief, self.obj, *self._pending)
         belief = self.belief
         if self.variable_resolution:
             belief = maybe_refine(belief, self.levels) or belief

@@ -5,8 +5,11 @@
     rrg-bench ros  [--json]
 
 ``plan`` times action selection at H = 1, 2, 3, one belief update and one table build,
-for the fast and the naive reference implementations, and prints their ratios. With
-``--json`` the last line is one JSON object with the medians.
+for the fast and the naive reference implementations, and prints their ratios; then the
+core operations on full-size grids: a belief update on a contact reading (with its bump)
+and the naive reference's likelihood pass, the table indices, the bump, the re-gridding
+(varres.maybe_refine), and the WAM's batch IK, reachability test and feasibility-map build.
+With ``--json`` the last line is one JSON object with the medians.
 """
 
 from __future__ import annotations
@@ -96,9 +99,12 @@ def bench_plan(argv: list[str]) -> int:
     rows: dict[str, tuple[float, float | None]] = {}
     for h in (1, 2, 3):
         t_fast = _median_time(
-            lambda: fast.select(belief, h), args.repeats if h < 3 else max(1, args.repeats // 2)
+            lambda h=h: fast.select(belief, h),
+            args.repeats if h < 3 else max(1, args.repeats // 2),
         )
-        t_ref = _median_time(lambda: ref.select(belief, h), 1, warmup=False) if h in ref_h else None
+        t_ref = (
+            _median_time(lambda h=h: ref.select(belief, h), 1, warmup=False) if h in ref_h else None
+        )
         rows[f"select H={h}"] = (t_fast, t_ref)
         print(
             f"[plan] select H={h}: fast {t_fast * 1e3:.1f} ms"
@@ -114,6 +120,7 @@ def bench_plan(argv: list[str]) -> int:
     t_upd_ref = _median_time(lambda: update_reference(belief, table, mean, obs), 1, warmup=False)
     rows["belief update"] = (t_upd, t_upd_ref)
     rows["table build / WRT"] = (table_s, None)
+    contact = bench_contact_update(belief, table, mean, rng, args.repeats)
 
     print("\n| figure | fast | reference | speed-up | paper |")
     print("|---|---|---|---|---|")
@@ -132,10 +139,94 @@ def bench_plan(argv: list[str]) -> int:
         if rows["select H=1"][1]
         else None,
         "ref_speedup_update": t_upd_ref / t_upd,
+        **contact,
+        **bench_core(),
     }
     if args.json:
         print(json.dumps(out))
     return 0
+
+
+def bench_contact_update(belief, table, e, rng, repeats: int) -> dict:
+    """A belief update on a contact reading (so with the bump transition), from a seeded
+    contact row of the table, and the naive reference's likelihood pass on it (no bump)."""
+    from rrg_estimator.obs_model import features_from_table_rows
+    from rrg_estimator.reference_update import update_reference
+    from rrg_estimator.update import update
+
+    row = int(rng.choice(np.flatnonzero(table.contact)))
+    feats = features_from_table_rows(table, [row])
+    fast = _median_time(lambda: update(belief, table, e, feats), max(50, repeats))
+    naive = _median_time(
+        lambda: update_reference(belief, table, e, feats, transition=False), 1, warmup=False
+    )
+    print(
+        f"[plan] update of {belief.grid.size:,} points (contact, with bump): "
+        f"{fast * 1e3:.3f} ms; naive reference likelihood pass alone: {naive:.2f} s",
+        flush=True,
+    )
+    return {"update_contact_ms": fast * 1e3, "update_reference_likelihood_s": naive}
+
+
+def bench_core() -> dict:
+    """The core operations on full-size grids: updates, index lookups, refinement, IK."""
+    from scipy.spatial.transform import Rotation
+
+    from rrg_estimator.belief import Belief
+    from rrg_estimator.config import HIGH, LOW
+    from rrg_estimator.grid import Grid
+    from rrg_estimator.obs_model import table_indices
+    from rrg_estimator.transition import bump
+    from rrg_estimator.varres import maybe_refine
+    from rrg_sim import wam
+    from rrg_sim.config import HAND
+    from rrg_sim.poses import make_pose
+    from rrg_sim.wam_feasibility import FeasibilityMap
+
+    out = {}
+    e = np.array([0.62, 0.01, 0.3])
+    grid, table_grid = Grid.for_level(HIGH, center=e), Grid.for_level(HIGH)
+    out["table_indices_ms"] = 1e3 * _median_time(lambda: table_indices(grid, e, table_grid), 100)
+    low = Belief.for_level(LOW, (0.62, 0.0, 0.0))
+    out["bump_ms"] = 1e3 * _median_time(lambda: bump(low, (0.6, 0.8)), 50)
+    coarse = Grid.for_level(HIGH, center=(0.62, 0.0, 0.0))
+    concentrated = Belief.gaussian(coarse, (0.6237, -0.0141, 0.237), (0.005, 0.004, 0.04))
+    spread = Belief.for_level(HIGH, (0.62, 0.0, 0.0))
+    out["refine_ms"] = 1e3 * _median_time(lambda: maybe_refine(concentrated), 20)
+    out["refine_reject_ms"] = 1e3 * _median_time(lambda: maybe_refine(spread), 20)
+    print(
+        f"[plan] table_indices for {grid.size:,} points: {out['table_indices_ms']:.3f} ms; "
+        f"bump on {low.grid.size:,} points: {out['bump_ms']:.3f} ms; maybe_refine: refine "
+        f"{out['refine_ms']:.2f} ms, reject {out['refine_reject_ms']:.2f} ms",
+        flush=True,
+    )
+
+    # 2000 random in-limit postures whose elbow and wrist centre clear the table (seeded)
+    q = np.random.default_rng(9).uniform(wam.LOWER, wam.UPPER, (6000, 7))
+    T = wam.fk(q[wam.arm_clear_of_table(q)][:2000])
+    wam.ik_batch(T[:200])
+    t0 = time.perf_counter()
+    _, ok = wam.ik_batch(T)
+    out["ik_batch_us_per_pose"] = (time.perf_counter() - t0) / len(T) * 1e6
+    out["ik_solved_fraction"] = float(ok.mean())
+    t0 = time.perf_counter()
+    wam.reachable(T)
+    out["reachable_us_per_pose"] = (time.perf_counter() - t0) / len(T) * 1e6
+    down = Rotation.from_rotvec([np.pi, 0.0, 0.0])
+    top_down = np.stack(
+        [make_pose([0, 0, h - HAND.palm_surface_z], down) for h in (0.35, 0.25, 0.18)]
+    )
+    fmap = FeasibilityMap(top_down, cache=False)
+    out["feasibility_map_build_s"] = fmap.build_seconds
+    g = fmap.grid
+    print(
+        f"[plan] wam: ik_batch {out['ik_batch_us_per_pose']:.1f} µs/pose (solved "
+        f"{out['ik_solved_fraction']:.3f}); reachable {out['reachable_us_per_pose']:.1f} µs/pose; "
+        f"FeasibilityMap of 3 waypoints over {g.nr}x{g.nphi}x{g.npsi} cells: "
+        f"{fmap.build_seconds:.2f} s",
+        flush=True,
+    )
+    return out
 
 
 def bench_sim(argv: list[str]) -> int:

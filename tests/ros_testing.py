@@ -1,14 +1,16 @@
-"""Helpers shared by the tests/test_ros_*.py files: node processes in a test's own DDS domain, and
-a test-side rclpy node with one persistent executor (the rclpy 7.1.6 spin_until_future_complete
-bug: see shared/notes/ros2-on-pip.md)."""
+"""Helpers shared by the ROS tests: a DDS domain id no other test process on this machine holds,
+node processes in that domain, and a test-side rclpy node with one persistent executor (the
+rclpy 7.1.6 spin_until_future_complete bug: see shared/notes/ros2-on-pip.md)."""
 
 from __future__ import annotations
 
+import fcntl
 import os
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -16,6 +18,54 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 
 ROOT = Path(__file__).resolve().parents[1]
+#: Domain ids 1-101 (ids above 101 collide with Linux's ephemeral ports; domain 0 is the default
+#: every unconfigured ROS process on the host uses).
+DOMAIN_IDS = range(1, 102)
+LOCK_PATTERN = "/tmp/rrg-ros-domain-{}.lock"
+
+
+@contextmanager
+def exclusive_domain_id() -> Iterator[int]:
+    """The first domain id in 1-101 whose lock file no other open file holds, held (an exclusive
+    ``flock``) until the block ends. Every ROS test takes its domain here, so two test processes
+    on one host (two checkouts, or two runs) never share a domain; the kernel drops the lock
+    when a process dies, so a killed run leaves nothing behind."""
+    for domain_id in DOMAIN_IDS:
+        try:
+            lock = open(LOCK_PATTERN.format(domain_id), "a")  # held until the block ends
+        except OSError:  # e.g. another user's lock file
+            continue
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:  # held by another open file: a test process using that domain
+            lock.close()
+            continue
+        try:
+            yield domain_id
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+            lock.close()
+        return
+    raise RuntimeError(f"every ROS domain id {DOMAIN_IDS.start}-{DOMAIN_IDS.stop - 1} is taken")
+
+
+@contextmanager
+def environment(values: dict[str, str | None]) -> Iterator[None]:
+    """os.environ with ``values`` set (None: unset) inside the block, restored after it."""
+    saved = {k: os.environ.get(k) for k in values}
+    for k, v in values.items():
+        if v is None:
+            os.environ.pop(k, None)
+        else:
+            os.environ[k] = v
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
 
 def ros_env(domain_id: int) -> dict:
@@ -30,6 +80,15 @@ def ros_env(domain_id: int) -> dict:
     return env
 
 
+def ros_settings(env: dict) -> dict[str, str | None]:
+    """The DDS settings of a ros_env environment (for ``environment``)."""
+    return {
+        "ROS_DOMAIN_ID": env["ROS_DOMAIN_ID"],
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": env["ROS_AUTOMATIC_DISCOVERY_RANGE"],
+        "ROS_LOCALHOST_ONLY": None,
+    }
+
+
 def start_node(
     module: str, env: dict, log_path: Path, params: dict | None = None
 ) -> subprocess.Popen:
@@ -39,8 +98,8 @@ def start_node(
         args.append("--ros-args")
         for k, v in params.items():
             args += ["-p", f"{k}:={v}"]
-    log = log_path.open("w")
-    return subprocess.Popen(args, env=env, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT)
+    with log_path.open("w") as log:  # the child writes to its own copy of the descriptor
+        return subprocess.Popen(args, env=env, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT)
 
 
 def stop_process(proc: subprocess.Popen, timeout_s: float = 10.0) -> int:
@@ -59,9 +118,11 @@ class RosClient:
     """A test-side node with one persistent executor."""
 
     def __init__(self, env: dict, name: str = "rrg_test_client"):
-        os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
+        # rcl reads the domain and the discovery range when the context starts: set them for
+        # that call only, so this process's environment is left as it was
         self.context = rclpy.Context()
-        rclpy.init(context=self.context)
+        with environment(ros_settings(env)):
+            rclpy.init(context=self.context, domain_id=int(env["ROS_DOMAIN_ID"]))
         self.node = rclpy.create_node(name, context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)

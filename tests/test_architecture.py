@@ -44,7 +44,8 @@ MODULES = _modules()
 
 
 def _imports(name: str) -> set[str]:
-    """Every module name an import statement of ``name`` names (resolved, any depth, lazy ones too)."""
+    """Every module name an import statement of ``name`` names (resolved, any depth, lazy ones
+    too)."""
     path = MODULES[name]
     out = set()
     for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):

@@ -5,7 +5,6 @@ Also the ROS-free parts: schema text, the bag writer, and ``rrg-bag info`` on a 
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import signal
 import subprocess
@@ -15,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import rclpy
+import ros_testing
 import yaml
 from geometry_msgs.msg import WrenchStamped
 from mcap.reader import make_reader
@@ -23,6 +22,7 @@ from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from rclpy.serialization import serialize_message
+from ros_testing import RosClient
 from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
@@ -32,10 +32,10 @@ from rrg_planner.bags.bag_cli import bag_info, format_info
 from rrg_planner.bags.bag_cli import main as bag_cli_main
 from rrg_planner.bags.bag_schema import SEPARATOR, full_definition
 from rrg_planner.bags.bag_writer import Rosbag2McapWriter
+from rrg_planner.bags.recorder_node import BagRecorder
 
 ROOT = Path(__file__).resolve().parents[1]
 NODE_MODULES = ROOT / ".cache" / "npm" / "node_modules"
-DOMAIN_ID = 37  # this file's own DDS domain (1-101)
 RECORDER = "rrg_bag_recorder"
 
 # topic: (type, number of messages published while recording)
@@ -49,25 +49,16 @@ LATCHED_TOPIC = "/rrg/belief"  # TRANSIENT_LOCAL, published once before the reco
 
 
 @pytest.fixture(scope="module")
-def ros_env():
-    """Keep this file's DDS traffic on loopback, in its own domain."""
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("ROS_DOMAIN_ID", str(DOMAIN_ID))
-        mp.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-        yield dict(os.environ)
+def ros_env(ros_domain):
+    """The recorder's environment: this file's DDS traffic on loopback, in a domain of its own."""
+    return ros_testing.ros_env(ros_domain)
 
 
 @pytest.fixture(scope="module")
 def ros_node(ros_env):
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("bag_test_publisher", context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    yield node, executor
-    executor.shutdown()
-    node.destroy_node()
-    rclpy.try_shutdown(context=context)
+    client = RosClient(ros_env, "bag_test_publisher")
+    yield client.node, client.executor
+    client.close()
 
 
 def spin_until(executor, condition, timeout_s: float) -> bool:
@@ -169,19 +160,21 @@ def recorded_bag(ros_node, ros_env, tmp_path_factory):
             ws.header.frame_id = f"tip{i % 3 + 1}"
             ws.wrench.force.z = 0.5 * i
             pubs["/rrg/tip_wrench"].publish(ws)
-        for p in pubs.values():
+        # every message is in the recorder's queues once acknowledged (the latched one too);
+        # the recorder writes what it has received before it closes the bag
+        for p in [belief_pub, *pubs.values()]:
             assert p.wait_for_all_acked(Duration(seconds=10))
-        spin_until(executor, lambda: False, timeout_s=0.5)  # let the recorder drain its queues
     except BaseException:
         proc.kill()
         raise
     log = stop(proc, signal.SIGINT)
-    assert "bag closed" in log
+    assert "stopping: wrote" in log and "bag closed" in log
     for p in [belief_pub, *pubs.values()]:
         node.destroy_publisher(p)
     return bag
 
 
+@pytest.mark.slow  # a recorder process
 def test_bag_has_rosbag2_layout_and_metadata(recorded_bag):
     assert sorted(p.name for p in recorded_bag.iterdir()) == [
         "metadata.yaml",
@@ -206,6 +199,7 @@ def test_bag_has_rosbag2_layout_and_metadata(recorded_bag):
     assert info["duration"]["nanoseconds"] > 0
 
 
+@pytest.mark.slow  # a recorder process
 def test_mcap_is_finalized_with_ros2_schemas_and_qos(recorded_bag):
     with (recorded_bag / "recorder_test_0.mcap").open("rb") as f:
         reader = make_reader(f)
@@ -226,6 +220,7 @@ def test_mcap_is_finalized_with_ros2_schemas_and_qos(recorded_bag):
         assert "rosbag2" in {m.name for m in reader.iter_metadata()}
 
 
+@pytest.mark.slow  # a recorder process
 def test_rosbags_decodes_every_message(recorded_bag):
     decoded: dict[str, list] = {}
     with AnyReader(
@@ -248,6 +243,7 @@ def test_rosbags_decodes_every_message(recorded_bag):
     assert [m.header.stamp.sec for m in decoded["/rrg/joint_states"]] == list(range(10))
 
 
+@pytest.mark.slow  # a recorder process
 def test_foxglove_readers_decode_every_message(recorded_bag):
     out = subprocess.run(
         [
@@ -272,6 +268,7 @@ def test_foxglove_readers_decode_every_message(recorded_bag):
     assert len(result["last"][LATCHED_TOPIC]["weights"]) == 75
 
 
+@pytest.mark.slow  # a recorder process
 def test_bag_info_cli_prints_topics_counts_and_duration(recorded_bag, capsys):
     info = bag_info(recorded_bag)
     assert info.finalized and info.profile == "ros2" and info.duration_s > 0
@@ -283,6 +280,7 @@ def test_bag_info_cli_prints_topics_counts_and_duration(recorded_bag, capsys):
     assert format_info(info) in text
 
 
+@pytest.mark.slow  # a recorder process
 def test_sigterm_also_finalizes_the_bag(ros_node, ros_env, tmp_path):
     node, executor = ros_node
     pub = node.create_publisher(String, "/sigterm_test", 10)
@@ -291,8 +289,7 @@ def test_sigterm_also_finalizes_the_bag(ros_node, ros_env, tmp_path):
     try:
         assert spin_until(executor, lambda: pub.get_subscription_count() > 0, timeout_s=20)
         pub.publish(String(data="last words"))
-        assert pub.wait_for_all_acked(Duration(seconds=10))
-        spin_until(executor, lambda: False, timeout_s=0.3)
+        assert pub.wait_for_all_acked(Duration(seconds=10))  # in the recorder's queue
     except BaseException:
         proc.kill()
         raise
@@ -302,6 +299,36 @@ def test_sigterm_also_finalizes_the_bag(ros_node, ros_env, tmp_path):
     assert info.finalized
     assert {t.name: t.count for t in info.topics}["/sigterm_test"] == 1
     assert (bag / "metadata.yaml").is_file()
+
+
+def test_a_stopping_recorder_writes_the_messages_it_has_received(ros_node, tmp_path):
+    """What SIGINT or SIGTERM runs before the bag is closed: the messages already received (the
+    recorder has not spun since they came) are written, and then it stops without waiting."""
+    node, executor = ros_node
+    writer = Rosbag2McapWriter(tmp_path / "drain")
+    pub = node.create_publisher(String, "/drain_test", 10)
+    recorder = BagRecorder(writer, context=node.context)
+    recorder_executor = SingleThreadedExecutor(context=node.context)
+    recorder_executor.add_node(recorder)
+    try:
+        assert spin_until(recorder_executor, lambda: "/drain_test" in writer.topics, 20)
+        assert spin_until(executor, lambda: pub.get_subscription_count() > 0, timeout_s=20)
+        for i in range(7):
+            pub.publish(String(data=f"queued {i}"))
+        assert pub.wait_for_all_acked(Duration(seconds=10))  # all in the recorder's queue
+        topic = writer.topics["/drain_test"]
+        assert topic.message_count == 0  # nothing taken yet
+        assert recorder.drain(recorder_executor, budget_s=10.0) >= 7  # (and the test's /rosout)
+        assert topic.message_count == 7
+    finally:
+        recorder_executor.shutdown()
+        recorder.destroy_node()
+        node.destroy_publisher(pub)
+        writer.close()
+    with AnyReader([tmp_path / "drain"]) as reader:
+        ours = [c for c in reader.connections if c.topic == "/drain_test"]
+        got = [reader.deserialize(raw, c.msgtype).data for c, _, raw in reader.messages(ours)]
+    assert got == [f"queued {i}" for i in range(7)]
 
 
 def test_recorder_refuses_an_existing_bag_folder(tmp_path, ros_env):

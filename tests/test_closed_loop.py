@@ -20,6 +20,8 @@ from rrg_planner.planning_model import PlanningModel
 from rrg_sim.config import WORLD
 from rrg_sim.poses import compose_planar
 
+pytestmark = pytest.mark.slow  # closed-loop trials
+
 N_TRIALS = 24
 
 

@@ -1,6 +1,6 @@
-"""The executor core's timing and retreat rules (rrg_sim.executor.wrt_executor, physics.trajectory): the
-guarded move's via-point times, the servo targets that follow them, and a retreat that is
-dropped when the arm has moved since the WRT ended."""
+"""The executor core's timing and retreat rules (rrg_sim.executor.wrt_executor,
+physics.trajectory): the guarded move's via-point times, the servo targets that follow them,
+and a retreat that is dropped when the arm has moved since the WRT ended."""
 
 from __future__ import annotations
 
@@ -127,10 +127,10 @@ def test_a_goal_grasp_ends_where_the_arm_can_lift_it():
 
 
 def test_planned_paths_keep_clear_of_the_joint_limits_where_they_can():
-    """The same grasp's path once passed J5 exactly at its 1.25 rad limit: the servo's
-    overshoot pressed the limit stop and the collision detection read a contact at progress 0.
-    Paths now keep LIMIT_MARGIN inside the limits when some chain does, and still pass
-    through the margin when none does (the cooler's grasp at x = 0.75 touches J6's limit)."""
+    """A path that passes J5 exactly at its 1.25 rad limit lets the servo's overshoot press the
+    limit stop, and the collision detection reads a contact at progress 0. Paths keep
+    LIMIT_MARGIN inside the limits when some chain does, and still pass through the margin
+    when none does (the cooler's grasp at x = 0.75 touches J6's limit)."""
     from rrg_sim.executor.trajectory import LIMIT_MARGIN
     from rrg_sim.executor.wrt_executor import wrt_path
     from rrg_sim.objects import get_object
@@ -147,11 +147,10 @@ def test_planned_paths_keep_clear_of_the_joint_limits_where_they_can():
 
 def test_a_retreat_whose_turned_approach_is_out_of_reach_backs_out_and_goes_home():
     """After the pitcher's reorient_cw at (0.77, 0.01, 0.8) the approach turned with the object
-    has no continuous IK chain from where the arm put it down (this ended two campaign
-    trials with an InfeasiblePath). The hand opens, backs out along its approach axis and
-    rises instead, and the arm goes home, leaving the pitcher where it was put down (rising
-    with the fingers around its handle dragged it 8 cm and turned it 1.3 rad: campaign
-    8f408b3, brita_pitcher/high/rrg-info#92)."""
+    has no continuous IK chain from where the arm put it down (a run would end with an
+    InfeasiblePath). The hand opens, backs out along its approach axis and rises instead, and
+    the arm goes home, leaving the pitcher where it was put down (in MuJoCo, rising with the
+    fingers around its handle dragged it 8 cm and turned it 1.3 rad)."""
     world = PhysicsWorld("brita_pitcher", seed=1)
     e = np.array([0.77, 0.01, 0.8])
     world.reset(np.array([0.787, 0.0007, 0.702]))
@@ -213,16 +212,16 @@ def test_a_feasibility_map_over_the_executed_path_agrees_with_the_executor():
     wrong_old = int(np.sum(old.lookup(poses) & ~has_chain))
     wrong_new = int(np.sum(new.lookup(poses) & ~has_chain))
     print(
-        f"feasible by the map but no chain, of {len(poses)}: waypoints {wrong_old}, executed path {wrong_new}"
+        f"feasible by the map but no chain, of {len(poses)}: waypoints {wrong_old}, "
+        f"executed path {wrong_new}"
     )
     assert wrong_old >= 10 and 4 * wrong_new <= wrong_old
 
 
 def test_a_path_starts_from_a_joint_pressed_just_past_its_limit():
-    """The bowl's grasp (campaign trial wooden_bowl/high/rrg-info#37 with the executed-path
-    maps) ended with J7 at -3.002 rad, 2 mrad past its limit, pressed there by the contact. No
-    IK solution, so no chain, started there, and the judge could not lift a good grasp. The
-    plan now starts from the nearest configuration within the limits."""
+    """A bowl grasp measured in MuJoCo ended with J7 at -3.002 rad, 2 mrad past its limit,
+    pressed there by the contact. No IK solution, so no chain, starts there, and the judge could
+    not lift a good grasp: the plan starts from the nearest configuration within the limits."""
     q = np.array([0.71, 1.567, -1.538, 2.237, -1.553, -1.544, -3.002])
     assert q[6] < wam.LOWER[6]
     up = wam.fk(q)
@@ -233,10 +232,10 @@ def test_a_path_starts_from_a_joint_pressed_just_past_its_limit():
 
 
 def test_a_lift_the_least_motion_chain_cannot_reach_starts_where_the_arm_is():
-    """The can's grasp near J2's limit (campaign trial can/high/rrg-info#37) ended at q below.
-    The least-motion chain up from there starts at another elbow swivel that no swivel in
-    place reaches, and the judge could not lift a good grasp. The plan now falls back to the
-    least-motion chain that starts at q itself."""
+    """A can grasp near J2's limit measured in MuJoCo ended at q below. The least-motion chain
+    up from there starts at another elbow swivel that no swivel in place reaches, and the judge
+    could not lift a good grasp: the plan falls back to the least-motion chain that starts at q
+    itself."""
     q = np.array([-1.127, 1.966, 1.36, 2.122, -2.16, 0.151, 1.709])
     up = wam.fk(q)
     up[2, 3] += PHYSICS.lift_height

@@ -16,6 +16,7 @@ from rrg_sim.config import WORLD
 from rrg_sim.poses import relative_planar
 
 
+@pytest.mark.slow  # a MuJoCo campaign
 def test_quick_campaign_outputs_are_consistent_and_resumable(tmp_path):
     assert main(["--quick", "--out", str(tmp_path), "--workers", "2"]) == 0
     for name in ("trials.jsonl", "table.md", "summary.json", "fig7_low.png", "fig8_high.png"):
@@ -85,7 +86,8 @@ def test_wilson_interval_and_fig9(tmp_path):
     ]
     summary = summarize(records)
     assert len(summary) == 6
-    # trials 0 and 3 of every cell failed: 0 out of the goal region and dropped, 3 dropped though declared
+    # trials 0 and 3 of every cell failed: 0 out of the goal region and dropped, 3 dropped
+    # though declared
     assert all(
         s["failures"] == dict(failed=2, declared=1, no_grasp=0, out_of_region=1, not_held=2)
         for s in summary.values()

@@ -1,4 +1,5 @@
-"""Geometric simulator: head-on contacts hit the right sensors, culling is exact, table, no contact."""
+"""Geometric simulator: head-on contacts hit the right sensors, culling is exact, table, no
+contact."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""BarrettHand geometry: symmetry, reach, coupling, closing direction, sensor ids, MuJoCo agreement."""
+"""BarrettHand geometry: symmetry, reach, coupling, closing direction, sensor ids, MuJoCo
+agreement."""
 
 from __future__ import annotations
 

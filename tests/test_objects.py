@@ -27,8 +27,8 @@ from rrg_sim.poses import home_pose, interpolate_poses, invert, planar_pose
 HANDLE_OBJECTS = ("powerdrill", "brita_pitcher", "cup", "giant_teacup")
 NOMINAL = np.asarray(WORLD.nominal_pose)
 #: Largest spread [rad] of the three closure angles of a goal grasp at the true pose (chosen:
-#: the pitcher's and teacup's first grasps, 0.41 and 0.38 rad apart, had finger 3 drag the
-#: object round in MuJoCo long before fingers 1+2 arrived; the catalogue now reaches 0.23).
+#: pitcher and teacup grasps 0.41 and 0.38 rad apart had finger 3 drag the object round in
+#: MuJoCo long before fingers 1+2 arrived; the catalogue's grasps reach 0.23).
 MAX_GOAL_CLOSURE_SPREAD = 0.25
 
 

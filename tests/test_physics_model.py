@@ -135,7 +135,8 @@ def test_nano17_contact_point_from_wrench(point, normal):
 
 
 def test_generated_assets_are_up_to_date():
-    """rrg_sim/assets/ holds exactly what the code builds (regenerate: python -m rrg_sim.physics.scene)."""
+    """rrg_sim/assets/ holds exactly what the code builds (regenerate:
+    python -m rrg_sim.physics.scene)."""
     for name, text in asset_files().items():
         assert (ASSETS_DIR / name).read_text() == text, f"{name} is stale"
 

@@ -9,15 +9,18 @@ import json
 import signal
 import subprocess
 import sys
-import time
 
+import numpy as np
 import pytest
 import yaml
-from ros_testing import ROOT, ros_env
+from ros_testing import ROOT, RosClient, ros_env
 from rosbags.highlevel import AnyReader
+from sensor_msgs.msg import JointState
 
 from rrg_planner.bags.bag_cli import bag_info
 from rrg_planner.bags.bag_cli import main as bag_cli
+from rrg_sim import wam
+from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES
 
 NODE_MODULES = ROOT / ".cache" / "npm" / "node_modules"
 LAUNCH = [sys.executable, "-m", "rrg_planner.bringup.launch"]
@@ -60,12 +63,12 @@ def launch_args(tmp_path, name: str, domain_id: int, *extra: str) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def grasp_run(tmp_path_factory):
+def grasp_run(tmp_path_factory, ros_domain):
     """One launcher run: returns (its JSON outcome, the bag folder, its stdout)."""
     tmp = tmp_path_factory.mktemp("graph")
     out = subprocess.run(
-        launch_args(tmp, "e2e", 43, "--seed", "4", "--json"),
-        env=ros_env(43),
+        launch_args(tmp, "e2e", ros_domain, "--seed", "4", "--json"),
+        env=ros_env(ros_domain),
         cwd=ROOT,
         capture_output=True,
         text=True,
@@ -75,6 +78,7 @@ def grasp_run(tmp_path_factory):
     return json.loads(out.stdout.strip().splitlines()[-1]), tmp / "e2e", out.stdout
 
 
+@pytest.mark.slow  # the launcher's node processes
 def test_robust_grasp_of_the_box_succeeds_as_judged_by_the_simulator(grasp_run):
     outcome, _, stdout = grasp_run
     assert outcome["error"] == ""
@@ -85,6 +89,7 @@ def test_robust_grasp_of_the_box_succeeds_as_judged_by_the_simulator(grasp_run):
     assert "step 1:" in stdout and "finalized" in stdout
 
 
+@pytest.mark.slow  # the launcher's node processes
 def test_bag_records_every_topic_and_rosbags_decodes_every_message(grasp_run):
     outcome, bag, _ = grasp_run
     assert sorted(p.name for p in bag.iterdir()) == ["e2e_0.mcap", "metadata.yaml"]
@@ -100,14 +105,16 @@ def test_bag_records_every_topic_and_rosbags_decodes_every_message(grasp_run):
             decoded.setdefault(conn.topic, []).append(reader.deserialize(raw, conn.msgtype))
     assert {t: len(m) for t, m in decoded.items()} == {t: n for t, n in counts.items() if n}
     assert [o.wrt_name for o in decoded["/rrg/observation"]] == outcome["actions"]
-    assert (
-        len(decoded["/rrg/belief"]) == len(outcome["actions"]) + 1
-    )  # the reset, then one per action
+    retreats = len(outcome["actions"]) - 1  # the hand retreats after every action but the last
+    assert len(decoded.get("/rrg/retreated", [])) == retreats
+    # the reset's belief, then one per action and one per retreat
+    assert len(decoded["/rrg/belief"]) == 1 + len(outcome["actions"]) + retreats
     assert decoded["/rrg/belief"][-1].weights.size == 31 * 31 * 25
     assert decoded["/rrg/eval/grasp_outcome"][-1].message.startswith("SUCCESS")
     assert decoded["/rrg/joint_states"][-1].name[:7] == [f"wam_j{i}" for i in range(1, 8)]
 
 
+@pytest.mark.slow  # the launcher's node processes
 def test_foxglove_readers_decode_the_graph_bag(grasp_run):
     _, bag, _ = grasp_run
     out = subprocess.run(
@@ -131,6 +138,7 @@ def test_foxglove_readers_decode_the_graph_bag(grasp_run):
     assert GRAPH_TOPICS <= set(topics)
 
 
+@pytest.mark.slow  # the launcher's node processes
 def test_bag_plot_and_summary(grasp_run, capsys):
     outcome, bag, _ = grasp_run
     out = bag.with_name("plots")
@@ -145,12 +153,25 @@ def test_bag_plot_and_summary(grasp_run, capsys):
     assert "Simulator: SUCCESS" in text and "Planner:   success = True" in text
 
 
-def test_ctrl_c_mid_grasp_leaves_a_finalized_bag(tmp_path):
+@pytest.mark.slow  # the launcher's node processes
+def test_ctrl_c_mid_grasp_leaves_a_finalized_bag(tmp_path, ros_domain):
     """SIGINT while the first WRT executes (the simulator paced at real time to make the grasp
     last): the launcher cancels the grasp, stops the nodes and the recorder in order."""
+    env = ros_env(ros_domain)
+    watcher = RosClient(env, "ctrl_c_watcher")
+    states: list[JointState] = []
+    watcher.node.create_subscription(JointState, "/rrg/joint_states", states.append, 10)
+
+    def arm_left_home() -> bool:
+        if not states:
+            return False
+        js = states[-1]
+        q = np.array([js.position[js.name.index(n)] for n in ARM_JOINT_NAMES])
+        return np.abs(q - wam.HOME_Q).max() > 0.05
+
     proc = subprocess.Popen(
-        launch_args(tmp_path, "interrupted", 44, "--real-time-factor", "1"),
-        env=ros_env(44),
+        launch_args(tmp_path, "interrupted", ros_domain, "--real-time-factor", "1"),
+        env=env,
         cwd=ROOT,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
@@ -163,12 +184,15 @@ def test_ctrl_c_mid_grasp_leaves_a_finalized_bag(tmp_path):
             if "step 1:" in line:
                 break
         assert lines and "step 1:" in lines[-1], "".join(lines)
-        time.sleep(1.0)  # inside the WRT's guarded moves
+        # inside the WRT's guarded moves: the arm has left home
+        assert watcher.spin_until(arm_left_home, 60.0), "the arm did not move"
         proc.send_signal(signal.SIGINT)
         rest, _ = proc.communicate(timeout=60)
     except BaseException:
         proc.kill()
         raise
+    finally:
+        watcher.close()
     text = "".join(lines) + rest
     assert proc.returncode == 1, text  # interrupted grasp
     assert (
@@ -190,3 +214,39 @@ def test_hw_mode_fails_clearly():
     )
     assert out.returncode == 2
     assert "rrg_hw_bridge" in out.stderr and "does not exist yet" in out.stderr
+
+
+@pytest.mark.slow  # the launcher's node processes and an in-process MuJoCo run
+def test_without_sensor_noise_the_graph_takes_the_in_process_agents_actions(tmp_path, ros_domain):
+    """The closed loop is one piece of code: over ROS (executor and estimator nodes) and
+    in-process (MuJoCo environment and BeliefTracker) it decides, executes, updates and retreats
+    alike, so a noiseless grasp of several actions, retreats and a settling takes the same
+    actions to the same P(goal)."""
+    import numpy as np
+
+    from rrg_planner.agent import RobustGraspAgent
+    from rrg_planner.closed_loop import run_in_process
+    from rrg_planner.physics_env import PhysicsEnvironment
+    from rrg_planner.planning_model import PlanningModel
+    from rrg_sim.config import WORLD
+    from rrg_sim.physics.world import PhysicsWorld
+
+    true = [0.72205, -0.12778, 0.21892]  # box, high uncertainty: five actions
+    args = [*LAUNCH, "--grasp", "box", "--level", "high", "--sensor-noise", "0", "--no-bag"]
+    args += ["--true-pose", *map(str, true), "--domain-id", str(ros_domain), "--json"]
+    args += ["--log-dir", str(tmp_path / "logs")]
+    out = subprocess.run(
+        args, env=ros_env(ros_domain), cwd=ROOT, capture_output=True, text=True, timeout=600
+    )
+    assert out.returncode == 0, out.stdout + out.stderr
+    graph = json.loads(out.stdout.strip().splitlines()[-1])
+
+    env = PhysicsEnvironment(PhysicsWorld("box", sensor_noise=0.0))
+    env.reset(np.array(true), seed=0)
+    model = PlanningModel("box", levels=("high", "mid", "low"), workers=1, progress=False)
+    local = run_in_process(RobustGraspAgent(model), env, "high", WORLD.nominal_pose)
+
+    assert len(local.steps) > 2 and graph["error"] == ""
+    assert graph["actions"] == [s.wrt for s in local.steps]
+    assert graph["p_goal"] == pytest.approx(local.p_goal, rel=1e-6)
+    assert graph["success"] == local.success

@@ -65,6 +65,77 @@ def test_fast_search_matches_reference(
         assert f.p_goal == pytest.approx(r.p_goal, abs=1e-9)
 
 
+def _noisy(belief: Belief, rng: np.random.Generator) -> Belief:
+    """The belief's weights times seeded noise in [0.8, 1.2] (no exact ties), renormalized."""
+    w = belief.weights * rng.uniform(0.8, 1.2, belief.weights.size)
+    return Belief(belief.grid, w / w.sum())
+
+
+def off_centre_belief(rng: np.random.Generator) -> Belief:
+    """A Gaussian whose mean lies 1.5-3 cells off the grid's centre in x, y and θ."""
+    mean = np.asarray(WORLD.nominal_pose)
+    offset = rng.uniform(1.5, 3.0, 3) * rng.choice([-1.0, 1.0], 3) * np.asarray(SMALL.spacing)
+    grid = Grid.for_level(SMALL, center=mean)
+    return _noisy(Belief.gaussian(grid, compose_planar(mean, offset), (0.012, 0.015, 0.12)), rng)
+
+
+def two_peaked_belief(rng: np.random.Generator) -> Belief:
+    """Two narrow Gaussians on opposite sides of the grid's centre (weights 0.55 and 0.45)."""
+    mean = np.asarray(WORLD.nominal_pose)
+    grid = Grid.for_level(SMALL, center=mean)
+    d = rng.uniform(1.5, 2.5, 3) * np.asarray(SMALL.spacing)
+    peaks = [
+        Belief.gaussian(grid, compose_planar(mean, s * d), (0.008, 0.008, 0.08)).weights
+        for s in (1.0, -1.0)
+    ]
+    return _noisy(Belief(grid, 0.55 * peaks[0] + 0.45 * peaks[1]), rng)
+
+
+def edge_of_grid_belief(rng: np.random.Generator) -> Belief:
+    """A Gaussian centred on a corner of the grid (x and y at their last points)."""
+    mean = np.asarray(WORLD.nominal_pose)
+    grid = Grid.for_level(SMALL, center=mean)
+    corner = np.array([4.0, 4.0, -1.0]) * np.asarray(SMALL.spacing)
+    return _noisy(Belief.gaussian(grid, compose_planar(mean, corner), (0.01, 0.01, 0.1)), rng)
+
+
+H3_BELIEFS = {
+    "off-centre": off_centre_belief,
+    "two-peaked": two_peaked_belief,
+    "edge-of-grid": edge_of_grid_belief,
+}
+
+
+@pytest.mark.parametrize("params", [EXACT, SEARCH], ids=["full-support", "default-support"])
+@pytest.mark.parametrize("kind", list(H3_BELIEFS))
+def test_fast_search_matches_reference_at_horizon_3(model, kind, params, monkeypatch):
+    """Beliefs the centred ones above do not cover (seeded), three levels deep, through both
+    of the fast search's moment paths."""
+    belief = H3_BELIEFS[kind](np.random.default_rng(17))
+    cells = (belief.grid.points() - np.asarray(belief.grid.center)) / np.asarray(SMALL.spacing)
+    w_star = cells[np.argmax(belief.weights)]
+    if kind == "off-centre":
+        assert np.all(np.abs(belief.weights @ cells) >= 1.0)  # the mean a cell or more off
+    elif kind == "two-peaked":
+        assert np.all(np.abs(w_star) >= 1.5)
+        other_side = np.sign(cells[:, 0]) == -np.sign(w_star[0])
+        assert belief.weights[other_side].sum() > 0.3
+    else:
+        assert np.all(np.rint(np.abs(w_star[:2])) == 4)  # on the border in x and y
+    r = ReferenceSearch(model, params).select(belief, 3, SEARCH.delta)
+    assert np.isfinite(r.action_values).sum() >= 3
+    for dense_fraction in (0.0, np.inf):
+        monkeypatch.setattr(search_module, "DENSE_FRACTION", dense_fraction)
+        f = ForwardSearch(model, params).select(belief, 3, SEARCH.delta)
+        assert f.action == r.action, dense_fraction
+        assert np.array_equal(np.isfinite(f.action_values), np.isfinite(r.action_values))
+        ok = np.isfinite(f.action_values)
+        np.testing.assert_allclose(
+            f.action_values[ok], r.action_values[ok], rtol=1e-4, atol=1e-6
+        )  # float32 gathers
+        assert f.p_goal == pytest.approx(r.p_goal, abs=1e-9)
+
+
 def test_static_value_is_goal_probability_at_w_star(model, beliefs):
     g = model.goal_actions[0]
     for b in beliefs:

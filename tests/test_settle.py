@@ -3,6 +3,8 @@ the belief moving after a firm goal grasp (agent and estimator alike)."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -77,6 +79,17 @@ def test_the_estimator_settles_a_firm_goal_grasp_when_the_hand_retreats():
     )
     unsettled = wrt_posterior(after_goal, table, info, mean, sensed)
     assert np.abs(unsettled.weights - expected.weights).sum() > 0.05  # the settling mattered
+    # An update the core refuses keeps the belief and the pending retreat.
+    refused = BeliefTracker.gaussian(
+        "powerdrill", mean, LOW.sigma, level=LOW, variable_resolution=False
+    )
+    before = refused.update(goal.name, mean, grasped)
+    pushed = GeometricSimulator(obj, info).simulate(mean, mean)
+    pushed = dataclasses.replace(pushed, contact=True, motion_dir=np.full(3, np.nan))
+    with pytest.raises(ValueError, match="motion direction"):
+        refused.update(info.name, mean, pushed)
+    assert refused.belief is before
+    np.testing.assert_allclose(refused.retreated().weights, settled.weights, atol=1e-12)
     # Without a reported retreat, the next update applies it first.
     lazy = BeliefTracker.gaussian(
         "powerdrill", mean, LOW.sigma, level=LOW, variable_resolution=False

@@ -1,7 +1,6 @@
 """Transition models: the contact bump, the reorientation mixture and the grasp settling."""
 
 import dataclasses
-import time
 
 import numpy as np
 import pytest
@@ -53,15 +52,6 @@ def test_bump_drops_mass_pushed_off_the_grid():
     assert abs(after.weights.sum() - 1.0) < 1e-12
     # the stay part is relatively larger: part of the bumped part left the grid
     assert after.as_grid_array()[-1, 15, 12] > TRANSITION.p_stay + 0.05
-
-
-def test_bump_is_fast_on_the_full_grid():
-    b = Belief.for_level(LOW, (0.62, 0.0, 0.0))
-    bump(b, (0.6, 0.8))
-    t0 = time.perf_counter()
-    for _ in range(50):
-        bump(b, (0.6, 0.8))
-    print(f"\nbump on 24,025 points: {(time.perf_counter() - t0) / 50 * 1e3:.3f} ms")
 
 
 def test_reorient_rotates_the_mass_by_the_angle():

@@ -5,7 +5,6 @@ observation varies smoothly with the offset Δ, so likelihoods are informative i
 """
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -34,7 +33,8 @@ E = np.array([0.62, 0.01, 0.3])
 
 
 def synthetic_table(grid: Grid) -> ObservationTable:
-    """Early contact when the object is ≥ 1.5 cm ahead; sensors, closures and tip points vary with Δ."""
+    """Early contact when the object is ≥ 1.5 cm ahead; sensors, closures and tip points vary
+    with Δ."""
     d = grid.points()
     n = len(d)
     path = 0.30
@@ -76,7 +76,8 @@ def synthetic_table(grid: Grid) -> ObservationTable:
 
 
 def observation_of_row(table: ObservationTable, row: int, e) -> Observation:
-    """The Observation the robot would report for table row `row` when τ(e) ran (motion in world)."""
+    """The Observation the robot would report for table row `row` when τ(e) ran (motion in
+    world)."""
     m = table.motion_dir[row].astype(float)
     c, s = math.cos(e[2]), math.sin(e[2])
     return Observation(
@@ -114,15 +115,6 @@ def test_table_indices_match_a_per_point_computation(level, e):
     np.testing.assert_array_equal(table_indices(belief_grid, e, table_grid), expected)
 
 
-def test_table_indices_time_on_the_full_grid():
-    g = Grid.for_level(HIGH, center=E)
-    table_indices(g, E, Grid.for_level(HIGH))
-    t0 = time.perf_counter()
-    for _ in range(100):
-        table_indices(g, E, Grid.for_level(HIGH))
-    print(f"\ntable_indices for 24,025 points: {(time.perf_counter() - t0) / 100 * 1e3:.3f} ms")
-
-
 # ------------------------------------------------------------------- likelihood
 def test_likelihood_terms(high_table):
     t = high_table
@@ -139,7 +131,8 @@ def test_likelihood_terms(high_table):
     assert np.argmax(base) == row
 
     def change(field: str, index, value) -> float:
-        """log L at the row's own entry after setting one feature value, minus the exact-match log L."""
+        """log L at the row's own entry after setting one feature value, minus the exact-match
+        log L."""
         g = features_from_table_rows(t, [row])
         getattr(g, field)[(0, *np.atleast_1d(index))] = value
         return float(log_likelihood_over_table(t, g)[0, row] - base[row])
@@ -375,23 +368,3 @@ def test_goal_probability_is_the_belief_mass_on_the_goal_offsets(high_table):
     assert goal_probability(prior, np.ones_like(goal), E) == pytest.approx(1.0)
     with pytest.raises(ValueError):
         goal_probability(prior, goal[:-1], E)
-
-
-def test_update_time_on_the_full_grid(high_table):
-    prior = Belief.for_level(HIGH, E)
-    row = high_table.grid.nearest_index(np.array([0.03, 0.01, -0.1]))
-    obs = observation_of_row(high_table, row, E)
-    for _ in range(3):
-        update(prior, high_table, E, obs)
-    n = 50
-    t0 = time.perf_counter()
-    for _ in range(n):
-        update(prior, high_table, E, obs)
-    fast = (time.perf_counter() - t0) / n
-    t0 = time.perf_counter()
-    update_reference(prior, high_table, E, obs, transition=False)
-    naive = time.perf_counter() - t0
-    print(
-        f"\nupdate of 24,025 points (contact, with bump): {fast * 1e3:.3f} ms; "
-        f"naive reference likelihood pass alone: {naive:.2f} s"
-    )

@@ -1,6 +1,5 @@
-"""Variable-resolution grid: refine a concentrated coarse belief onto a finer grid (HIGH → MID → LOW)."""
-
-import time
+"""Variable-resolution grid: refine a concentrated coarse belief onto a finer grid
+(HIGH → MID → LOW); its speed: ``rrg-bench plan``."""
 
 import numpy as np
 import pytest
@@ -74,22 +73,6 @@ def test_a_run_whose_end_cells_would_stick_out_of_the_fine_box_is_not_refined_to
     th = refined.grid.axes()[2]
     assert (
         th[0] <= COARSE.axes()[2][14] - 0.05 + 1e-9 and th[-1] >= COARSE.axes()[2][17] + 0.05 - 1e-9
-    )
-
-
-def test_refine_time():
-    coarse = Belief.gaussian(COARSE, (0.6237, -0.0141, 0.237), (0.005, 0.004, 0.04))
-    maybe_refine(coarse)
-    t0 = time.perf_counter()
-    for _ in range(20):
-        maybe_refine(coarse)
-    spread = Belief.for_level(HIGH, (0.62, 0.0, 0.0))
-    t1 = time.perf_counter()
-    for _ in range(20):
-        maybe_refine(spread)
-    t2 = time.perf_counter()
-    print(
-        f"\nmaybe_refine: refine {(t1 - t0) / 20 * 1e3:.2f} ms, reject {(t2 - t1) / 20 * 1e3:.2f} ms"
     )
 
 

@@ -2,18 +2,22 @@
 
 Run as a process, e.g. as the launcher's child::
 
-    python -m rrg_planner.bags.recorder_node --output bags/NAME [--ros-args -p discovery_period:=0.2]
+    python -m rrg_planner.bags.recorder_node --output bags/NAME \
+        [--ros-args -p discovery_period:=0.2]
 
 It polls the graph for topics, subscribes to each new one with ``raw=True`` (CDR bytes as they
 came off the wire), and matches its publishers' durability, so latched (TRANSIENT_LOCAL) topics
 are captured even when they were published before the recorder saw them. Hidden topics (a
 name part starting with ``_``, e.g. actions' internal topics) are skipped, as ``ros2 bag record
---all`` does. SIGINT, SIGTERM or Ctrl-C stop it, and the bag is always finalized.
+--all`` does. SIGINT, SIGTERM or Ctrl-C stop it: it first writes the messages it has already
+received (``BagRecorder.drain``, at most DRAIN_S; a second signal cuts that short), then
+finalizes the bag, which it always does.
 """
 
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import time
 from pathlib import Path
@@ -22,9 +26,10 @@ import rclpy
 import rclpy.logging
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor, TimeoutException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 from rclpy.subscription import Subscription
 from rclpy.topic_endpoint_info import TopicEndpointInfo
 from rclpy.utilities import remove_ros_args
@@ -33,6 +38,9 @@ from rrg_planner.bags.bag_schema import UnknownMessageType, message_class
 from rrg_planner.bags.bag_writer import Rosbag2McapWriter
 
 NODE_NAME = "rrg_bag_recorder"
+#: Longest time [s] spent writing the already received messages after a stop signal (below the
+#: launcher's STOP_ESCALATE_S, so the bag is closed before a second signal comes).
+DRAIN_S = 2.0
 
 
 def is_hidden(topic: str) -> bool:
@@ -76,8 +84,8 @@ def subscription_qos(publishers: list[TopicEndpointInfo], depth: int) -> QoSProf
 class BagRecorder(Node):
     """Subscribes to every (non-hidden) topic as it appears and writes all messages to a bag."""
 
-    def __init__(self, writer: Rosbag2McapWriter) -> None:
-        super().__init__(NODE_NAME)
+    def __init__(self, writer: Rosbag2McapWriter, context: rclpy.Context | None = None) -> None:
+        super().__init__(NODE_NAME, context=context)
         self.declare_parameter(
             "discovery_period",
             0.2,
@@ -99,7 +107,9 @@ class BagRecorder(Node):
         self._recorded: dict[str, Subscription] = {}
         self._skipped: set[str] = set()
         self.discover()
-        self.create_timer(self.get_parameter("discovery_period").value, self.discover)
+        self._discovery = self.create_timer(
+            self.get_parameter("discovery_period").value, self.discover
+        )
         self.get_logger().info(f"recording all topics to {writer.bag_dir}")
 
     def discover(self) -> None:
@@ -137,6 +147,29 @@ class BagRecorder(Node):
         log_time = info.get("received_timestamp") or time.time_ns()
         self.writer.write(topic, data, log_time, info.get("source_timestamp") or log_time)
 
+    def drain(self, executor: SingleThreadedExecutor, budget_s: float, stop=lambda: False) -> int:
+        """Write the messages already received, without waiting for new ones: run every ready
+        callback until none is ready, for at most ``budget_s`` or until ``stop()``. Stops the
+        topic discovery first. Returns the number of messages written."""
+        self._discovery.cancel()
+        before = self.writer.stats.message_count
+        deadline = time.monotonic() + budget_s
+        idle = False
+        while time.monotonic() < deadline and not stop():
+            try:
+                handler, _, _ = executor.wait_for_ready_callbacks(timeout_sec=0.0)
+            except TimeoutException:
+                # the callbacks one zero-timeout wait found are done: wait again, unless that
+                # wait found none
+                if idle:
+                    break
+                idle = True
+                continue
+            idle = False
+            handler()
+            handler.result()  # raise what the callback raised
+        return self.writer.stats.message_count - before
+
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
@@ -159,7 +192,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.output.exists():
         print(f"bag folder already exists: {args.output}", file=sys.stderr)
         return 1
-    rclpy.init(args=argv)
+    # rclpy's own handlers would shut the context down at the signal, and with it the
+    # subscriptions whose received messages are still to be written: count the signals instead
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    signals: list[int] = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda signum, _frame: signals.append(signum))
     writer = Rosbag2McapWriter(args.output)
     recorder = None
     try:
@@ -167,8 +205,11 @@ def main(argv: list[str] | None = None) -> int:
         executor = SingleThreadedExecutor()
         executor.add_node(recorder)
         # spin_once in a loop: a node blocked in spin() sometimes misses the first SIGINT.
-        while rclpy.ok():
+        while rclpy.ok() and not signals:
             executor.spin_once(timeout_sec=0.1)
+        if signals and rclpy.ok():
+            n = recorder.drain(executor, DRAIN_S, stop=lambda: len(signals) > 1)
+            recorder.get_logger().info(f"stopping: wrote {n} messages received before the signal")
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
