@@ -18,8 +18,6 @@ import logging
 import numpy as np
 
 from rrg_estimator.belief import Belief
-from rrg_estimator.config import UncertaintyLevel
-from rrg_estimator.grid import Grid
 from rrg_estimator.update import goal_probability
 from rrg_planner.config import SEARCH
 from rrg_planner.planning_model import PlanningModel
@@ -30,12 +28,6 @@ log = logging.getLogger(__name__)
 
 MAX_BLOCKED = 20  # infeasible executions tolerated in one run before giving up
 MAX_FALLBACK_STATES = 300  # most likely states searched for one where the goal grasp is feasible
-
-
-def initial_belief(level: UncertaintyLevel, mean) -> Belief:
-    """The Gaussian initial belief of a level, on its grid centred at the mean."""
-    mean = np.asarray(mean, dtype=float)
-    return Belief.gaussian(Grid.for_level(level, center=mean), mean, np.asarray(level.sigma))
 
 
 class RobustGraspAgent:

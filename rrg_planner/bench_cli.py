@@ -41,12 +41,12 @@ def _median_time(fn: Callable[[], object], repeats: int, warmup: bool = True) ->
 
 
 def bench_plan(argv: list[str]) -> int:
+    from rrg_estimator.belief import Belief
     from rrg_estimator.config import LEVELS
     from rrg_estimator.grid import Grid
     from rrg_estimator.obs_tables import build_table
     from rrg_estimator.reference_update import update_reference
     from rrg_estimator.update import update
-    from rrg_planner.agent import initial_belief
     from rrg_planner.planning_model import PlanningModel
     from rrg_planner.reference_search import ReferenceSearch
     from rrg_planner.search import ForwardSearch
@@ -91,7 +91,7 @@ def bench_plan(argv: list[str]) -> int:
     table_s = time.perf_counter() - t0
 
     mean = np.asarray(WORLD.nominal_pose)
-    belief = initial_belief(level, mean)
+    belief = Belief.for_level(level, mean)
     fast = ForwardSearch(model)
     ref = ReferenceSearch(model)
     ref_h = {int(h) for h in args.reference_horizons.split(",") if h.strip()}

@@ -34,7 +34,7 @@ import numpy as np
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import LEVELS, UncertaintyLevel
 from rrg_estimator.tracker import BeliefTracker
-from rrg_planner.agent import MAX_BLOCKED, RobustGraspAgent, initial_belief
+from rrg_planner.agent import MAX_BLOCKED, RobustGraspAgent
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.search import SearchResult
 from rrg_sim.config import SENSOR_NAMES
@@ -260,7 +260,7 @@ def in_process_estimator(
     level = LEVELS[level] if isinstance(level, str) else level
     return BeliefTracker(
         model.obj,
-        initial_belief(level, mean),
+        Belief.for_level(level, mean),
         tables=model,
         levels=model.levels.values(),
         variable_resolution=variable_resolution and "low" in model.levels,

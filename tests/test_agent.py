@@ -9,8 +9,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from rrg_estimator.belief import Belief
 from rrg_estimator.config import UncertaintyLevel
-from rrg_planner.agent import RobustGraspAgent, initial_belief
+from rrg_planner.agent import RobustGraspAgent
 from rrg_planner.closed_loop import run_in_process
 from rrg_planner.config import SEARCH
 from rrg_planner.geometric_env import GeometricEnvironment
@@ -99,7 +100,7 @@ def test_open_loop_runs_the_goal_once_and_max_actions_ends_with_the_goal(model):
 
 def test_goal_grasp_falls_back_to_the_most_likely_state_where_it_is_feasible(model):
     agent = RobustGraspAgent(model, strategy="rrg-goal")
-    belief = initial_belief(SMALL, WORLD.nominal_pose)
+    belief = Belief.for_level(SMALL, WORLD.nominal_pose)
     e = belief.w_star()
     assert np.array_equal(agent.most_likely_feasible(belief, agent.goal), e)  # feasible at w*
     agent.search.block(
@@ -126,7 +127,7 @@ def test_a_goal_grasp_that_cannot_run_at_w_star_runs_beside_it_when_that_is_wort
     agent.search = ForwardSearch(
         model, replace(SEARCH, block_box=(0.009, 0.009, 0.09))
     )  # within a cell
-    belief = initial_belief(replace(SMALL, name="b", sigma=sigma), WORLD.nominal_pose)
+    belief = Belief.for_level(replace(SMALL, name="b", sigma=sigma), WORLD.nominal_pose)
     e = belief.w_star()
     agent.search.block(agent.goal, e)
     res = agent.search.select(belief, agent.horizon)
@@ -176,7 +177,7 @@ def test_the_goal_grasp_runs_where_the_measured_closing_leaves_the_drill_best_pl
     aim = drill.actions[agent.goal].aim["fine"]
     assert aim[2] > 0.02
     w_star = np.asarray(WORLD.nominal_pose)
-    belief = initial_belief(
+    belief = Belief.for_level(
         UncertaintyLevel(
             "tight", sigma=(0.002, 0.002, 0.05), spacing=fine.spacing, shape=fine.shape
         ),

@@ -13,7 +13,6 @@ from rrg_estimator.config import UncertaintyLevel
 from rrg_estimator.grid import Grid
 from rrg_estimator.update import goal_probability, update
 from rrg_planner import search as search_module
-from rrg_planner.agent import initial_belief
 from rrg_planner.clustering import PROGRESS_BIN
 from rrg_planner.config import SEARCH
 from rrg_planner.planning_model import PlanningModel
@@ -38,7 +37,7 @@ def model() -> PlanningModel:
 def beliefs(model):
     """The initial belief and a posterior after one simulated goal grasp (seeded)."""
     mean = np.asarray(WORLD.nominal_pose)
-    b0 = initial_belief(SMALL, mean)
+    b0 = Belief.for_level(SMALL, mean)
     goal = model.actions[model.goal_actions[0]]
     true = compose_planar(mean, np.array([0.015, -0.01, 0.1]))
     obs = GeometricSimulator(model.obj, goal.wrt).simulate(true, mean)
@@ -268,7 +267,7 @@ def test_fast_search_matches_reference_through_reorientations(teacup_model, hori
     valued alike by both searches, and a turn costs localization: the spread child is wider."""
     anywhere = dataclasses.replace(EXACT, reorient_min_in_box=0.0)
     fast, ref = ForwardSearch(teacup_model, anywhere), ReferenceSearch(teacup_model, anywhere)
-    b0 = initial_belief(TURNS, np.asarray(WORLD.nominal_pose))
+    b0 = Belief.for_level(TURNS, np.asarray(WORLD.nominal_pose))
     f, r = fast.select(b0, horizon), ref.select(b0, horizon)
     turns = [i for i, a in enumerate(teacup_model.actions) if a.kind == "reorient"]
     assert np.isfinite(f.action_values[turns]).all()
@@ -288,7 +287,7 @@ def test_fast_search_matches_reference_through_reorientations(teacup_model, hori
 def test_a_reorientation_runs_only_where_its_turn_is_measured(teacup_model, search_cls):
     """SearchParams.reorient_min_in_box: the reorientations are ruled out while less of the
     belief than that lies in their measured outcome's box about w*, and valued once enough does."""
-    b0 = initial_belief(TURNS, np.asarray(WORLD.nominal_pose))
+    b0 = Belief.for_level(TURNS, np.asarray(WORLD.nominal_pose))
     turns = [i for i, a in enumerate(teacup_model.actions) if a.kind == "reorient"]
     box = teacup_model.actions[turns[0]].wrt.reorient_outcome.box
     inside = np.all(np.abs(b0.grid.points() - b0.w_star()) <= box, axis=1)
