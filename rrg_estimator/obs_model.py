@@ -265,8 +265,13 @@ def likelihood_over_table(
 
     Raises ValueError when an observation's progress or closure is NaN.
     """
-    if np.isnan(feats.progress).any() or np.isnan(feats.closure).any():
-        raise ValueError("observation features hold NaN progress or closure")
+    bad = [
+        n
+        for n, v in (("progress", feats.progress), ("closure", feats.closure))
+        if not np.isfinite(v).all()
+    ]
+    if bad:
+        raise ValueError(f"observation features hold non-finite {' and '.join(bad)} (NaN or inf)")
     eps = np.float32(params.floor)
     return np.exp(log_likelihood_over_table(table, feats, params)) * (np.float32(1.0) - eps) + eps
 

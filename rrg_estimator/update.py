@@ -36,10 +36,10 @@ def predict(belief: Belief, e, feats: ObsFeatures) -> Belief:
     if not feats.contact[0]:
         return belief
     m = feats.motion_dir[0].astype(float)
-    if np.isnan(m[:2]).any():
+    if not np.isfinite(m[:2]).all():
         raise ValueError(
-            "contact observation without a motion direction: build its features "
-            "with features_from_observation(obs, e) or from table rows"
+            "contact observation without a finite motion direction (features built without "
+            "the estimate e, or a malformed observation)"
         )
     c, s = np.cos(e[2]), np.sin(e[2])
     return bump(belief, (c * m[0] - s * m[1], s * m[0] + c * m[1]))

@@ -34,27 +34,12 @@ from rrg_msgs.msg import BeliefGrid, Retreated
 from rrg_msgs.msg import Observation as ObservationMsg
 from rrg_msgs.srv import GetBelief, ResetBelief
 from rrg_sim.objects import get_object
-from rrg_sim.observation import Observation
 from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, observation_from_msg, planar_from_msg
 from rrg_sim.ros_common.node_main import keep_serving, run_node
 from rrg_sim.ros_common.qos import LATCHED
 
 NODE_NAME = "estimator"
 NAMESPACE = "rrg"
-
-
-def nonfinite_fields(e: np.ndarray, obs: Observation) -> list[str]:
-    """The fields of an observation message that must be finite and are not (tip points and
-    normals are NaN for a tip that sensed nothing; the motion direction matters on contact)."""
-    fields = {
-        "estimate": e,
-        "progress": obs.progress,
-        "closure": obs.closure,
-        "hand pose": obs.hand_pose,
-    }
-    if obs.contact:
-        fields["motion direction"] = obs.motion_dir
-    return [name for name, value in fields.items() if not np.all(np.isfinite(value))]
 
 
 class EstimatorNode(Node):
@@ -138,16 +123,11 @@ class EstimatorNode(Node):
                 f"{self.tracker.obj.name!r}; belief kept"
             )
             return
-        e, obs = planar_from_msg(msg.estimate), observation_from_msg(msg)
-        bad = nonfinite_fields(e, obs)
-        if bad:
-            log.error(
-                f"observation of {msg.wrt_name} ignored: non-finite {', '.join(bad)}; belief kept"
-            )
-            return
         old_grid = self.tracker.belief.grid
         try:
-            belief = self.tracker.update(msg.wrt_name, e, obs)
+            belief = self.tracker.update(
+                msg.wrt_name, planar_from_msg(msg.estimate), observation_from_msg(msg)
+            )
         except KeyError as exc:
             log.error(f"observation ignored, unknown WRT: {exc.args[0]}; belief kept")
             return
