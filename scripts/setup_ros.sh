@@ -1,18 +1,18 @@
 #!/usr/bin/env bash
 # Add ROS 2 Jazzy to RRG's .venv/ (called by scripts/setup.sh once the core venv exists).
 # Idempotent, and fast when nothing changed:
-#   - Debian packages the rrg_msgs build needs (cmake, g++, nodejs/npm), only when missing;
+#   - Debian packages the interface builds need (cmake, g++, nodejs/npm), only when missing;
 #   - the ros-jazzy-* wheels, their undeclared build dependencies, and the bag libraries,
 #     re-installed only when the package list below changes;
 #   - the manylinux interpreter paths in <venv>/share/**/*.cmake rewritten to this venv's;
-#   - rrg_msgs configured, built and installed into the venv only when missing or stale;
+#   - the interface packages (control_msgs and bhand_srvs for the hardware bridge, then rrg_msgs)
+#     configured, built and installed into the venv, each only when missing or stale;
 #   - Foxglove's bag readers (npm) in .cache/npm/node_modules, used by the bag tests.
 # Facts behind each step: shared/notes/ros2-on-pip.md.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 VENV="$ROOT/.venv"
 VPY="$VENV/bin/python"
-BUILD="$ROOT/build/rrg_msgs"
 NODE_DIR="$ROOT/.cache/npm"
 
 log() { printf '\033[1;35m[setup-ros]\033[0m %s\n' "$*"; }
@@ -89,38 +89,51 @@ if fixed:
     print(f"\033[1;35m[setup-ros]\033[0m rewrote interpreter paths in {fixed} CMake files")
 EOF
 
-# ------------------------------------------------------------------ rrg_msgs
-# Stale when its sources, the ROS wheels or the interpreter changed since the last install.
-MSGS_STAMP="$VENV/.rrg-msgs-stamp"
-MSGS_SUM="$( (cd "$ROOT" && find rrg_msgs -type f -print0 | sort -z | xargs -0 sha256sum; \
-              echo "$PIP_SUM"; "$VPY" -VV) | sha256sum | cut -d' ' -f1)"
-MSGS_INDEX="$VENV/share/ament_index/resource_index/packages/rrg_msgs"
-if [ ! -f "$MSGS_INDEX" ] || [ ! -f "$MSGS_STAMP" ] || [ "$(cat "$MSGS_STAMP")" != "$MSGS_SUM" ]; then
-  t0=$(date +%s)
-  log "building rrg_msgs into $VENV"
+# ------------------------------------------------------------------ interface packages
+# build_interfaces <source dir, relative to the repository> <stamp file name in the venv> <module>...
+# Configures, builds and installs one rosidl interface package into the venv, when it is missing
+# or stale: its sources, the ROS wheels or the interpreter changed since the last install. Then
+# checks that its Python modules import. Build folder: build/<package>; logs in it.
+build_interfaces() {
+  local src="$1" stamp="$VENV/$2"; shift 2
+  local pkg build sum index
+  pkg="$(basename "$src")"
+  build="$ROOT/build/$pkg"
+  sum="$( (cd "$ROOT" && find "$src" -type f -print0 | sort -z | xargs -0 sha256sum; \
+           echo "$PIP_SUM"; "$VPY" -VV) | sha256sum | cut -d' ' -f1)"
+  index="$VENV/share/ament_index/resource_index/packages/$pkg"
+  if [ -f "$index" ] && [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$sum" ]; then return 0; fi
+  local t0; t0=$(date +%s)
+  log "building $pkg into $VENV"
   # Remove the previous install first, so a deleted interface does not linger in the venv;
   # then build from scratch (a build folder copied or moved with the repository is unusable).
-  if [ -f "$BUILD/install_manifest.txt" ]; then
+  if [ -f "$build/install_manifest.txt" ]; then
     while IFS= read -r installed; do
       if [[ "$installed" == "$VENV/"* ]]; then rm -f "$installed"; fi
-    done < "$BUILD/install_manifest.txt"
+    done < "$build/install_manifest.txt"
   fi
-  rm -rf "$BUILD"
-  mkdir -p "$BUILD"
+  rm -rf "$build"
+  mkdir -p "$build"
   export AMENT_PREFIX_PATH="$VENV" CMAKE_PREFIX_PATH="$VENV"
-  cmake -S "$ROOT/rrg_msgs" -B "$BUILD" -DCMAKE_BUILD_TYPE=Release \
+  cmake -S "$ROOT/$src" -B "$build" -DCMAKE_BUILD_TYPE=Release \
     -DCMAKE_INSTALL_PREFIX="$VENV" -DPython3_EXECUTABLE="$VPY" -DBUILD_TESTING=OFF \
-    > "$BUILD/configure.log" 2>&1 \
-    || { tail -n 40 "$BUILD/configure.log" >&2; echo "rrg_msgs configure failed: $BUILD/configure.log" >&2; exit 1; }
-  cmake --build "$BUILD" -j "$(nproc)" > "$BUILD/build.log" 2>&1 \
-    || { tail -n 40 "$BUILD/build.log" >&2; echo "rrg_msgs build failed: $BUILD/build.log" >&2; exit 1; }
-  cmake --install "$BUILD" > "$BUILD/install.log" 2>&1 \
-    || { tail -n 40 "$BUILD/install.log" >&2; echo "rrg_msgs install failed: $BUILD/install.log" >&2; exit 1; }
-  "$VPY" -c "import rrg_msgs.msg, rrg_msgs.srv, rrg_msgs.action" \
-    || { echo "rrg_msgs installed but its Python types do not import" >&2; exit 1; }
-  echo "$MSGS_SUM" > "$MSGS_STAMP"
-  log "rrg_msgs built and installed in $(elapsed "$t0")"
-fi
+    > "$build/configure.log" 2>&1 \
+    || { tail -n 40 "$build/configure.log" >&2; echo "$pkg configure failed: $build/configure.log" >&2; exit 1; }
+  cmake --build "$build" -j "$(nproc)" > "$build/build.log" 2>&1 \
+    || { tail -n 40 "$build/build.log" >&2; echo "$pkg build failed: $build/build.log" >&2; exit 1; }
+  cmake --install "$build" > "$build/install.log" 2>&1 \
+    || { tail -n 40 "$build/install.log" >&2; echo "$pkg install failed: $build/install.log" >&2; exit 1; }
+  "$VPY" -c "import $(IFS=,; echo "$*")" \
+    || { echo "$pkg installed but its Python types do not import" >&2; exit 1; }
+  echo "$sum" > "$stamp"
+  log "$pkg built and installed in $(elapsed "$t0")"
+}
+
+# Upstream interfaces first (under their upstream names, for the hardware bridge), then RRG's own.
+build_interfaces rrg_hw_bridge/interfaces/control_msgs .rrg-control_msgs-stamp \
+  control_msgs.msg control_msgs.action
+build_interfaces rrg_hw_bridge/interfaces/bhand_srvs .rrg-bhand_srvs-stamp bhand_srvs.srv
+build_interfaces rrg_msgs .rrg-msgs-stamp rrg_msgs.msg rrg_msgs.srv rrg_msgs.action
 
 # ------------------------------------------------------------------ Foxglove readers (npm)
 # Decoding every bag with Foxglove's own libraries as well as rosbags (tests/test_bag_recorder.py).

@@ -10,6 +10,7 @@ import pytest
 from rrg_sim import wam
 from rrg_sim.config import HAND, PHYSICS, WAM_LINKS
 from rrg_sim.hand import body_poses
+from rrg_sim.hand_sensing import TIP_RADIUS, TIP_Z0, TIP_Z1, contact_from_wrench
 from rrg_sim.objects import OBJECT_NAMES
 from rrg_sim.physics.mjcf_robot import (
     ARM_JOINTS,
@@ -21,7 +22,6 @@ from rrg_sim.physics.mjcf_robot import (
     robot_xml,
 )
 from rrg_sim.physics.scene import ASSETS_DIR, asset_files, build_model
-from rrg_sim.physics.sensing import TIP_RADIUS, TIP_Z0, TIP_Z1, contact_from_wrench
 
 
 @pytest.fixture(scope="module")

@@ -208,12 +208,18 @@ def test_ctrl_c_mid_grasp_leaves_a_finalized_bag(tmp_path, ros_domain):
         assert sum(1 for _ in reader.messages()) == info.message_count
 
 
-def test_hw_mode_fails_clearly():
-    out = subprocess.run(
-        [*LAUNCH, "--mode", "hw"], capture_output=True, text=True, timeout=60, cwd=ROOT
-    )
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--fake-hw"], "--fake-hw and --hw-param need --mode hw"),
+        (["--hw-param", "dry_run:=true"], "--fake-hw and --hw-param need --mode hw"),
+        (["--mode", "hw", "--hw-param", "dry_run"], "expected NAME:=VALUE"),
+    ],
+)
+def test_hw_options_are_checked(args, message):
+    out = subprocess.run([*LAUNCH, *args], capture_output=True, text=True, timeout=60, cwd=ROOT)
     assert out.returncode == 2
-    assert "rrg_hw_bridge" in out.stderr and "does not exist yet" in out.stderr
+    assert message in out.stderr
 
 
 @pytest.mark.slow  # the launcher's node processes and an in-process MuJoCo run

@@ -3,21 +3,25 @@ run one robust grasp (design §8).
 
     rrg-launch                                      # the simulated graph, until Ctrl-C
     rrg-launch --grasp powerdrill --level high --strategy rrg-info
-    rrg-launch --mode hw                            # fails clearly: rrg_hw_bridge not written yet
+    rrg-launch --mode hw --fake-hw --grasp powerdrill   # the bridge on emulated drivers
+    rrg-launch --mode hw --hw-param dry_run:=true       # the bridge on the real robot's drivers
 
-Children: the arm/hand interface (``rrg_sim`` node in sim mode), the executor, the estimator,
-the planner and the bag recorder, each in its own process and session, on loopback
-(ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) in DDS domain ``--domain-id``. Readiness is waited
-for, not slept: every service and action server must answer discovery, and the recorder must
-be subscribed to every topic that has a publisher. With ``--grasp`` the simulator places the
-object at its true pose (``--true-pose``, or drawn from the level's Gaussian with ``--seed``),
-the planner's robust-grasp action runs with feedback per step, and the simulator judges the
-final grasp (ground truth + lift). Ctrl-C (or SIGTERM) cancels a running grasp, sends SIGINT to
-the nodes, escalates to SIGTERM and SIGKILL after a timeout, and stops the recorder last, so
-the bag in ``bags/<name>/`` is always finalized.
+Children: the arm/hand interface (the simulator node in sim mode; in hw mode the hardware bridge,
+and with ``--fake-hw`` the emulated WAM, BarrettHand and Net F/T drivers driven by MuJoCo), the
+executor, the estimator, the planner and the bag recorder, each in its own process and session, on
+loopback (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) in DDS domain ``--domain-id``. Readiness is
+waited for, not slept: every service and action server must answer discovery, and the recorder must
+be subscribed to every topic that has a publisher. With ``--grasp`` the simulator places the object
+at its true pose (``--true-pose``, or drawn from the level's Gaussian with ``--seed``), the
+planner's robust-grasp action runs with feedback per step, and the simulator judges the final grasp
+(ground truth + lift). Ctrl-C (or SIGTERM) cancels a running grasp, sends SIGINT to the nodes,
+escalates to SIGTERM and SIGKILL after a timeout, and stops the recorder last, so the bag in
+``bags/<name>/`` is always finalized.
 
 Exit status: 0 when the graph ran (and the grasp, if asked for, was executed and judged,
-whatever its outcome), 1 on an error, 2 on a usage error (e.g. ``--mode hw``).
+whatever its outcome), 1 on an error, 2 on a usage error. On the real robot (``--mode hw``
+without ``--fake-hw``) nothing can place or judge the object: ``--grasp`` runs the robust grasp
+on the object as it stands and reports the planner's belief only.
 """
 
 from __future__ import annotations
@@ -58,15 +62,20 @@ OUTCOME_GRACE_S = 0.5
 #: Module of each node process, in start order (the recorder is started first, stopped last).
 NODES = {
     "sim": "rrg_sim.ros.sim_node",
+    "fake_hw": "rrg_hw_bridge.fake.fake_hw_node",
+    "hw_bridge": "rrg_hw_bridge.ros.bridge_node",
     "executor": "rrg_sim.executor.executor_node",
     "estimator": "rrg_estimator.ros.estimator_node",
     "planner": "rrg_planner.ros.planner_node",
 }
-#: What must answer before the graph counts as ready.
+#: The arm/hand interface's processes per mode: the simulator, the bridge on the real drivers,
+#: or the bridge on emulated drivers.
+INTERFACE = {"sim": ("sim",), "hw": ("hw_bridge",), "fake_hw": ("fake_hw", "hw_bridge")}
+#: Simulation-only services (the simulator's, or the emulated drivers').
+EVAL_SERVICES = ("/rrg/reset_sim", "/rrg/eval/judge_grasp")
+#: What must answer before the graph counts as ready (with EVAL_SERVICES when simulated).
 SERVICES = (
-    "/rrg/reset_sim",
     "/rrg/hand_command",
-    "/rrg/eval/judge_grasp",
     "/rrg/retreat",
     "/rrg/reset_belief",
     "/rrg/get_belief",
@@ -127,8 +136,16 @@ def ros_args(params: dict[str, object]) -> list[str]:
 class Graph:
     """The running graph: child processes plus the launcher's own client node."""
 
-    def __init__(self, env: dict[str, str], bag_dir: Path | None, log_dir: Path | None):
+    def __init__(
+        self,
+        env: dict[str, str],
+        bag_dir: Path | None,
+        log_dir: Path | None,
+        interface: str = "sim",
+    ):
         self.env = env
+        self.interface = interface  # a key of INTERFACE
+        self.simulated = interface != "hw"  # the world can be reset and judged
         self.bag_dir = bag_dir
         self.log_dir = log_dir
         self.children: list[Child] = []
@@ -166,9 +183,10 @@ class Graph:
         seed: int,
         real_time_factor: float,
         sensor_noise: float = 1.0,
+        hw_params: dict[str, str] | None = None,
     ) -> None:
-        """Start the recorder (if recording) and the four nodes (the launch time counts from
-        here)."""
+        """Start the recorder (if recording), the arm/hand interface and the executor, estimator
+        and planner (the launch time counts from here). ``hw_params``: the bridge's parameters."""
         self.started = time.monotonic()
         if self.bag_dir is not None:
             self.spawn(
@@ -181,12 +199,18 @@ class Graph:
                     *ros_args({"discovery_period": 0.1}),
                 ],
             )
+        world = {"object_name": object_name, "seed": seed, "sensor_noise": sensor_noise}
+        rdt_hosts = rdt_addresses(int(self.env["ROS_DOMAIN_ID"]))
         params = {
-            "sim": {
-                "object_name": object_name,
-                "seed": seed,
-                "real_time_factor": real_time_factor,
-                "sensor_noise": sensor_noise,
+            "sim": {**world, "real_time_factor": real_time_factor},
+            "fake_hw": {**world, "rdt_hosts": f"[{','.join(repr(h) for h in rdt_hosts)}]"},
+            "hw_bridge": {
+                **(
+                    {"rdt_hosts": f"[{','.join(repr(h) for h in rdt_hosts)}]"}
+                    if self.interface == "fake_hw"
+                    else {}
+                ),
+                **(hw_params or {}),
             },
             "executor": {},
             "estimator": {},
@@ -195,8 +219,8 @@ class Graph:
                 "preload": f"['{object_name}']",
             },
         }
-        for name, module in NODES.items():
-            self.spawn(name, ["-m", module, *ros_args(params[name])])
+        for name in [*INTERFACE[self.interface], "executor", "estimator", "planner"]:
+            self.spawn(name, ["-m", NODES[name], *ros_args(params[name])])
 
     def check_children(self) -> None:
         dead = [c for c in self.children if c.proc.poll() is not None]
@@ -295,7 +319,8 @@ class Graph:
             "/rrg/execute_wrt": ExecuteWrt,
             "/rrg/robust_grasp": RobustGrasp,
         }
-        self.clients = {name: self.node.create_client(types[name], name) for name in SERVICES}
+        services = [*SERVICES, *(EVAL_SERVICES if self.simulated else ())]
+        self.clients = {name: self.node.create_client(types[name], name) for name in services}
         self.actions = {name: ActionClient(self.node, types[name], name) for name in ACTIONS}
         self.node.create_subscription(GraspOutcome, "/rrg/eval/grasp_outcome", self.on_outcome, 10)
         deadline = time.monotonic() + timeout_s
@@ -339,17 +364,18 @@ class Graph:
         from rrg_msgs.srv import ResetSim
         from rrg_sim.ros_common.msg_conversions import planar_to_msg
 
-        reset = self.result(
-            self.clients["/rrg/reset_sim"].call_async(
-                ResetSim.Request(
-                    object_name=outcome.object_name, pose=planar_to_msg(outcome.true_pose)
-                )
-            ),
-            60.0,
-            "reset_sim",
-        )
-        if reset.error_code != ResetSim.Response.NONE:
-            raise LaunchError(f"reset_sim failed: {reset.error_msg}")
+        if self.simulated:
+            reset = self.result(
+                self.clients["/rrg/reset_sim"].call_async(
+                    ResetSim.Request(
+                        object_name=outcome.object_name, pose=planar_to_msg(outcome.true_pose)
+                    )
+                ),
+                60.0,
+                "reset_sim",
+            )
+            if reset.error_code != ResetSim.Response.NONE:
+                raise LaunchError(f"reset_sim failed: {reset.error_msg}")
         goal = RobustGrasp.Goal(
             object_name=outcome.object_name,
             level=outcome.level,
@@ -386,6 +412,9 @@ class Graph:
         if res.error_code != RobustGrasp.Result.NONE:
             outcome.error = f"robust_grasp error {res.error_code}: {res.error_msg}"
             return outcome
+        if not self.simulated:
+            outcome.judge = "not judged: a real robot has no ground truth"
+            return outcome
         seen = self.outcomes_seen
         judged = self.result(
             self.clients["/rrg/eval/judge_grasp"].call_async(Trigger.Request()),
@@ -414,6 +443,20 @@ class Graph:
                 self.result(handle.cancel_goal_async(), 3.0, "the grasp's cancellation")
             except LaunchError:
                 pass
+
+
+def rdt_addresses(domain_id: int) -> list[str]:
+    """Loopback addresses of the emulated Net F/T boxes of fingers 1-3: 127.0.0.2-4 in domain
+    0, 127.0.<domain>.2-4 in another, so that graphs in different domains never share a port."""
+    return [f"127.0.{domain_id}.{k}" for k in (2, 3, 4)]
+
+
+def hw_param(text: str) -> tuple[str, str]:
+    """'name:=value' → (name, value) (argparse type of --hw-param)."""
+    name, sep, value = text.partition(":=")
+    if not sep or not name:
+        raise argparse.ArgumentTypeError(f"expected NAME:=VALUE, got {text!r}")
+    return name, value
 
 
 def warm_tables(object_name: str, levels: list[str]) -> None:
@@ -446,6 +489,20 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("sim", "hw"),
         default="sim",
         help="arm/hand interface: simulator or hardware",
+    )
+    p.add_argument(
+        "--fake-hw",
+        action="store_true",
+        help="with --mode hw: also start the emulated drivers (MuJoCo behind the real protocols)",
+    )
+    p.add_argument(
+        "--hw-param",
+        type=hw_param,
+        action="append",
+        default=[],
+        metavar="NAME:=VALUE",
+        help="a parameter of the hardware bridge (repeatable), e.g. dry_run:=true, "
+        "limits_file:=my_wam.yaml, speed_scale:=0.5",
     )
     p.add_argument(
         "--domain-id",
@@ -521,12 +578,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if args.mode == "hw":
-        print(
-            "rrg-launch: --mode hw needs the rrg_hw_bridge node (the arm/hand interface on the "
-            "real WAM, BarrettHand and Nano17 drivers), which does not exist yet; use --mode sim",
-            file=sys.stderr,
-        )
+    if args.mode == "sim" and (args.fake_hw or args.hw_param):
+        print("rrg-launch: --fake-hw and --hw-param need --mode hw", file=sys.stderr)
         return 2
     if not 0 <= args.domain_id <= 101:
         print(f"rrg-launch: --domain-id must be 0-101, got {args.domain_id}", file=sys.stderr)
@@ -542,7 +595,8 @@ def main(argv: list[str] | None = None) -> int:
     def terminate(signum, _frame):  # SIGTERM behaves as Ctrl-C
         raise KeyboardInterrupt
 
-    graph = Graph(ros_environment(args.domain_id), bag_dir, args.log_dir)
+    interface = "sim" if args.mode == "sim" else ("fake_hw" if args.fake_hw else "hw")
+    graph = Graph(ros_environment(args.domain_id), bag_dir, args.log_dir, interface)
     status = 0
     outcome = None
     try:
@@ -559,7 +613,14 @@ def main(argv: list[str] | None = None) -> int:
         # job of a non-interactive shell: Python keeps an inherited SIG_IGN), and the nodes
         # started next inherit the default instead of the ignore.
         signal.signal(signal.SIGINT, signal.default_int_handler)
-        graph.start(object_name, levels, args.seed, args.real_time_factor, args.sensor_noise)
+        graph.start(
+            object_name,
+            levels,
+            args.seed,
+            args.real_time_factor,
+            args.sensor_noise,
+            dict(args.hw_param),
+        )
         graph.connect()
         print(
             f"[rrg-launch] started {len(graph.children)} processes in domain {args.domain_id}; "
@@ -622,8 +683,11 @@ def main(argv: list[str] | None = None) -> int:
             f"[rrg-launch] outcome: actions {outcome.actions}, "
             f"P(goal) = {outcome.p_goal:.3f}, planner "
             f"{'succeeded' if outcome.planner_success else 'did not succeed'}; "
-            "simulator judged the grasp a "
-            f"{'SUCCESS' if outcome.success else 'FAILURE'}"
+            + (
+                f"simulator judged the grasp a {'SUCCESS' if outcome.success else 'FAILURE'}"
+                if interface != "hw"
+                else "not judged"
+            )
             + (f" ({outcome.judge})" if outcome.judge else "")
             + (f"; {outcome.error}" if outcome.error else ""),
             flush=True,

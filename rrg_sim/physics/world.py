@@ -32,9 +32,10 @@ from rrg_sim.executor.trajectory import (
 from rrg_sim.executor.wrt_executor import Reading, WrtExecutor
 
 from .. import wam
-from ..config import HAND, N_SENSORS, PHYSICS, WORLD
+from ..config import HAND, PHYSICS, WORLD
+from ..hand_sensing import CLOSE_START_TIME, FingerClosing
 from ..objects import ObjectModel, get_object
-from ..observation import Observation, finger_contacts
+from ..observation import Observation
 from ..wrt import WRT
 from .mjcf_robot import (
     ARM_ACTUATORS,
@@ -51,10 +52,6 @@ from .scene import OBJECT_BODY, OBJECT_JOINT, build_model
 from .sensing import HandSensors
 
 __all__ = ["PhysicsWorld", "InfeasiblePath"]
-
-#: The fingers take this long to get going [s]: no stall is declared earlier, and an opening
-#: hand gets this long to settle (chosen: ~ 2× the time to reach closing speed).
-CLOSE_START_TIME = 0.05
 
 
 class PhysicsWorld:
@@ -101,8 +98,7 @@ class PhysicsWorld:
     def reset(self, w=None) -> None:
         """Arm at home, hand open, object at w (default: where it was last placed), settled."""
         mujoco.mj_resetData(self.model, self.data)
-        for i in range(3):
-            self._finger_servo(i, PHYSICS.finger_kp, HAND.close_torque)
+        self.release_fingers()
         self.data.qpos[self._arm_q] = wam.HOME_Q
         self.data.ctrl[:] = 0.0
         self.data.ctrl[:7] = wam.HOME_Q
@@ -301,38 +297,26 @@ class PhysicsWorld:
         m, d = self.model, self.data
         dt = PHYSICS.timestep
         target = d.ctrl[8:11].copy()
-        stalled = np.zeros(3, bool)
-        still = np.zeros(3)
-        touched = np.zeros(N_SENSORS, bool)
-        grace = int(round(CLOSE_START_TIME / dt))
-        speed = HAND.careful_close_speed if guarded else HAND.close_speed
-        for k in range(int(round(PHYSICS.close_timeout * HAND.close_speed / speed / dt))):
+        closing = FingerClosing(guarded)
+        for _ in range(int(round(closing.timeout / dt))):
             target = np.where(
-                stalled, target, np.minimum(target + speed * dt, HAND.proximal_range[1])
+                closing.stopped,
+                target,
+                np.minimum(target + closing.speed * dt, HAND.proximal_range[1]),
             )
             d.ctrl[8:11] = target
             mujoco.mj_step(m, d)
             if monitor is not None:
                 monitor()
-            slow = d.qvel[self._finger_v] < PHYSICS.stall_speed  # stopped, or pushed back
-            still = np.where(slow, still + dt, 0.0)
-            stop = np.zeros(3, bool)
-            if self.sensors.any_fired():
-                fired = self.sensors.fired()
-                touched |= fired
-                if guarded:
-                    stop |= finger_contacts(fired)
-            if k >= grace:
-                stop |= still >= PHYSICS.stall_time
-            for i in np.nonzero(stop & ~stalled)[0]:
-                self._brake(i)
-                stalled[i] = True
+            fired = self.sensors.fired() if self.sensors.any_fired() else None
+            for i in np.nonzero(closing.update(dt, d.qvel[self._finger_v], fired))[0]:
+                self.brake_finger(i)
                 target[i] = d.ctrl[8 + i]
-            if stalled.all():
+            if closing.done:
                 break
-        return touched
+        return closing.touched
 
-    def _brake(self, finger: int) -> None:
+    def brake_finger(self, finger: int) -> None:
         """Hold finger where it is with the torque it pushes with now (worm-drive brake)."""
         a, q = 8 + finger, self.data.qpos[self._finger_q[finger]]
         torque = float(
@@ -347,14 +331,47 @@ class PhysicsWorld:
         """Servo the spread and the proximal joints (one angle for all, or (3,)) to the given
         angles [rad] at the hand's speeds (releasing the brakes of stopped fingers), holding
         the arm; ``monitor`` as in ``_run``."""
-        for i in range(3):
-            self._finger_servo(i, PHYSICS.finger_kp, HAND.close_torque)
+        self.release_fingers()
         n = self._hand_ramp_steps(spread, proximal) + int(
             round(CLOSE_START_TIME / PHYSICS.timestep)
         )
         self._run(
             self.data.ctrl[None, :7].copy(), self._hand_ramp(n, spread, proximal), monitor=monitor
         )
+
+    # ------------------------------------------------------------------ driver emulation
+    # Real-time stepping for emulated hardware drivers (rrg_hw_bridge.fake): one control period
+    # at a time with servo targets set from outside.
+    def servo_targets(self) -> np.ndarray:
+        """(11,) current servo targets: arm (7) [rad], spread, proximal 1-3 [rad]."""
+        return self.data.ctrl.copy()
+
+    def step(self, arm: np.ndarray | None = None, hand: np.ndarray | None = None) -> None:
+        """One control period with arm servo targets (7,) and spread + proximal targets (4,)
+        (None: keep the current ones)."""
+        if arm is not None:
+            self.data.ctrl[:7] = arm
+        if hand is not None:
+            self.data.ctrl[7:] = hand
+        mujoco.mj_step(self.model, self.data)
+
+    def release_fingers(self) -> None:
+        """Give every finger its closing servo back (a braked finger can move again)."""
+        for i in range(3):
+            self._finger_servo(i, PHYSICS.finger_kp, HAND.close_torque)
+
+    def arm_velocity(self) -> np.ndarray:
+        """(7,) arm joint velocities [rad/s]."""
+        return self.data.qvel[self._arm_v].copy()
+
+    def finger_velocities(self) -> np.ndarray:
+        """(3,) proximal joint velocities [rad/s]."""
+        return self.data.qvel[self._finger_v].copy()
+
+    def arm_external_torque(self) -> np.ndarray:
+        """(7,) contact torque on the arm joints [N m] (what the arm's collision detection
+        estimates, see sensing.HandSensors.arm_collision)."""
+        return self.data.qfrc_constraint[self._arm_v].copy()
 
     def open_hand(self, proximal: float = 0.0) -> None:
         """Open the fingers to ``proximal`` [rad] (spread unchanged), holding the arm."""

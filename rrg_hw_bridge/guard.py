@@ -1,0 +1,145 @@
+"""The bridge's view of the hand and the guarded-move trip logic, without ROS.
+
+``HandState`` keeps the newest reading of every sensor the drivers stream (Nano17 loads, pad
+forces, measured joint angles, arm joint efforts), tared for a guarded move as the simulator
+tares its sensors, and turns it into the ``Reading`` the executor gets (rrg_sim.hand_sensing:
+the same thresholds and contact localisation as the simulator). ``ContactGuard`` decides, on
+every new sample, whether a guarded move must stop: a sensor over its threshold, or an arm
+joint's effort changed by more than the collision threshold since the move started.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+from rrg_sim.config import SENSING
+from rrg_sim.executor.wrt_executor import Reading
+from rrg_sim.hand_sensing import fired_sensors, reading_from_joints
+
+#: Pads a BarrettHand without pad feedback cannot sense; with derived pads the distal pads
+#: take the fingertip Nano17s' force magnitude (the sensor sits in the distal link's tip).
+DERIVED_PADS_UNSENSED = ("palm", "prox1", "prox2", "prox3")
+
+
+def derived_pads(tip_wrench: np.ndarray) -> np.ndarray:
+    """(7,) pad forces [N] derived from the fingertip loads (3,6): the distal pads read their
+    fingertip's force magnitude, the palm and proximal pads nothing."""
+    pads = np.zeros(7)
+    pads[4:7] = np.linalg.norm(np.asarray(tip_wrench)[:, :3], axis=1)
+    return pads
+
+
+def path_index(q_via: np.ndarray, q: np.ndarray) -> float:
+    """Fractional via-point index (0 … M-1) of the point of the joint-space polyline q_via
+    (M,7) [rad] nearest to the configuration q (7,)."""
+    a, b = q_via[:-1], q_via[1:]
+    d = b - a
+    length2 = np.einsum("ij,ij->i", d, d)
+    s = np.clip(np.einsum("ij,ij->i", q - a, d) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
+    dist = np.linalg.norm(a + s[:, None] * d - q, axis=1)
+    k = int(np.argmin(dist)) if len(dist) else 0
+    return float(k + s[k]) if len(dist) else 0.0
+
+
+@dataclass
+class Trip:
+    """Why a guarded move stops: the sensors over threshold (10,) bool, or a joint effort."""
+
+    sensors: np.ndarray
+    effort_joint: int | None = None
+    effort_change_nm: float = 0.0
+
+    def describe(self, names: tuple[str, ...]) -> str:
+        if self.effort_joint is not None:
+            return (
+                f"joint {self.effort_joint + 1} effort changed by {self.effort_change_nm:.2f} N m"
+            )
+        return "contact on " + ", ".join(n for n, f in zip(names, self.sensors) if f)
+
+
+class HandState:
+    """Newest sensor readings from the drivers (thread-safe), tared for guarded moves."""
+
+    def __init__(self, derive_pads: bool):
+        self.derive_pads = derive_pads
+        self._lock = threading.Lock()
+        self._tips = np.zeros((3, 6))  # loads on the fingertips [N, N m], sensor frames
+        self._tare = np.zeros((3, 6))
+        self._pads = np.zeros(7)
+        self.spread = 0.0
+        self.proximal = np.zeros(3)
+
+    def set_tip(self, finger: int, wrench: np.ndarray) -> np.ndarray:
+        """Store fingertip ``finger``'s load (6,); returns all three tared loads (3,6)."""
+        with self._lock:
+            self._tips[finger] = wrench
+            return self._tips - self._tare
+
+    def set_pads(self, forces: np.ndarray) -> None:
+        with self._lock:
+            self._pads = np.asarray(forces, dtype=float).reshape(7)
+
+    def set_hand_joints(self, spread: float, proximal: np.ndarray) -> None:
+        with self._lock:
+            self.spread, self.proximal = float(spread), np.asarray(proximal, dtype=float)
+
+    def tare(self) -> None:
+        """Bias the fingertip loads at their current values (before a guarded move)."""
+        with self._lock:
+            self._tare = self._tips.copy()
+
+    def tips(self) -> np.ndarray:
+        """(3,6) tared fingertip loads."""
+        with self._lock:
+            return self._tips - self._tare
+
+    def pads(self) -> np.ndarray:
+        """(7,) pad forces [N] (derived from the fingertips when the hand has no pads)."""
+        with self._lock:
+            return derived_pads(self._tips - self._tare) if self.derive_pads else self._pads.copy()
+
+    def fired(self) -> np.ndarray:
+        """(10,) sensors over their thresholds now."""
+        return fired_sensors(self.pads(), self.tips())
+
+    def reading(self) -> Reading:
+        """The executor's reading now: fired sensors and fingertip contacts in the hand frame."""
+        with self._lock:
+            spread, proximal = self.spread, self.proximal.copy()
+        return reading_from_joints(self.pads(), self.tips(), spread, proximal)
+
+
+class ContactGuard:
+    """Trip logic of one guarded move: sensor thresholds [N] and the arm's effort threshold."""
+
+    def __init__(
+        self,
+        tip_force_threshold: float = SENSING.tip_force_threshold,
+        pad_force_threshold: float = SENSING.pad_force_threshold,
+        effort_threshold: float = SENSING.arm_torque_threshold,
+    ):
+        self.thresholds = np.r_[np.full(7, pad_force_threshold), np.full(3, tip_force_threshold)]
+        self.effort_threshold = effort_threshold  # [N m]; <= 0: efforts are not watched
+        self._effort0: np.ndarray | None = None
+
+    def start(self, effort: np.ndarray | None) -> None:
+        """Remember the arm's joint efforts (7,) [N m] at the start of the move."""
+        self._effort0 = None if effort is None else np.asarray(effort, dtype=float).copy()
+
+    def check_sensors(self, pads: np.ndarray, tips: np.ndarray) -> Trip | None:
+        """A trip when a pad (7,) or fingertip load (3,6) is over its threshold."""
+        fired = fired_sensors(pads, tips, self.thresholds)
+        return Trip(fired) if fired.any() else None
+
+    def check_effort(self, effort: np.ndarray) -> Trip | None:
+        """A trip when a joint's effort (7,) changed by more than the threshold."""
+        if self._effort0 is None or self.effort_threshold <= 0 or len(effort) != 7:
+            return None
+        change = np.abs(np.asarray(effort) - self._effort0)
+        j = int(np.argmax(change))
+        if change[j] > self.effort_threshold:
+            return Trip(np.zeros(10, bool), j, float(change[j]))
+        return None

@@ -1,0 +1,875 @@
+r"""The hardware bridge node (design §7): RRG's arm/hand interface on the real drivers.
+
+    python -m rrg_hw_bridge.ros.bridge_node [--ros-args -p dry_run:=true -p limits_file:=arm.yaml]
+
+Upward it serves what the simulator node serves, under /rrg: ``guarded_move``
+(rrg_msgs/GuardedMove), ``hand_command`` (rrg_msgs/HandCommand), ``joint_states``,
+``fingertip{1,2,3}/wrench`` and ``contact_pads``, so the executor, estimator and planner run
+unchanged. Downward it drives a FollowJointTrajectory arm controller, Barrett's BarrettHand
+services and three Net F/T boxes over RDT (or WrenchStamped topics), all named by parameters.
+
+Every command passes the safety layer (rrg_hw_bridge.safety): joint position, velocity and
+acceleration limits and the workspace box before anything is sent; while a move runs, the
+force/torque ceiling, the data watchdog (joint states and wrenches older than
+``watchdog_timeout``, Net F/T sequence gaps and status errors) and the latched E-stop
+(``/rrg/estop``, std_msgs/Bool; ``bridge/reset_estop`` clears it) cancel the controller's goal,
+which holds the arm. A guarded move also stops on the first pad, fingertip or joint-effort
+crossing. Every refusal and stop is logged and published on ``bridge/safety``
+(diagnostic_msgs/DiagnosticStatus); every validated plan on ``bridge/plan``
+(trajectory_msgs/JointTrajectory). ``dry_run`` validates and publishes, and commands nothing.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from geometry_msgs.msg import WrenchStamped
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.action.server import ServerGoalHandle
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool
+from std_srvs.srv import Trigger
+from trajectory_msgs.msg import JointTrajectory
+
+from rrg_msgs.action import GuardedMove
+from rrg_msgs.msg import ContactPads
+from rrg_msgs.srv import HandCommand
+from rrg_sim.config import HAND, PHYSICS, SENSING, SENSOR_NAMES
+from rrg_sim.hand_sensing import FingerClosing
+from rrg_sim.ros_common.guarded_move_goal import (
+    START_TOLERANCE,
+    GoalError,
+    client_fraction,
+    goal_via_points,
+)
+from rrg_sim.ros_common.msg_conversions import (
+    ARM_JOINT_NAMES,
+    PROXIMAL_JOINT_NAMES,
+    SPREAD_JOINT_NAME,
+    tip_contacts_to_msg,
+    vector_to_msg,
+)
+from rrg_sim.ros_common.node_main import keep_serving, run_node
+
+from ..arm_limits import DEFAULT_ARM_LIMITS, load_arm_limits
+from ..config import BRIDGE
+from ..guard import DERIVED_PADS_UNSENSED, ContactGuard, HandState, Trip, path_index
+from ..rdt import DEFAULT_COUNTS_PER_FORCE, DEFAULT_COUNTS_PER_TORQUE, Calibration
+from ..safety import (
+    EStop,
+    ForceCeiling,
+    Refusal,
+    SafetyCode,
+    Watchdog,
+    check_trajectory,
+    slowdown_to_limits,
+)
+from ..safety import scale_time as scaled_times
+from .drivers import (
+    BarrettHandServices,
+    DriverError,
+    RdtSensors,
+    TrajectoryArm,
+    WrenchTopicSensors,
+)
+
+NODE_NAME = "hw_bridge"
+NAMESPACE = "rrg"
+R = GuardedMove.Result
+H = HandCommand.Response
+#: A close command moves the spread first only when it is this far from the request [rad]
+#: (as the simulator node).
+SPREAD_TOLERANCE = 0.01
+#: Upward hand joint names (the simulator's): both spread joints, proximal, distal.
+HAND_JOINT_NAMES = (
+    SPREAD_JOINT_NAME,
+    "bh_f2_spread",
+    *PROXIMAL_JOINT_NAMES,
+    *(f"bh_f{i}_dist" for i in (1, 2, 3)),
+)
+DEFAULT_ARM_DRIVER_JOINTS = [f"wam_j{i}_joint" for i in range(1, 8)]
+#: Barrett's URDF names: spread j11 (finger 1) and j21 (finger 2), proximal j12 j22 j32,
+#: distal j13 j23 j33.
+DEFAULT_HAND_DRIVER_JOINTS = [
+    "bhand_j11_joint",
+    "bhand_j21_joint",
+    "bhand_j12_joint",
+    "bhand_j22_joint",
+    "bhand_j32_joint",
+    "bhand_j13_joint",
+    "bhand_j23_joint",
+    "bhand_j33_joint",
+]
+
+
+@dataclass
+class Measured:
+    """The newest driver joint state, in RRG's joint order."""
+
+    arm_q: np.ndarray = field(default_factory=lambda: np.full(7, np.nan))
+    arm_v: np.ndarray = field(default_factory=lambda: np.zeros(7))
+    arm_effort: np.ndarray | None = None
+    hand_q: np.ndarray = field(default_factory=lambda: np.full(8, np.nan))  # HAND_JOINT_NAMES
+    hand_v: np.ndarray = field(default_factory=lambda: np.zeros(8))
+    received_s: float = -np.inf  # monotonic time of arrival
+
+
+@dataclass
+class ActiveMove:
+    """The guarded move being executed, and why it stops (set once)."""
+
+    guard: ContactGuard | None
+    handle: object | None = None  # the controller's ClientGoalHandle
+    code: int | None = None
+    message: str = ""
+    trip: Trip | None = None
+    stopped_s: float = np.nan
+
+
+def _float_param(node: Node, name: str, value: float, text: str, lo: float, hi: float) -> None:
+    node.declare_parameter(
+        name,
+        value,
+        ParameterDescriptor(
+            description=text,
+            read_only=True,
+            floating_point_range=[FloatingPointRange(from_value=lo, to_value=hi)],
+        ),
+    )
+
+
+class BridgeNode(Node):
+    """The arm/hand interface on real drivers, behind a safety layer."""
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME, namespace=NAMESPACE)
+        self._declare_parameters()
+        p = lambda name: self.get_parameter(name).value
+        self.limits = load_arm_limits(p("limits_file") or DEFAULT_ARM_LIMITS)
+        self.arm_driver_joints = tuple(p("arm_joint_names"))
+        self.hand_driver_joints = tuple(p("hand_joint_names"))
+        if len(self.arm_driver_joints) != 7 or len(self.hand_driver_joints) != 8:
+            raise ValueError("arm_joint_names needs 7 names and hand_joint_names 8")
+        self.dry_run = bool(p("dry_run"))
+        self.speed_scale = float(p("speed_scale"))
+        self.watchdog_timeout = float(p("watchdog_timeout"))
+        derive = p("pad_source") == "derived"
+        self.hand = HandState(derive_pads=derive)
+        self.ceiling = ForceCeiling(p("force_ceiling"), p("torque_ceiling"))
+        self.estop = EStop()
+        self.watchdog = Watchdog(
+            self.watchdog_timeout, ("joint_states", "fingertip1", "fingertip2", "fingertip3")
+        )
+        self._lock = threading.Lock()
+        self._measured = Measured()
+        self._joint_event = threading.Condition()
+        self._move: ActiveMove | None = None
+        self._move_busy = threading.Lock()
+        self._hand_busy = threading.Lock()
+        self._sensor_fault_s = -np.inf
+        self._sensor_fault = ""
+        self._stale: list[str] = []
+        self._limit_fault = ""
+        group = ReentrantCallbackGroup()
+
+        # -------------------------------------------------------------- downward: drivers
+        self.arm = TrajectoryArm(self, p("arm_action"), self.arm_driver_joints, group)
+        self.hand_driver = BarrettHandServices(self, p("hand_service_prefix"), group)
+        self.create_subscription(
+            JointState, p("driver_joint_states"), self.on_driver_joints, 50, callback_group=group
+        )
+        if p("wrench_source") == "rdt":
+            self.sensors = RdtSensors(
+                list(p("rdt_hosts")),
+                int(p("rdt_port")),
+                Calibration(p("counts_per_force"), p("counts_per_torque")),
+                self.on_wrench,
+                self.on_sensor_fault,
+            )
+        else:
+            self.sensors = WrenchTopicSensors(
+                self, list(p("wrench_topics")), self.on_wrench, time.monotonic, group
+            )
+        if derive:
+            self.get_logger().warn(
+                "pad_source 'derived': the hand has no pad feedback; the distal pads read the "
+                f"fingertip forces and {', '.join(DERIVED_PADS_UNSENSED)} never fire"
+            )
+        else:
+            self.create_subscription(
+                ContactPads, p("pads_topic"), self.on_driver_pads, 10, callback_group=group
+            )
+        self.create_subscription(Bool, p("estop_topic"), self.on_estop, 10, callback_group=group)
+
+        # -------------------------------------------------------------- upward: RRG
+        self.joint_pub = self.create_publisher(JointState, "joint_states", 10)
+        self.wrench_pubs = [
+            self.create_publisher(WrenchStamped, f"fingertip{i}/wrench", 10) for i in (1, 2, 3)
+        ]
+        self.pads_pub = self.create_publisher(ContactPads, "contact_pads", 10)
+        self.plan_pub = self.create_publisher(JointTrajectory, "bridge/plan", 10)
+        self.safety_pub = self.create_publisher(DiagnosticStatus, "bridge/safety", 10)
+        ActionServer(
+            self,
+            GuardedMove,
+            "guarded_move",
+            execute_callback=self.execute_guarded_move,
+            goal_callback=self.on_move_goal,
+            cancel_callback=lambda _: CancelResponse.ACCEPT,
+            callback_group=group,
+        )
+        self.create_service(HandCommand, "hand_command", self.on_hand_command, callback_group=group)
+        self.create_service(
+            Trigger, "bridge/reset_estop", self.on_reset_estop, callback_group=group
+        )
+        self.create_service(Trigger, "bridge/bias", self.on_bias, callback_group=group)
+        self.create_timer(BRIDGE.watchdog_period, self.on_watchdog, callback_group=group)
+        self.create_timer(1.0 / p("state_rate"), self.publish_state, callback_group=group)
+        self.status_pub = self.create_publisher(DiagnosticStatus, "bridge/status", 10)
+        self._joint_count = 0
+        self._status_last = (time.monotonic(), 0)
+        self.create_timer(1.0, self.publish_status, callback_group=group)
+        self.sensors.start()
+        self.get_logger().info(
+            f"bridge up{' (DRY RUN: nothing will be commanded)' if self.dry_run else ''}: arm "
+            f"{p('arm_action')}, hand {p('hand_service_prefix')}/*, fingertips "
+            f"{self.sensors.describe()}, limits {self.limits.name}, speed scale "
+            f"{self.speed_scale}, watchdog {self.watchdog_timeout * 1e3:.0f} ms"
+        )
+
+    def _declare_parameters(self) -> None:
+        def text(name, value, description, choices=None):
+            extra = f" (one of {', '.join(choices)})" if choices else ""
+            self.declare_parameter(
+                name, value, ParameterDescriptor(description=description + extra, read_only=True)
+            )
+
+        text(
+            "arm_action",
+            "/arm_controller/follow_joint_trajectory",
+            "FollowJointTrajectory action of the arm's controller",
+        )
+        text("driver_joint_states", "/joint_states", "The drivers' sensor_msgs/JointState topic")
+        text("arm_joint_names", DEFAULT_ARM_DRIVER_JOINTS, "The driver's 7 arm joint names, J1-J7")
+        text(
+            "hand_joint_names",
+            DEFAULT_HAND_DRIVER_JOINTS,
+            "The driver's hand joint names: spread f1, spread f2, proximal f1-f3, distal f1-f3",
+        )
+        text("hand_service_prefix", "/bhand", "Namespace of Barrett's BarrettHand services")
+        text("wrench_source", "rdt", "Where the fingertip wrenches come from", ("rdt", "topics"))
+        text(
+            "rdt_hosts",
+            ["127.0.0.2", "127.0.0.3", "127.0.0.4"],
+            "Net F/T box addresses of fingers 1-3 (RDT over UDP)",
+        )
+        self.declare_parameter(
+            "rdt_port", 49152, ParameterDescriptor(description="RDT UDP port", read_only=True)
+        )
+        _float_param(
+            self,
+            "counts_per_force",
+            DEFAULT_COUNTS_PER_FORCE,
+            "Net F/T counts per N (netftcalapi.xml cfgcpf)",
+            1.0,
+            1e9,
+        )
+        _float_param(
+            self,
+            "counts_per_torque",
+            DEFAULT_COUNTS_PER_TORQUE,
+            "Net F/T counts per N m (netftcalapi.xml cfgcpt)",
+            1.0,
+            1e9,
+        )
+        text(
+            "wrench_topics",
+            ["/fingertip1/netft/wrench", "/fingertip2/netft/wrench", "/fingertip3/netft/wrench"],
+            "geometry_msgs/WrenchStamped topics of fingers 1-3 (wrench_source 'topics')",
+        )
+        text(
+            "pad_source",
+            "topic",
+            "Where the pad forces come from: an rrg_msgs/ContactPads "
+            "topic, or derived from the fingertip sensors",
+            ("topic", "derived"),
+        )
+        text("pads_topic", "/bhand/contact_pads", "rrg_msgs/ContactPads topic of the hand's pads")
+        text("estop_topic", "/rrg/estop", "Latched E-stop (std_msgs/Bool, true = stop)")
+        text("limits_file", "", "Per-arm limits YAML (empty: Barrett's published WAM limits)")
+        self.declare_parameter(
+            "dry_run",
+            False,
+            ParameterDescriptor(
+                description="Validate and publish every plan, command nothing", read_only=True
+            ),
+        )
+        _float_param(
+            self,
+            "speed_scale",
+            1.0,
+            "Speed-scaling cap: every trajectory runs at this fraction of its speed",
+            0.01,
+            1.0,
+        )
+        _float_param(
+            self,
+            "watchdog_timeout",
+            BRIDGE.watchdog_timeout,
+            "Oldest joint state or wrench [s] before the arm holds",
+            0.01,
+            1.0,
+        )
+        _float_param(
+            self,
+            "force_ceiling",
+            BRIDGE.force_ceiling,
+            "Fingertip force [N] that aborts any move",
+            0.1,
+            1000.0,
+        )
+        _float_param(
+            self,
+            "torque_ceiling",
+            BRIDGE.torque_ceiling,
+            "Fingertip torque [N m] that aborts any move",
+            0.001,
+            100.0,
+        )
+        _float_param(
+            self,
+            "effort_threshold",
+            SENSING.arm_torque_threshold,
+            "Change of an arm joint's effort [N m] that stops a guarded move (0: off)",
+            0.0,
+            100.0,
+        )
+        _float_param(
+            self,
+            "state_rate",
+            BRIDGE.state_rate,
+            "Rate [Hz] of the upward joint states, wrenches and pads",
+            1.0,
+            1000.0,
+        )
+
+    # ------------------------------------------------------------------ safety reports
+    def report(self, code: int, check: str, message: str, refused: bool) -> None:
+        """Log a refusal or a safety stop and publish it on bridge/safety."""
+        what = "refused" if refused else "stopped"
+        self.get_logger().error(f"{what} [{check}, code {code}]: {message}")
+        self.safety_pub.publish(
+            DiagnosticStatus(
+                level=DiagnosticStatus.ERROR,
+                name=f"{NODE_NAME}/{check}",
+                message=f"{what}: {message}",
+                hardware_id="wam",
+                values=[KeyValue(key="code", value=str(code)), KeyValue(key="what", value=what)],
+            )
+        )
+
+    def gate(self) -> Refusal | None:
+        """Why no command may start now (E-stop, stale data, a sensor or joint-limit fault)."""
+        if self.estop.engaged:
+            return Refusal(SafetyCode.ESTOP, "estop", "the E-stop is engaged; reset it first")
+        stale = self.watchdog.stale(time.monotonic())
+        if stale:
+            return Refusal(
+                SafetyCode.STALE_DATA,
+                "watchdog",
+                self.stale_message(stale),
+            )
+        if time.monotonic() - self._sensor_fault_s < BRIDGE.sensor_fault_hold:
+            return Refusal(SafetyCode.SENSOR_FAULT, "sensor", self._sensor_fault)
+        if self._limit_fault:
+            return Refusal(SafetyCode.JOINT_LIMITS, "joint_limits", self._limit_fault)
+        return None
+
+    def stale_message(self, stale: list[str]) -> str:
+        return f"no fresh data from {', '.join(stale)} within {self.watchdog_timeout * 1e3:.0f} ms"
+
+    def stop_move(self, code: int, check: str, message: str, trip: Trip | None = None) -> None:
+        """Stop the running move (once): cancel the controller's goal, which holds the arm."""
+        with self._lock:
+            move = self._move
+            if move is None or move.code is not None:
+                return
+            move.code, move.message, move.trip = code, message, trip
+            move.stopped_s = time.monotonic()
+            handle = move.handle
+        if handle is not None:
+            handle.cancel_goal_async()
+        if trip is None and code != R.CANCELED:
+            self.report(code, check, message, refused=False)
+
+    # ------------------------------------------------------------------ driver callbacks
+    def on_driver_joints(self, msg: JointState) -> None:
+        now = time.monotonic()
+        index = {n: i for i, n in enumerate(msg.name)}
+        try:
+            arm = [index[n] for n in self.arm_driver_joints]
+        except KeyError:
+            arm = None
+        hand = [index.get(n) for n in self.hand_driver_joints]
+        pos, vel, eff = np.asarray(msg.position), np.asarray(msg.velocity), msg.effort
+        with self._lock:
+            m = self._measured
+            if arm is not None:
+                m.arm_q = pos[arm]
+                m.arm_v = vel[arm] if len(vel) == len(pos) else np.zeros(7)
+                m.arm_effort = np.asarray(eff)[arm] if len(eff) == len(pos) else None
+            for k, i in enumerate(hand):
+                if i is not None:
+                    m.hand_q[k] = pos[i]
+                    m.hand_v[k] = vel[i] if len(vel) == len(pos) else 0.0
+            m.received_s = now
+            move = self._move
+            arm_q, effort, hand_q = m.arm_q.copy(), m.arm_effort, m.hand_q.copy()
+        if arm is None:
+            return
+        self._joint_count += 1
+        self.watchdog.feed("joint_states", now)
+        self.hand.set_hand_joints(hand_q[0], hand_q[2:5])
+        outside = (arm_q < self.limits.lower) | (arm_q > self.limits.upper)
+        if outside.any():
+            j = int(np.argmax(outside))
+            self._limit_fault = (
+                f"measured joint {j + 1} at {arm_q[j]:.3f} rad is outside its limits "
+                f"[{self.limits.lower[j]}, {self.limits.upper[j]}] rad"
+            )
+            self.stop_move(SafetyCode.JOINT_LIMITS, "joint_limits", self._limit_fault)
+        else:
+            self._limit_fault = ""
+        if move is not None and move.guard is not None and effort is not None:
+            trip = move.guard.check_effort(effort)
+            if trip is not None:
+                self.stop_move(R.NONE, "contact", trip.describe(SENSOR_NAMES), trip)
+        with self._joint_event:
+            self._joint_event.notify_all()
+
+    def on_wrench(self, finger: int, wrench: np.ndarray, received_s: float) -> None:
+        """A fingertip sample (load on the fingertip, sensor frame) from a box or a topic."""
+        tips = self.hand.set_tip(finger, wrench)
+        self.watchdog.feed(f"fingertip{finger + 1}", received_s)
+        move = self._move
+        if move is None:
+            return
+        over = self.ceiling.check(tips)
+        if over is not None:
+            self.stop_move(over.code, over.check, over.message)
+        elif move.guard is not None:
+            trip = move.guard.check_sensors(self.hand.pads(), tips)
+            if trip is not None:
+                self.stop_move(R.NONE, "contact", trip.describe(SENSOR_NAMES), trip)
+
+    def on_sensor_fault(self, finger: int, kind: str, detail: str) -> None:
+        self._sensor_fault_s = time.monotonic()
+        self._sensor_fault = f"fingertip{finger + 1} Net F/T {kind}: {detail}"
+        self.get_logger().warn(self._sensor_fault, throttle_duration_sec=1.0)
+        self.stop_move(SafetyCode.SENSOR_FAULT, "sensor", self._sensor_fault)
+
+    def on_driver_pads(self, msg: ContactPads) -> None:
+        self.hand.set_pads(np.asarray(msg.force, dtype=float))
+        move = self._move
+        if move is not None and move.guard is not None:
+            trip = move.guard.check_sensors(self.hand.pads(), self.hand.tips())
+            if trip is not None:
+                self.stop_move(R.NONE, "contact", trip.describe(SENSOR_NAMES), trip)
+
+    def on_estop(self, msg: Bool) -> None:
+        was = self.estop.engaged
+        self.estop.on_message(bool(msg.data))
+        if self.estop.engaged:
+            self.stop_move(SafetyCode.ESTOP, "estop", "E-stop engaged")
+            if not was:
+                self.hand_driver.finger_velocities(np.zeros(3), wait=False)
+                self.report(SafetyCode.ESTOP, "estop", "E-stop engaged: holding", refused=False)
+
+    def on_watchdog(self) -> None:
+        stale = self.watchdog.stale(time.monotonic())
+        if stale and stale != self._stale:
+            self.get_logger().error(f"watchdog: no fresh data from {', '.join(stale)}")
+        elif not stale and self._stale:
+            self.get_logger().info("watchdog: every stream is fresh again")
+        self._stale = stale
+        if stale:
+            self.stop_move(
+                SafetyCode.STALE_DATA,
+                "watchdog",
+                self.stale_message(stale),
+            )
+
+    # ------------------------------------------------------------------ upward state
+    def measured(self) -> Measured:
+        with self._lock:
+            m = self._measured
+            return Measured(
+                m.arm_q.copy(),
+                m.arm_v.copy(),
+                m.arm_effort,
+                m.hand_q.copy(),
+                m.hand_v.copy(),
+                m.received_s,
+            )
+
+    def joint_state(self) -> JointState:
+        m = self.measured()
+        msg = JointState(
+            name=[*ARM_JOINT_NAMES, *HAND_JOINT_NAMES],
+            position=np.r_[m.arm_q, m.hand_q].tolist(),
+            velocity=np.r_[m.arm_v, m.hand_v].tolist(),
+        )
+        msg.header.stamp = self.get_clock().now().to_msg()
+        return msg
+
+    def publish_state(self) -> None:
+        m = self.measured()
+        if not np.isfinite(m.arm_q).all():
+            return
+        js = self.joint_state()
+        self.joint_pub.publish(js)
+        tips = self.hand.tips()
+        for i, pub in enumerate(self.wrench_pubs):
+            w = WrenchStamped()
+            w.header.stamp, w.header.frame_id = js.header.stamp, f"bh_f{i + 1}_tip"
+            w.wrench.force, w.wrench.torque = vector_to_msg(tips[i, :3]), vector_to_msg(tips[i, 3:])
+            pub.publish(w)
+        pads = self.hand.pads()
+        msg = ContactPads(in_contact=[bool(f) for f in self.hand.fired()[:7]], force=pads.tolist())
+        msg.header.stamp, msg.header.frame_id = js.header.stamp, "bh_palm"
+        self.pads_pub.publish(msg)
+
+    def publish_status(self) -> None:
+        """Once a second on bridge/status: the drivers' stream rates and the safety state."""
+        now, count = time.monotonic(), self._joint_count
+        then, before = self._status_last
+        self._status_last = (now, count)
+        values = {
+            "joint_states": f"{(count - before) / (now - then):.0f} Hz",
+            **self.sensors.status(),
+            "estop": "engaged" if self.estop.engaged else "released",
+            "stale": ", ".join(self.watchdog.stale(now)) or "none",
+            "dry_run": str(self.dry_run),
+        }
+        refusal = self.gate()
+        self.status_pub.publish(
+            DiagnosticStatus(
+                level=DiagnosticStatus.OK if refusal is None else DiagnosticStatus.WARN,
+                name=f"{NODE_NAME}/status",
+                message="ready" if refusal is None else refusal.message,
+                hardware_id="wam",
+                values=[KeyValue(key=k, value=v) for k, v in values.items()],
+            )
+        )
+
+    def wait_joint_state(self, timeout: float) -> None:
+        with self._joint_event:
+            self._joint_event.wait(timeout)
+
+    # ------------------------------------------------------------------ guarded move
+    def on_move_goal(self, goal: GuardedMove.Goal) -> GoalResponse:
+        if self._move_busy.locked():
+            self.get_logger().warn("guarded_move goal rejected: a move is running")
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    def plan(self, goal: GuardedMove.Goal) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+        """(q (K,7), t (K,) [s, speed-scaled], the kept points' indices into the followed
+        points, the client's point count) of a goal, refusing it (GoalError) when invalid."""
+        q0 = self.measured().arm_q
+        q, t = goal_via_points(goal, q0)
+        keep = [0]
+        for k in range(1, len(t)):
+            if t[k] > t[keep[-1]] + 1e-9:
+                keep.append(k)
+            elif np.abs(q[k] - q[keep[-1]]).max() > START_TOLERANCE:
+                raise GoalError(
+                    f"points {keep[-1]} and {k} are apart at one time", R.INVALID_TRAJECTORY
+                )
+        if len(keep) < 2:
+            raise GoalError("the trajectory does not move the arm", R.INVALID_TRAJECTORY)
+        keep = np.asarray(keep)
+        return q[keep], scaled_times(t[keep], self.speed_scale), keep, len(t) - 1
+
+    def retime(self, q: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Times t stretched uniformly until the velocity and acceleration limits hold (when
+        ``retime`` is on and the stretch is at most ``max_slowdown``; otherwise unchanged, and
+        the check refuses the trajectory)."""
+        k = slowdown_to_limits(q, t, self.limits)
+        if k <= 1.0 or not self.get_parameter("retime").value:
+            return t
+        if k > self.get_parameter("max_slowdown").value:
+            return t
+        self.get_logger().info(
+            f"retimed: {len(q) - 1} via-points slowed {k:.2f}x to the arm's velocity and "
+            f"acceleration limits ({t[-1]:.2f} s → {t[-1] * k:.2f} s)"
+        )
+        return t * k * (1.0 + 1e-9)
+
+    def publish_plan(self, q: np.ndarray, t: np.ndarray) -> None:
+        self.plan_pub.publish(self.arm.goal(q[1:], t[1:], BRIDGE.goal_time_tolerance).trajectory)
+
+    def execute_guarded_move(self, handle: ServerGoalHandle) -> GuardedMove.Result:
+        goal, result = handle.request, GuardedMove.Result()
+
+        def fail(code: int, message: str, check: str, refused: bool = True):
+            result.error_code, result.error_msg = int(code), message
+            if refused:
+                self.report(int(code), check, message, refused=True)
+            handle.abort()
+            return result
+
+        with self._move_busy:
+            refusal = self.gate()
+            if refusal is not None:
+                return fail(refusal.code, refusal.message, refusal.check)
+            try:
+                q, t, keep, n_client = self.plan(goal)
+            except GoalError as exc:
+                return fail(exc.code, str(exc), "goal")
+            t = self.retime(q, t)
+            refusal = check_trajectory(q, t, self.limits)
+            if refusal is not None:
+                return fail(refusal.code, refusal.message, refusal.check)
+            self.publish_plan(q, t)
+            if self.dry_run:
+                return fail(
+                    R.DRY_RUN,
+                    f"dry run: {len(q) - 1} via-points over {t[-1]:.2f} s "
+                    "validated and published on bridge/plan",
+                    "dry_run",
+                    refused=False,
+                )
+            guard = None
+            if goal.stop_on_contact:
+                self.hand.tare()
+                guard = ContactGuard(
+                    goal.tip_force_threshold
+                    if goal.tip_force_threshold > 0
+                    else SENSING.tip_force_threshold,
+                    goal.pad_force_threshold
+                    if goal.pad_force_threshold > 0
+                    else SENSING.pad_force_threshold,
+                    self.get_parameter("effort_threshold").value,
+                )
+                guard.start(self.measured().arm_effort)
+            move = ActiveMove(guard)
+            with self._lock:
+                self._move = move
+            try:
+                return self._run_move(handle, move, q, t, keep, n_client, result)
+            finally:
+                with self._lock:
+                    self._move = None
+
+    def _run_move(self, handle, move, q, t, keep, n_client, result) -> GuardedMove.Result:
+        try:
+            arm_handle = self.arm.send(self.arm.goal(q[1:], t[1:], BRIDGE.goal_time_tolerance))
+        except DriverError as exc:
+            result.error_code, result.error_msg = R.CONTROLLER_FAILED, str(exc)
+            self.report(R.CONTROLLER_FAILED, "controller", str(exc), refused=True)
+            handle.abort()
+            return result
+        with self._lock:
+            move.handle = arm_handle
+            stopped = move.code is not None
+        if stopped:  # a stop arrived while the goal was on its way
+            arm_handle.cancel_goal_async()
+        answer = arm_handle.get_result_async()
+        deadline = time.monotonic() + t[-1] + BRIDGE.goal_time_tolerance + 5.0
+        while not answer.done():
+            if handle.is_cancel_requested or not self.context.ok():
+                self.stop_move(R.CANCELED, "canceled", "canceled by the client")
+            if time.monotonic() > deadline:
+                self.stop_move(R.TIMEOUT, "timeout", "the controller did not finish in time")
+            self.wait_joint_state(0.01)
+            if move.code is not None and time.monotonic() - move.stopped_s > 2.0:
+                break  # the controller does not answer its cancel: report what we know
+        self.settle()
+        m = self.measured()
+        index = path_index(q, m.arm_q)
+        original = float(np.interp(index, np.arange(len(keep)), keep))
+        result.path_fraction = client_fraction(original, n_client)
+        reading = self.hand.reading()
+        result.sensors = [bool(f) for f in reading.fired]
+        result.tip_contacts = tip_contacts_to_msg(
+            reading.tip_points, reading.tip_normals, self.hand.tips()
+        )
+        result.final_joint_state = self.joint_state()
+        controller = answer.result().result if answer.done() else None
+        if move.code is None and controller is not None and controller.error_code != 0:
+            result.error_code = R.CONTROLLER_FAILED
+            result.error_msg = (
+                f"the controller aborted ({controller.error_code}): {controller.error_string}"
+            )
+            self.report(R.CONTROLLER_FAILED, "controller", result.error_msg, refused=False)
+            handle.abort()
+        elif move.code is None or move.code == R.NONE:
+            result.stopped_on_contact = move.trip is not None
+            if move.trip is not None:
+                self.get_logger().info(
+                    f"guarded move stopped at {result.path_fraction:.2f} of its path: "
+                    f"{move.message}"
+                )
+            handle.succeed()
+        elif move.code == R.CANCELED:
+            result.error_code, result.error_msg = R.CANCELED, "canceled"
+            handle.canceled()
+        else:
+            result.error_code, result.error_msg = int(move.code), move.message
+            handle.abort()
+        return result
+
+    def settle(self) -> None:
+        """Wait until the arm has stopped (every joint slower than BRIDGE.settle_speed)."""
+        deadline = time.monotonic() + BRIDGE.settle_timeout
+        while time.monotonic() < deadline:
+            if np.abs(self.measured().arm_v).max() < BRIDGE.settle_speed:
+                return
+            self.wait_joint_state(0.01)
+
+    # ------------------------------------------------------------------ hand
+    @keep_serving
+    def on_hand_command(
+        self, req: HandCommand.Request, resp: HandCommand.Response
+    ) -> HandCommand.Response:
+        Q = HandCommand.Request
+        proximal = np.asarray(req.proximal, dtype=float)
+        lo, hi = HAND.proximal_range
+        if req.mode not in (Q.MODE_POSITION, Q.MODE_OPEN, Q.MODE_CLOSE, Q.MODE_CLOSE_GUARDED):
+            resp.error_code, resp.error_msg = H.INVALID_MODE, f"unknown mode {req.mode}"
+        elif not HAND.spread_range[0] <= req.spread <= HAND.spread_range[1]:
+            resp.error_code = H.OUT_OF_RANGE
+            resp.error_msg = f"spread {req.spread} outside {HAND.spread_range} rad"
+        elif req.mode == Q.MODE_POSITION and not np.all((proximal >= lo) & (proximal <= hi)):
+            resp.error_code = H.OUT_OF_RANGE
+            resp.error_msg = f"proximal {proximal.tolist()} outside {(lo, hi)} rad"
+        else:
+            refusal = self.gate()
+            if refusal is not None:
+                resp.error_code, resp.error_msg = H.REFUSED, refusal.message
+                self.report(refusal.code, refusal.check, f"hand command: {refusal.message}", True)
+            elif self.dry_run:
+                resp.error_code, resp.error_msg = H.REFUSED, "dry run: the hand is not commanded"
+        if resp.error_code != H.NONE:
+            self.get_logger().warn(f"hand_command refused: {resp.error_msg}")
+            return resp
+        with self._hand_busy:
+            try:
+                if req.mode == Q.MODE_POSITION:
+                    self.move_hand(req.spread, proximal)
+                elif req.mode == Q.MODE_OPEN:
+                    self.move_hand(req.spread, np.zeros(3))
+                else:
+                    m = self.measured()
+                    if abs(req.spread - m.hand_q[0]) > SPREAD_TOLERANCE:
+                        self.move_hand(req.spread, m.hand_q[2:5])
+                    touched = self.close_hand(req.mode == Q.MODE_CLOSE_GUARDED)
+                    resp.touched = [bool(f) for f in touched]
+            except DriverError as exc:
+                resp.error_code, resp.error_msg = H.DRIVER_FAILED, str(exc)
+                self.get_logger().error(f"hand_command failed: {exc}")
+                return resp
+            except TimeoutError as exc:
+                resp.error_code, resp.error_msg = H.TIMEOUT, str(exc)
+                return resp
+        reading = self.hand.reading()
+        resp.sensors = [bool(f) for f in reading.fired]
+        resp.tip_contacts = tip_contacts_to_msg(
+            reading.tip_points, reading.tip_normals, self.hand.tips()
+        )
+        resp.joint_state = self.joint_state()
+        return resp
+
+    def move_hand(self, spread: float, proximal: np.ndarray) -> None:
+        """Move the spread and the proximal joints to their targets [rad] and wait until they
+        are there or have stopped (e.g. on the object)."""
+        self.hand_driver.move_spread(spread)
+        self.hand_driver.move_fingers(proximal)
+        target = np.r_[spread, proximal]
+        travel = np.abs(target - self.measured().hand_q[[0, 2, 3, 4]])
+        speed = np.r_[PHYSICS.spread_speed, np.full(3, HAND.close_speed)]
+        deadline = time.monotonic() + float(np.max(travel / speed)) + 2.0
+        still_since = None
+        while time.monotonic() < deadline:
+            self.wait_joint_state(0.02)
+            if self.estop.engaged:
+                raise DriverError("E-stop engaged during a hand move")
+            m = self.measured()
+            q, v = m.hand_q[[0, 2, 3, 4]], m.hand_v[[0, 2, 3, 4]]
+            if np.all(np.abs(q - target) < BRIDGE.hand_position_tolerance):
+                return
+            if np.all(np.abs(v) < PHYSICS.stall_speed):
+                still_since = still_since or time.monotonic()
+                if time.monotonic() - still_since > BRIDGE.hand_still_time:
+                    return
+            else:
+                still_since = None
+        raise TimeoutError(f"the hand did not reach {np.round(target, 3).tolist()} rad in time")
+
+    def close_hand(self, guarded: bool) -> np.ndarray:
+        """Close every finger until it stops (rrg_sim.hand_sensing.FingerClosing, as the
+        simulator's closing); returns the sensors (10,) fired at any time while closing."""
+        closing = FingerClosing(guarded)
+        velocity = np.full(3, closing.speed)
+        self.hand_driver.finger_velocities(velocity)
+        sent = last = time.monotonic()
+        try:
+            while not closing.done and closing.elapsed < closing.timeout:
+                self.wait_joint_state(0.02)
+                now = time.monotonic()
+                if self.estop.engaged:
+                    raise DriverError("E-stop engaged while closing")
+                m = self.measured()
+                new = closing.update(now - last, m.hand_v[2:5], self.hand.fired())
+                last = now
+                if new.any():
+                    velocity[closing.stopped] = 0.0
+                    self.hand_driver.finger_velocities(velocity, wait=False)
+                    sent = now
+                elif now - sent > BRIDGE.finger_command_period:
+                    self.hand_driver.finger_velocities(velocity, wait=False)
+                    sent = now
+        finally:
+            self.hand_driver.finger_velocities(np.zeros(3))
+        return closing.touched
+
+    # ------------------------------------------------------------------ services
+    @keep_serving
+    def on_reset_estop(self, req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
+        resp.success, resp.message = self.estop.reset()
+        (self.get_logger().info if resp.success else self.get_logger().warn)(
+            f"E-stop reset: {resp.message}"
+        )
+        return resp
+
+    @keep_serving
+    def on_bias(self, req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
+        if self._move is not None:
+            resp.success, resp.message = False, "a move is running; bias only an unloaded hand"
+        else:
+            self.sensors.bias()
+            self.hand.tare()
+            resp.success, resp.message = True, f"biased {self.sensors.describe()}"
+        self.get_logger().info(f"bias: {resp.message}")
+        return resp
+
+    def destroy_node(self) -> None:
+        self.sensors.stop()
+        super().destroy_node()
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_node(BridgeNode, multi_threaded=True, argv=argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,133 @@
+"""The hand's sensing logic shared by the simulator and the hardware bridge (rrg_sim.hand_sensing)
+and the bridge's hand state and trip logic (rrg_hw_bridge.guard)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rrg_hw_bridge.guard import ContactGuard, HandState, derived_pads, path_index
+from rrg_sim.config import HAND, PHYSICS, SENSING
+from rrg_sim.hand_sensing import (
+    CLOSE_START_TIME,
+    FingerClosing,
+    fired_sensors,
+    hand_tip_poses,
+    reading_from_joints,
+    tip_contacts,
+)
+from rrg_sim.physics.world import PhysicsWorld
+
+
+def test_fired_sensors_thresholds():
+    pads = np.zeros(7)
+    tips = np.zeros((3, 6))
+    assert not fired_sensors(pads, tips).any()
+    pads[2] = SENSING.pad_force_threshold * 1.01
+    tips[1, :3] = [0.0, SENSING.tip_force_threshold * 0.99, 0.0]
+    tips[2, :3] = [SENSING.tip_force_threshold * 0.8, SENSING.tip_force_threshold * 0.8, 0.0]
+    fired = fired_sensors(pads, tips)
+    assert fired.tolist() == [False, False, True] + [False] * 5 + [False, True]
+
+
+def test_hand_kinematics_put_the_sensors_where_mujoco_does():
+    world = PhysicsWorld("box", seed=0)
+    world.place_object([1.1, 0.6, 0.0])  # out of the hand's way
+    world.move_hand(0.7, np.array([0.5, 0.9, 1.3]))
+    spread, proximal = world.hand_angles()
+    d, m = world.data, world.model
+    palm = m.body("bh/palm").id
+    R_palm, p_palm = d.xmat[palm].reshape(3, 3), d.xpos[palm]
+    poses = hand_tip_poses(spread, proximal)
+    for i in range(3):
+        tip = m.body(f"bh/f{i + 1}_tip").id
+        R = R_palm.T @ d.xmat[tip].reshape(3, 3)
+        p = R_palm.T @ (d.xpos[tip] - p_palm)
+        assert np.abs(poses[i, :3, 3] - p).max() < 2e-3  # m: the distal coupling is soft
+        assert np.abs(poses[i, :3, :3] - R).max() < 2e-2
+
+
+def test_reading_locates_a_fingertip_contact_in_the_hand_frame():
+    spread, proximal = 0.3, np.array([0.8, 0.8, 0.8])
+    poses = hand_tip_poses(spread, proximal)
+    tips = np.zeros((3, 6))
+    contact = np.array([0.0, -0.008, 0.02])  # on finger 2's tip, its own frame [m]
+    force = np.array([0.0, 1.0, 0.0])  # pushing into the tip [N]
+    tips[1] = np.r_[force, np.cross(contact, force)]
+    reading = reading_from_joints(np.zeros(7), tips, spread, proximal)
+    assert reading.fired.tolist() == [False] * 8 + [True, False]
+    assert np.isnan(reading.tip_points[[0, 2]]).all()
+    expected = poses[1, :3, :3] @ contact + poses[1, :3, 3]
+    assert np.linalg.norm(reading.tip_points[1] - expected) < 2e-3
+    points, normals = tip_contacts(tips, reading.fired, poses)
+    np.testing.assert_allclose(points, reading.tip_points)
+    assert np.isclose(np.linalg.norm(normals[1]), 1.0)
+
+
+def test_finger_closing_stalls_after_the_start_time_and_stops_on_own_contact():
+    dt = PHYSICS.timestep
+    careless = FingerClosing(guarded=False)
+    assert careless.speed == HAND.close_speed
+    still = np.zeros(3)
+    # Slow from the start, but nothing stops before CLOSE_START_TIME.
+    for _ in range(int(round(CLOSE_START_TIME / dt))):
+        assert not careless.update(dt, still).any()
+    stopped = [careless.update(dt, np.array([0.0, 1.0, 1.0])) for _ in range(20)]
+    assert stopped[0].tolist() == [True, False, False]  # still long enough already
+    assert not careless.done
+    careful = FingerClosing(guarded=True)
+    assert careful.speed == HAND.careful_close_speed and careful.timeout > careless.timeout
+    fired = np.zeros(10, bool)
+    fired[9] = True  # finger 3's Nano17
+    new = careful.update(dt, np.ones(3), fired)
+    assert new.tolist() == [False, False, True]
+    assert careful.touched[9] and not careless.touched.any()
+    # An unguarded closing records the touch but does not stop on it.
+    assert not FingerClosing(guarded=False).update(dt, np.ones(3), fired).any()
+
+
+def test_hand_state_tares_and_derives_pads():
+    state = HandState(derive_pads=True)
+    state.set_tip(0, np.array([0.0, 0.0, 0.3, 0.0, 0.0, 0.0]))  # the fingertip's own weight
+    state.tare()
+    tips = state.set_tip(0, np.array([0.0, 0.0, 1.3, 0.0, 0.0, 0.0]))
+    np.testing.assert_allclose(tips[0, :3], [0.0, 0.0, 1.0])
+    pads = state.pads()
+    assert pads[4] == pytest.approx(1.0) and pads[[0, 1, 2, 3, 5, 6]].sum() == 0.0
+    np.testing.assert_allclose(derived_pads(tips), pads)
+    assert state.fired()[[4, 7]].all()
+    topic = HandState(derive_pads=False)
+    topic.set_pads(np.r_[0.5, np.zeros(6)])
+    assert topic.fired().tolist() == [True] + [False] * 9
+
+
+def test_contact_guard_trips_on_sensors_and_effort_change():
+    guard = ContactGuard(tip_force_threshold=2.0, pad_force_threshold=1.0, effort_threshold=1.5)
+    tips = np.zeros((3, 6))
+    tips[0, 2] = 1.9
+    assert guard.check_sensors(np.zeros(7), tips) is None
+    tips[0, 2] = 2.1
+    trip = guard.check_sensors(np.zeros(7), tips)
+    assert trip.sensors[7] and trip.describe(("a",) * 7 + ("tip1", "tip2", "tip3")) == (
+        "contact on tip1"
+    )
+    effort0 = np.array([5.0, -30.0, 2.0, 10.0, 0.5, 0.2, 0.0])
+    guard.start(effort0)
+    assert guard.check_effort(effort0 + 1.4) is None
+    trip = guard.check_effort(effort0 + np.r_[0, 0, 0, -1.6, 0, 0, 0])
+    assert trip.effort_joint == 3 and trip.effort_change_nm == pytest.approx(1.6)
+    off = ContactGuard(effort_threshold=0.0)
+    off.start(effort0)
+    assert off.check_effort(effort0 + 10.0) is None
+
+
+def test_path_index_projects_a_measured_configuration():
+    q = np.zeros((4, 7))
+    q[:, 0] = [0.0, 0.1, 0.2, 0.4]
+    probe = np.zeros(7)
+    probe[0] = 0.3
+    assert path_index(q, probe) == pytest.approx(2.5)
+    probe[0], probe[1] = 0.05, 0.01  # off the path: the nearest point
+    assert path_index(q, probe) == pytest.approx(0.5)
+    probe[0] = 1.0
+    assert path_index(q, probe) == pytest.approx(3.0)
