@@ -25,6 +25,13 @@ class BridgeParams:
     #: How long [s] after a Net F/T sequence gap or status error new goals are still refused
     #: (chosen: a stream must run clean this long before the bridge trusts it again).
     sensor_fault_hold: float = 1.0
+    #: A Net F/T box silent this long [s] is asked to stream again (chosen: 5× the watchdog;
+    #: a box that was not up when the bridge started, or rebooted, never streams by itself).
+    rdt_revive_after: float = 0.5
+    #: Via-points closer in time [s] than this to the previous one are the same instant (one
+    #: 500 Hz WAM control period; the executor's paths start with a repeated point a few ns
+    #: after the first).
+    min_segment_time: float = 0.002
     #: The arm counts as settled after a stop when every joint is slower than this [rad/s] ...
     settle_speed: float = 0.02
     #: ... or after this long [s] (chosen: a WAM stop from the executor's 0.2 m/s guarded speed

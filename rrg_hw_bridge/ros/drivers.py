@@ -159,6 +159,14 @@ class RdtSensors:
         for c in self.clients:
             c.start()
 
+    def revive(self, silent_s: float) -> list[str]:
+        """Ask every box silent for longer than ``silent_s`` [s] to stream again (it was not up
+        when the bridge started, or it rebooted); returns their names."""
+        silent = [c for c in self.clients if c.health().age_s > silent_s]
+        for c in silent:
+            c.restream()
+        return [c.name for c in silent]
+
     def bias(self) -> None:
         """Bias every box at its current (unloaded!) reading."""
         for c in self.clients:
@@ -207,6 +215,9 @@ class WrenchTopicSensors:
 
     def start(self) -> None:
         pass
+
+    def revive(self, silent_s: float) -> list[str]:
+        return []
 
     def bias(self) -> None:
         """Topic drivers bias through their own services; the bridge tares in software."""

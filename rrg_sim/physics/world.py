@@ -358,7 +358,11 @@ class PhysicsWorld:
     def release_fingers(self) -> None:
         """Give every finger its closing servo back (a braked finger can move again)."""
         for i in range(3):
-            self._finger_servo(i, PHYSICS.finger_kp, HAND.close_torque)
+            self.release_finger(i)
+
+    def release_finger(self, finger: int) -> None:
+        """Give one finger its closing servo back (its brake off)."""
+        self._finger_servo(finger, PHYSICS.finger_kp, HAND.close_torque)
 
     def arm_velocity(self) -> np.ndarray:
         """(7,) arm joint velocities [rad/s]."""

@@ -16,7 +16,8 @@ first pad or Nano17 over its threshold; cancellable), ``/rrg/hand_command``
 (rrg_msgs/HandCommand), and, simulation only, ``/rrg/reset_sim`` (rrg_msgs/ResetSim: place an
 object, arm home) and ``/rrg/eval/judge_grasp`` (std_srvs/Trigger: lift and hold the grasp
 the last goal WRT on ``/rrg/observation`` left, judge it against the ground truth, and publish
-the judgement on ``/rrg/eval/grasp_outcome``, rrg_msgs/GraspOutcome).
+the judgement on ``/rrg/eval/grasp_outcome``, rrg_msgs/GraspOutcome): rrg_sim.ros.eval_services,
+which the emulated hardware drivers share.
 
 The world is stepped inside the action and service callbacks under one lock; a
 MultiThreadedExecutor keeps the node responsive meanwhile, and the state topics are published
@@ -31,55 +32,38 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-from geometry_msgs.msg import PoseStamped, WrenchStamped
+from geometry_msgs.msg import WrenchStamped
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.action.server import ServerGoalHandle
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Header
-from std_srvs.srv import Trigger
 
 from rrg_msgs.action import GuardedMove
-from rrg_msgs.msg import ContactPads, GraspOutcome
-from rrg_msgs.msg import Observation as ObservationMsg
-from rrg_msgs.srv import HandCommand, ResetSim
-from rrg_sim.executor.trajectory import DensePath, sample_times
+from rrg_msgs.msg import ContactPads
+from rrg_msgs.srv import HandCommand
+from rrg_sim.ros_common.guarded_move_goal import GoalError, client_fraction, goal_via_points
 from rrg_sim.ros_common.msg_conversions import (
-    ARM_JOINT_NAMES,
-    WORLD_FRAME,
-    observation_from_msg,
-    planar_from_msg,
-    planar_to_msg,
-    pose_to_msg,
     tip_contacts_to_msg,
     vector_to_msg,
 )
 from rrg_sim.ros_common.node_main import keep_serving, run_node
 
 from .. import wam
-from ..config import HAND, PHYSICS, SENSING, WORLD
+from ..config import HAND, SENSING
 from ..objects import OBJECT_NAMES
-from ..physics.judge import judge_grasp
 from ..physics.mjcf_robot import TIP_BODIES
 from ..physics.sensing import HandSensors
 from ..physics.world import PhysicsWorld
+from .eval_services import EvalServices
 
 NODE_NAME = "sim"
 NAMESPACE = "rrg"
-#: Largest distance [rad] between the arm and a trajectory's first via-point at time 0.
-START_TOLERANCE = 0.05
 #: A close command moves the spread first only when it is this far from the request [rad].
 SPREAD_TOLERANCE = 0.01
 #: Control periods between checks of pacing, publishing and cancellation (20 ms simulated).
 CHECK_EVERY = 10
-
-
-def client_fraction(index: float, n: int) -> float:
-    """Fraction [0, 1] of a client's n via-points done at fractional index ``index`` of the
-    followed points (the arm's configuration prepended to the client's)."""
-    return float(np.clip(index if n == 1 else (index - 1.0) / (n - 1), 0.0, 1.0))
 
 
 def ros_joint_name(mujoco_name: str) -> str:
@@ -136,10 +120,8 @@ class SimNode(Node):
                 floating_point_range=[FloatingPointRange(from_value=0.0, to_value=100.0)],
             ),
         )
-        self.frame_id = WORLD_FRAME
         self._lock = threading.Lock()
         self._move_active = False
-        self._last_observation: ObservationMsg | None = None
         self.world = self._make_world(self.get_parameter("object_name").value)
         group = ReentrantCallbackGroup()
         self.joint_pub = self.create_publisher(JointState, "joint_states", 10)
@@ -147,14 +129,15 @@ class SimNode(Node):
             self.create_publisher(WrenchStamped, f"fingertip{i}/wrench", 10) for i in (1, 2, 3)
         ]
         self.pads_pub = self.create_publisher(ContactPads, "contact_pads", 10)
-        self.truth_pub = self.create_publisher(PoseStamped, "eval/object_pose", 10)
-        self.outcome_pub = self.create_publisher(GraspOutcome, "eval/grasp_outcome", 10)
-        self.create_subscription(
-            ObservationMsg, "observation", self.on_observation, 10, callback_group=group
+        self.eval = EvalServices(
+            self,
+            world=lambda: self.world,
+            exclusive=lambda: self._lock,
+            reset_world=self.reset_world,
+            group=group,
+            on_change=self.publish_state,
         )
-        self.create_service(ResetSim, "reset_sim", self.on_reset_sim, callback_group=group)
         self.create_service(HandCommand, "hand_command", self.on_hand_command, callback_group=group)
-        self.create_service(Trigger, "eval/judge_grasp", self.on_judge_grasp, callback_group=group)
         ActionServer(
             self,
             GuardedMove,
@@ -217,9 +200,7 @@ class SimNode(Node):
         )
         p.header.stamp, p.header.frame_id = stamp, ros_joint_name("bh/palm")
         self.pads_pub.publish(p)
-        truth = PoseStamped(pose=pose_to_msg(self.world.object_pose()))
-        truth.header.stamp, truth.header.frame_id = stamp, self.frame_id
-        self.truth_pub.publish(truth)
+        self.eval.publish_truth(stamp)
 
     def on_idle_timer(self) -> None:
         if self._lock.acquire(blocking=False):  # a running motion publishes by itself
@@ -269,44 +250,15 @@ class SimNode(Node):
 
     def via_points(self, goal: GuardedMove.Goal) -> tuple[np.ndarray, np.ndarray]:
         """(q (M,7), t (M,)) of a goal, the arm's current configuration prepended at t = 0;
-        ValueError (with the GuardedMove error code as args[1]) when invalid."""
-        R = GuardedMove.Result
-        traj = goal.trajectory
-        if sorted(traj.joint_names) != sorted(ARM_JOINT_NAMES) or len(traj.joint_names) != 7:
-            raise ValueError(
-                f"joint_names must be the 7 arm joints {list(ARM_JOINT_NAMES)}, got "
-                f"{list(traj.joint_names)}",
-                R.INVALID_TRAJECTORY,
-            )
-        if not traj.points:
-            raise ValueError("the trajectory has no points", R.INVALID_TRAJECTORY)
-        if any(len(p.positions) != 7 for p in traj.points):
-            raise ValueError("every point needs 7 positions", R.INVALID_TRAJECTORY)
-        order = [list(traj.joint_names).index(n) for n in ARM_JOINT_NAMES]
-        q = np.array([np.asarray(p.positions)[order] for p in traj.points])
-        t = np.array(
-            [p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec for p in traj.points]
-        )
-        if not np.all(np.isfinite(q)):
-            raise ValueError("non-finite positions", R.INVALID_TRAJECTORY)
+        GoalError when invalid or outside the simulated arm's joint limits."""
+        q, t = goal_via_points(goal, self.world.arm_q())
         if not np.all(wam.within_limits(q)):
-            bad = int(np.argmin(wam.within_limits(q)))
-            raise ValueError(
-                f"point {bad} is outside the joint limits: {np.round(q[bad], 3).tolist()}",
-                R.JOINT_LIMITS,
+            bad = int(np.argmin(wam.within_limits(q))) - 1
+            raise GoalError(
+                f"point {bad} is outside the joint limits: {np.round(q[bad + 1], 3).tolist()}",
+                GuardedMove.Result.JOINT_LIMITS,
             )
-        if np.any(np.diff(t) < 0.0):
-            raise ValueError("time_from_start must not decrease", R.INVALID_TRAJECTORY)
-        q0 = self.world.arm_q()
-        q = np.vstack([q0, q])
-        if not np.any(t > 0.0):  # no timing: the server's default speeds
-            return q, sample_times(DensePath(wam.fk(q), q, np.zeros(len(q), int)))
-        if t[0] == 0.0 and np.abs(q[1] - q0).max() > START_TOLERANCE:
-            raise ValueError(
-                "the first point is away from the arm's configuration at time 0",
-                R.INVALID_TRAJECTORY,
-            )
-        return q, np.r_[0.0, t]
+        return q, t
 
     def execute_guarded_move(self, handle: ServerGoalHandle) -> GuardedMove.Result:
         goal, result = handle.request, GuardedMove.Result()
@@ -327,8 +279,8 @@ class SimNode(Node):
             with self._lock:
                 try:
                     q, t = self.via_points(goal)
-                except ValueError as exc:
-                    result.error_code, result.error_msg = exc.args[1], exc.args[0]
+                except GoalError as exc:
+                    result.error_code, result.error_msg = exc.code, str(exc)
                     handle.abort()
                     return result
                 n, start = len(q) - 1, self.world.sim_time  # n: the client's points
@@ -376,7 +328,7 @@ class SimNode(Node):
         resp.sensors = [bool(f) for f in reading.fired]
         resp.tip_contacts = tip_contacts_to_msg(reading.tip_points, reading.tip_normals, wrench)
 
-    # ------------------------------------------------------------------ hand, reset, judge
+    # ------------------------------------------------------------------ hand, reset
     @keep_serving
     def on_hand_command(
         self, req: HandCommand.Request, resp: HandCommand.Response
@@ -424,93 +376,12 @@ class SimNode(Node):
             self.publish_state()
         return resp
 
-    @keep_serving
-    def on_reset_sim(self, req: ResetSim.Request, resp: ResetSim.Response) -> ResetSim.Response:
-        pose = planar_from_msg(req.pose)
-        if req.object_name not in OBJECT_NAMES:
-            resp.error_code = ResetSim.Response.UNKNOWN_OBJECT
-            resp.error_msg = f"unknown object {req.object_name!r}; valid: {list(OBJECT_NAMES)}"
-        elif not (
-            np.all(np.isfinite(pose))
-            and WORLD.table_x[0] <= pose[0] <= WORLD.table_x[1]
-            and WORLD.table_y[0] <= pose[1] <= WORLD.table_y[1]
-        ):
-            resp.error_code = ResetSim.Response.INVALID_POSE
-            resp.error_msg = (
-                f"pose {pose.tolist()} is not on the table (x {WORLD.table_x} m, "
-                f"y {WORLD.table_y} m)"
-            )
-        if resp.error_code != ResetSim.Response.NONE:
-            self.get_logger().warn(f"reset_sim refused: {resp.error_msg}")
-            return resp
-        with self._lock:
-            if req.object_name != self.world.obj.name:
-                self.world = self._make_world(req.object_name)
-            self.world.reset(pose)
-            self._last_observation = None
-            self.publish_state()
-        self.get_logger().info(
-            f"reset: {req.object_name} at {np.round(pose, 4).tolist()}, arm home"
-        )
-        return resp
-
-    def on_observation(self, msg: ObservationMsg) -> None:
-        self._last_observation = msg
-
-    @keep_serving
-    def on_judge_grasp(self, req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
-        obs = self._last_observation
-        obj = self.world.obj
-        kind = (
-            None
-            if obs is None
-            else next((w.kind for w in obj.wrts() if w.name == obs.wrt_name), None)
-        )
-        if obs is None:
-            resp.message = "nothing to judge: no WRT observation since the last reset"
-        elif obs.object_name != obj.name or kind != "goal":
-            resp.message = (
-                f"nothing to judge: the last WRT was {obs.object_name}/{obs.wrt_name}, "
-                "not a goal grasp"
-            )
-        else:
-            with self._lock:
-                ok, info = judge_grasp(
-                    self.world, obj, planar_from_msg(obs.estimate), observation_from_msg(obs)
-                )
-                self.publish_state()
-            resp.success = bool(ok)
-            resp.message = (
-                f"{'SUCCESS' if ok else 'FAILURE'}: in goal region {info['in_region']} "
-                f"(offset {np.round(info['delta'], 4).tolist()}), {info['fingers']} fingers in "
-                f"contact, required sensors {info['required_ok']}, held {info['held']} "
-                f"(lifted {info['lift_dz']:.3f} m of {PHYSICS.lift_height} m, "
-                f"slip {info['slip']:.4f} m)"
-            )
-            self.outcome_pub.publish(
-                GraspOutcome(
-                    header=Header(stamp=self.get_clock().now().to_msg(), frame_id=WORLD_FRAME),
-                    object_name=obj.name,
-                    wrt_name=obs.wrt_name,
-                    success=bool(ok),
-                    in_region=bool(info["in_region"]),
-                    offset=planar_to_msg(info["delta"]),
-                    fingers_in_contact=int(info["fingers"]),
-                    required_contacts=bool(info["required_ok"]),
-                    held=bool(info["held"]),
-                    lift_feasible=bool(info["lift_feasible"]),
-                    lift_dz=float(info["lift_dz"]),
-                    slip=float(info["slip"]),
-                    early_contact=bool(info["early_contact"]),
-                    true_pose=planar_to_msg(info["w_true"]),
-                    message=resp.message,
-                )
-            )
-        if resp.success:
-            self.get_logger().info(f"judge_grasp: {resp.message}")
-        else:
-            self.get_logger().warn(f"judge_grasp: {resp.message}")
-        return resp
+    def reset_world(self, object_name: str, pose: np.ndarray) -> None:
+        """Place ``object_name`` (a new world for another object) at the planar pose, arm home
+        (call under the lock)."""
+        if object_name != self.world.obj.name:
+            self.world = self._make_world(object_name)
+        self.world.reset(pose)
 
 
 def main(argv: list[str] | None = None) -> int:

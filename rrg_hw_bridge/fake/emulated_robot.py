@@ -1,0 +1,572 @@
+"""The WAM, the BarrettHand and the fingertip loads emulated by a PhysicsWorld stepped in real time
+(no ROS): the core behind rrg_hw_bridge.fake.fake_hw_node.
+
+A thread steps the world one control period (PHYSICS.timestep) at a time against
+``time.monotonic()`` deadlines, under one lock. Before every step it sets the servo targets of
+
+* a joint trajectory controller: via-points tracked with rrg_sim.executor.trajectory's
+  ``servo_targets``, exactly as PhysicsWorld.follow does; a new goal preempts the running one, a
+  cancel holds the arm where it is measured;
+* the BarrettHand: spread and finger position moves ramped at the hand's speeds (as
+  PhysicsWorld.move_hand does), finger velocity moves, and the worm-drive brake of a finger that
+  is stopped (velocity 0 or idle), which a later move of that finger releases.
+
+Readings for the driver emulations (``snapshot``) carry seeded noise where the real drivers'
+readings are noisy (arm external torque, pads); the fingertip loads are noise-free and never
+tared, since the emulated Net F/T boxes add their own noise and the bias is the client's job.
+Faults: a stuck finger, a joint-4 encoder glitch past its limit, and a synthetic force on
+fingertip 1.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+
+from rrg_sim import wam
+from rrg_sim.config import HAND, PHYSICS
+from rrg_sim.executor.trajectory import servo_targets
+from rrg_sim.physics.mjcf_robot import TIP_FORCE, TIP_TORQUE
+from rrg_sim.physics.sensing import HandSensors
+from rrg_sim.physics.world import PhysicsWorld
+
+#: Most control periods the stepping thread runs back to back after a late wake-up (chosen: 5
+#: periods = 10 ms); periods missed beyond that are dropped and counted as overruns.
+MAX_CATCH_UP = 5
+#: How far past joint 4's upper limit [rad] the joint-limit fault reports it (chosen: far beyond
+#: any tolerance a limit check allows, as an encoder glitch would be).
+JOINT_LIMIT_GLITCH = 0.2
+#: Joint 4 (index 3) is the one the joint-limit fault corrupts.
+GLITCH_JOINT = 3
+#: Largest lead [rad] of a finger's target over its measured angle in a velocity move: the lead at
+#: which the proximal servo pushes with the hand's stall torque (HAND.close_torque /
+#: PHYSICS.finger_kp), as a velocity-controlled motor at its current limit does.
+VELOCITY_LEAD = HAND.close_torque / PHYSICS.finger_kp
+#: Ramp speeds [rad/s] of the hand's channels: spread, proximal 1-3 (PhysicsWorld._hand_ramp).
+HAND_SPEEDS = np.array([PHYSICS.spread_speed] + [HAND.close_speed] * 3)
+#: JTC's message for a goal preempted by a new one (ros2_controllers jazzy,
+#: joint_trajectory_controller.cpp, goal_accepted_callback).
+PREEMPTED_MESSAGE = "Current goal cancelled due to new incoming action."
+#: MuJoCo joints of the hand readings: spread (fingers 1, 2), proximal 1-3, distal 1-3.
+SPREAD_JOINTS = ("bh/f1_spread", "bh/f2_spread")
+PROXIMAL_JOINTS = tuple(f"bh/f{i}_prox" for i in (1, 2, 3))
+DISTAL_JOINTS = tuple(f"bh/f{i}_dist" for i in (1, 2, 3))
+
+# Hand channel modes.
+_HOLD, _POSITION, _VELOCITY = 0, 1, 2
+
+
+class GoalState(Enum):
+    """States of a trajectory goal (the JTC's outcomes)."""
+
+    ACTIVE = "active"
+    SUCCEEDED = "succeeded"
+    CANCELED = "canceled"  # by a cancel request: the arm holds where it was
+    PREEMPTED = "preempted"  # by a newer goal
+    ABORTED = "aborted"  # by a reset or a simulation-only evaluation
+
+
+@dataclass
+class GoalStatus:
+    """Where a trajectory goal stands."""
+
+    goal_id: int
+    state: GoalState
+    #: Fractional via-point index commanded now (0 … M-1 of the followed points, the measured
+    #: configuration prepended when the client's first point is later than t = 0).
+    index: float
+    #: Desired joint positions (7,) [rad] on the via-point polyline at ``index``.
+    desired: np.ndarray
+    message: str = ""
+
+
+@dataclass
+class Event:
+    """One entry of the event log: what happened, when (time.monotonic() [s]), details."""
+
+    name: str
+    time_s: float
+    details: dict = field(default_factory=dict)
+
+
+@dataclass
+class Snapshot:
+    """The readings the drivers publish, all taken at one instant."""
+
+    time_s: float  # time.monotonic() [s]
+    sim_time: float  # [s] since the last reset
+    arm_q: np.ndarray  # (7,) [rad], as the encoders report (the joint-limit fault shows here)
+    arm_qd: np.ndarray  # (7,) [rad/s]
+    arm_effort: np.ndarray  # (7,) external (contact) torque [N m], noisy
+    spread: np.ndarray  # (2,) spread joints of fingers 1, 2 [rad]
+    proximal: np.ndarray  # (3,) [rad]
+    distal: np.ndarray  # (3,) [rad]
+    spread_velocity: np.ndarray  # (2,) [rad/s]
+    proximal_velocity: np.ndarray  # (3,) [rad/s]
+    distal_velocity: np.ndarray  # (3,) [rad/s]
+    pads: np.ndarray  # (7,) pad forces [N], noisy
+    tip_loads: np.ndarray  # (3,6) load on each fingertip [N, N m], sensor frame, noise-free
+
+
+@dataclass
+class _Goal:
+    goal_id: int
+    q: np.ndarray  # (M,7) followed via-points
+    ctrl: np.ndarray  # (N,7) servo targets
+    index: np.ndarray  # (N,) fractional via-point index per period
+    k: int = 0  # next period
+    state: GoalState = GoalState.ACTIVE
+    message: str = ""
+
+
+@dataclass
+class Timing:
+    """Real-time statistics of the stepping thread."""
+
+    steps: int = 0
+    overruns: int = 0  # periods dropped because the thread fell more than MAX_CATCH_UP behind
+    late_steps: int = 0  # periods stepped more than one period after their deadline
+    max_lateness_s: float = 0.0
+
+
+class EmulatedRobot:
+    """The emulated arm controller, BarrettHand and fingertip loads (see the module doc).
+
+    object_name: a catalogue object (rrg_sim.objects). seed: seeds the world's sensor noise and
+    the readings' noise. sensor_noise: scale of every noise σ (1: config values, 0: noiseless).
+    """
+
+    def __init__(self, object_name: str = "powerdrill", seed: int = 0, sensor_noise: float = 1.0):
+        self.seed, self.sensor_noise = seed, sensor_noise
+        self._lock = threading.RLock()
+        self._rng = np.random.default_rng(seed)
+        self._goal: _Goal | None = None
+        self._goals: dict[int, _Goal] = {}
+        self._next_goal_id = 1
+        self._stuck: int | None = None
+        self._joint_limit_fault = False
+        self._extra_force = 0.0
+        self._events: list[Event] = []
+        self._pending: deque[Event] = deque()
+        self._listeners: list[Callable[[Event], None]] = []
+        self._dispatch_lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._rebase = False
+        self.timing = Timing()
+        self._make_world(object_name)
+
+    # ------------------------------------------------------------------ world
+    def _make_world(self, object_name: str) -> None:
+        self.world = PhysicsWorld(object_name, seed=self.seed, sensor_noise=self.sensor_noise)
+        m = self.world.model
+        qadr = lambda names: np.array([m.jnt_qposadr[m.joint(n).id] for n in names])
+        vadr = lambda names: np.array([m.jnt_dofadr[m.joint(n).id] for n in names])
+        self._hand_q = {k: qadr(v) for k, v in self._hand_joint_groups().items()}
+        self._hand_v = {k: vadr(v) for k, v in self._hand_joint_groups().items()}
+        self._clean = HandSensors(m, self.world.data, np.random.default_rng(0), noise=0.0)
+        adr = lambda names: np.array([m.sensor_adr[m.sensor(n).id] for n in names])[:, None]
+        self._load_adr = np.hstack([adr(TIP_FORCE) + np.arange(3), adr(TIP_TORQUE) + np.arange(3)])
+        self._sync_controllers()
+
+    @staticmethod
+    def _hand_joint_groups() -> dict[str, tuple[str, ...]]:
+        return {"spread": SPREAD_JOINTS, "proximal": PROXIMAL_JOINTS, "distal": DISTAL_JOINTS}
+
+    def _sync_controllers(self) -> None:
+        """Controllers idle, holding the world's current servo targets (call under the lock)."""
+        self._hand_target = self.world.servo_targets()[7:].copy()
+        self._hand_goal = self._hand_target.copy()
+        self._hand_mode = np.full(4, _HOLD)
+        self._finger_speed = np.zeros(3)
+        self._braked = np.zeros(3, bool)
+        self._loads = self._read_loads()
+
+    def _read_loads(self) -> np.ndarray:
+        """(3,6) raw fingertip loads (HandSensors.read's wrench, noise-free, bias zero) with the
+        extra force."""
+        loads = -self.world.data.sensordata[self._load_adr]
+        loads[0, 2] += self._extra_force
+        return loads
+
+    @contextmanager
+    def exclusive(self) -> Iterator[PhysicsWorld]:
+        """The world for a simulation-only operation that steps it by itself (e.g. judging a
+        grasp): motions are aborted first, the controllers then hold whatever the world's servo
+        targets are, and the real-time clock restarts (the pause counts as no overrun)."""
+        with self._lock:
+            self._abort("interrupted by a simulation-only operation")
+            try:
+                yield self.world
+            finally:
+                self._sync_controllers()
+                self._rebase = True
+        self._dispatch()
+
+    def reset(self, object_name: str | None = None, pose=None) -> None:
+        """Abort every motion; arm home, hand open, the object (a new one if ``object_name``
+        differs) at the planar pose (x [m], y [m], θ [rad]) (default: where it was placed)."""
+        with self._lock:
+            self._abort("reset")
+            if object_name is not None and object_name != self.world.obj.name:
+                self._make_world(object_name)
+            self.world.reset(pose)
+            self._sync_controllers()
+            self._rebase = True
+        self._dispatch()
+
+    # ------------------------------------------------------------------ stepping
+    def advance(self, seconds: float) -> None:
+        """Step ``seconds`` of simulated time at once (no pacing; not while the thread runs)."""
+        if self.running:
+            raise RuntimeError("advance() while the real-time thread runs")
+        for _ in range(int(round(seconds / PHYSICS.timestep))):
+            with self._lock:
+                self._step()
+            self._dispatch()
+
+    def start(self) -> None:
+        """Start stepping in real time in a daemon thread."""
+        if self.running:
+            return
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._loop, name="emulated_robot", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        if self._thread is not None:
+            self._stop.set()
+            self._thread.join()
+            self._thread = None
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def __enter__(self) -> EmulatedRobot:
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def _loop(self) -> None:
+        dt = PHYSICS.timestep
+        t0, done = time.monotonic(), 0  # deadline of period k: t0 + k dt
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if self._rebase:
+                self._rebase = False
+                t0, done = now, 0
+            due = int((now - t0) / dt) + 1 - done  # periods whose deadline has passed
+            if due <= 0:
+                time.sleep(t0 + done * dt - now)
+                continue
+            if due > MAX_CATCH_UP:
+                self.timing.overruns += due - MAX_CATCH_UP
+                done += due - MAX_CATCH_UP
+                due = MAX_CATCH_UP
+            lateness = now - (t0 + done * dt)
+            if lateness > dt:
+                self.timing.late_steps += 1
+            self.timing.max_lateness_s = max(self.timing.max_lateness_s, lateness)
+            with self._lock:
+                if not self._rebase:
+                    self._step()
+            done += 1
+            self.timing.steps += 1
+            self._dispatch()
+
+    def _step(self) -> None:
+        """One control period (call under the lock)."""
+        w = self.world
+        arm = None
+        goal = self._goal
+        if goal is not None:
+            arm = goal.ctrl[goal.k]
+            goal.k += 1
+            if goal.k >= len(goal.ctrl):
+                self._finish(goal, GoalState.SUCCEEDED, "", time.monotonic())
+        self._hand_step()
+        w.step(arm, self._hand_target)
+        self._loads = self._read_loads()
+
+    def _hand_step(self) -> None:
+        tgt, mode = self._hand_target, self._hand_mode
+        if not mode.any():  # every channel holds
+            return
+        dt = PHYSICS.timestep
+        pos = mode == _POSITION
+        step = np.clip(self._hand_goal - tgt, -HAND_SPEEDS * dt, HAND_SPEEDS * dt)
+        tgt[pos] += step[pos]
+        mode[pos & (tgt == self._hand_goal)] = _HOLD  # arrived: hold
+        vel = mode[1:] == _VELOCITY
+        if vel.any():
+            q = self.world.finger_angles()
+            moved = np.clip(tgt[1:] + self._finger_speed * dt, q - VELOCITY_LEAD, q + VELOCITY_LEAD)
+            moved = np.clip(moved, *HAND.proximal_range)
+            tgt[1:][vel] = moved[vel]
+
+    # ------------------------------------------------------------------ events
+    def add_listener(self, listener: Callable[[Event], None]) -> None:
+        """Call ``listener(event)`` for every new event (from the thread that caused it, outside
+        the lock)."""
+        self._listeners.append(listener)
+
+    def events(self, name: str | None = None) -> list[Event]:
+        """The event log so far (only ``name``'s events when given)."""
+        with self._dispatch_lock:
+            return [e for e in self._events if name is None or e.name == name]
+
+    def _emit(self, name: str, time_s: float, **details) -> None:
+        event = Event(name, time_s, details)
+        with self._dispatch_lock:
+            self._events.append(event)
+            self._pending.append(event)
+
+    def _dispatch(self) -> None:
+        while True:
+            with self._dispatch_lock:
+                if not self._pending:
+                    return
+                event = self._pending.popleft()
+            for listener in self._listeners:
+                listener(event)
+
+    # ------------------------------------------------------------------ arm controller
+    def follow(self, q, t) -> int:
+        """Accept a trajectory goal: via-points q (M,7) [rad] at times t (M,) [s] from now (when
+        t[0] > 0 the measured configuration is prepended at t = 0); it preempts a running goal.
+        Returns the goal id; ValueError for an invalid trajectory."""
+        received = time.monotonic()
+        q, t = np.asarray(q, dtype=float), np.asarray(t, dtype=float)
+        if q.ndim != 2 or q.shape[1] != 7 or len(q) == 0 or t.shape != (len(q),):
+            raise ValueError(f"need q (M,7) and t (M,), got {q.shape} and {t.shape}")
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(t))):
+            raise ValueError("non-finite via-points or times")
+        if t[0] < 0.0 or np.any(np.diff(t) <= 0.0):
+            raise ValueError("times must start at or after 0 and increase strictly")
+        with self._lock:
+            if t[0] > 0.0:
+                q, t = np.vstack([self.world.arm_q(), q]), np.r_[0.0, t]
+            ctrl, index = servo_targets(q, t)
+            if self._goal is not None:
+                self._finish(self._goal, GoalState.PREEMPTED, PREEMPTED_MESSAGE, received)
+            goal = _Goal(self._next_goal_id, q, ctrl, index)
+            self._next_goal_id += 1
+            self._goals[goal.goal_id] = goal
+            self._goal = goal
+            self._emit("goal_accepted", received, goal_id=goal.goal_id, points=len(q))
+        self._dispatch()
+        return goal.goal_id
+
+    def cancel(self, goal_id: int | None = None) -> bool:
+        """Cancel goal ``goal_id`` (default: the running one) and hold the arm at its measured
+        configuration; False when that goal is not running."""
+        received = time.monotonic()
+        with self._lock:
+            goal = self._goal
+            self._emit("cancel_received", received, goal_id=goal_id)
+            ok = goal is not None and goal_id in (None, goal.goal_id)
+            if ok:
+                self.world.hold_arm()
+                self._finish(goal, GoalState.CANCELED, "canceled", received)
+        self._dispatch()
+        return ok
+
+    def _finish(self, goal: _Goal, state: GoalState, message: str, time_s: float) -> None:
+        goal.state, goal.message = state, message
+        if self._goal is goal:
+            self._goal = None
+        self._emit("goal_finished", time_s, goal_id=goal.goal_id, state=state.value)
+
+    def _abort(self, why: str) -> None:
+        if self._goal is not None:
+            self.world.hold_arm()
+            self._finish(self._goal, GoalState.ABORTED, why, time.monotonic())
+
+    def goal_status(self, goal_id: int) -> GoalStatus:
+        """The state of goal ``goal_id`` (KeyError for an unknown id)."""
+        with self._lock:
+            g = self._goals[goal_id]
+            index = float(g.index[min(g.k, len(g.index)) - 1]) if g.k else 0.0
+            lo = min(int(np.floor(index)), max(len(g.q) - 2, 0))
+            hi = min(lo + 1, len(g.q) - 1)
+            desired = g.q[lo] + (index - lo) * (g.q[hi] - g.q[lo])
+            return GoalStatus(goal_id, g.state, index, desired, g.message)
+
+    @property
+    def active_goal(self) -> int | None:
+        goal = self._goal
+        return None if goal is None else goal.goal_id
+
+    # ------------------------------------------------------------------ hand
+    def _commandable(self, fingers) -> np.ndarray:
+        """The fingers (indices 0-2) of ``fingers`` that are not stuck."""
+        return np.array([i for i in fingers if i != self._stuck], dtype=int)
+
+    def _release(self, fingers: np.ndarray) -> None:
+        """Give braked fingers their closing servo back (PhysicsWorld.release_fingers, one
+        finger at a time so that other stopped fingers stay braked)."""
+        for i in fingers:
+            if self._braked[i]:
+                self.world.release_finger(int(i))
+                self._braked[i] = False
+
+    def _brake(self, fingers: np.ndarray) -> None:
+        """Stop fingers where they are, held by the worm drive (PhysicsWorld.brake_finger)."""
+        for i in fingers:
+            if not self._braked[i]:
+                self.world.brake_finger(int(i))
+                self._braked[i] = True
+            self._hand_target[1 + i] = self.world.data.ctrl[8 + i]
+            self._hand_mode[1 + i] = _HOLD
+
+    def move_fingers(self, proximal) -> None:
+        """Move the proximal joints to (3,) (or one angle for all) [rad] at HAND.close_speed;
+        ValueError outside HAND.proximal_range."""
+        goal = _in_range(np.broadcast_to(np.asarray(proximal, dtype=float), 3), "proximal")
+        with self._lock:
+            f = self._commandable(range(3))
+            self._release(f)
+            self._hand_goal[1 + f] = goal[f]
+            self._hand_mode[1 + f] = _POSITION
+
+    def move_spread(self, spread: float) -> None:
+        """Move the spread to ``spread`` [rad] at PHYSICS.spread_speed; ValueError outside
+        HAND.spread_range."""
+        goal = float(_in_range(np.array([spread], dtype=float), "spread")[0])
+        with self._lock:
+            self._hand_goal[0] = goal
+            self._hand_mode[0] = _POSITION
+
+    def finger_velocities(self, velocity) -> None:
+        """Move the proximal joints at (3,) [rad/s] (clipped to ±HAND.close_speed) until their
+        joint limits; a finger at velocity 0 stops and is braked where it is."""
+        v = np.asarray(velocity, dtype=float).reshape(3)
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"non-finite finger velocities {v.tolist()}")
+        v = np.clip(v, -HAND.close_speed, HAND.close_speed)
+        with self._lock:
+            f = self._commandable(range(3))
+            stop, move = f[v[f] == 0.0], f[v[f] != 0.0]
+            self._brake(stop)
+            self._release(move)
+            self._finger_speed[move] = v[move]
+            self._hand_mode[1 + move] = _VELOCITY
+
+    def open_grasp(self) -> None:
+        """Open every finger (proximal 0)."""
+        self.move_fingers(HAND.proximal_range[0])
+
+    def close_grasp(self) -> None:
+        """Close every finger towards its joint limit (each stalls on whatever it meets)."""
+        self.move_fingers(HAND.proximal_range[1])
+
+    def idle(self) -> None:
+        """Stop every hand motion: the spread holds where it is and the fingers are braked."""
+        with self._lock:
+            self._hand_target[0] = self._hand_goal[0] = self.world.hand_angles()[0]
+            self._hand_mode[0] = _HOLD
+            self._brake(self._commandable(range(3)))
+
+    def hand_moving(self) -> bool:
+        """Whether a hand channel is still ramping to its position goal or in a velocity move."""
+        return bool(self._hand_mode.any())
+
+    @property
+    def braked(self) -> np.ndarray:
+        """(3,) bool: fingers held by the worm-drive brake."""
+        return self._braked.copy()
+
+    # ------------------------------------------------------------------ faults
+    def set_stuck_finger(self, finger: int | None) -> None:
+        """Finger ``finger`` (0-2) stops where it is and ignores every command; None: none."""
+        if finger is not None and finger not in (0, 1, 2):
+            raise ValueError(f"stuck finger must be 0-2 or None, got {finger}")
+        with self._lock:
+            if finger is not None and finger != self._stuck:
+                self._brake(np.array([finger]))
+            self._stuck = finger
+
+    def set_joint_limit_fault(self, on: bool) -> None:
+        """Report joint 4 JOINT_LIMIT_GLITCH past its upper limit (an encoder glitch)."""
+        self._joint_limit_fault = bool(on)
+
+    def set_extra_force(self, force_n: float) -> None:
+        """Add ``force_n`` [N] to fingertip 1's load along its z (a synthetic contact)."""
+        if not np.isfinite(force_n):
+            raise ValueError("extra force must be finite")
+        with self._lock:
+            self._extra_force = float(force_n)
+            self._loads = self._read_loads()
+
+    @property
+    def stuck_finger(self) -> int | None:
+        return self._stuck
+
+    # ------------------------------------------------------------------ readings
+    def object_pose(self) -> np.ndarray:
+        """(4,4) true object pose in world (evaluation only)."""
+        with self._lock:
+            return self.world.object_pose()
+
+    def tip_load(self, finger: int) -> np.ndarray:
+        """(6,) load on fingertip ``finger`` (0-2) after the latest step: force [N], torque
+        [N m] the object applies, in the Nano17's frame, noise-free, never tared, with the
+        extra-force fault added (lock-free: safe from any thread at any rate)."""
+        return self._loads[finger].copy()
+
+    def snapshot(self, pads: bool = True) -> Snapshot:
+        """Every reading the drivers publish, at one instant (``pads`` False: pad forces NaN,
+        saving their noise draw)."""
+        with self._lock:
+            w, d = self.world, self.world.data
+            arm_q = w.arm_q()
+            if self._joint_limit_fault:
+                arm_q[GLITCH_JOINT] = wam.UPPER[GLITCH_JOINT] + JOINT_LIMIT_GLITCH
+            noise = self.sensor_noise
+            effort = w.arm_external_torque()
+            if noise > 0.0:
+                effort = effort + self._rng.normal(0.0, PHYSICS.arm_torque_noise * noise, 7)
+            pad_forces = np.full(7, np.nan)
+            if pads:
+                pad_forces = self._clean.read()[0]
+                if noise > 0.0:
+                    pad_forces += self._rng.normal(0.0, PHYSICS.pad_force_noise * noise, 7)
+            return Snapshot(
+                time_s=time.monotonic(),
+                sim_time=w.sim_time,
+                arm_q=arm_q,
+                arm_qd=w.arm_velocity(),
+                arm_effort=effort,
+                spread=d.qpos[self._hand_q["spread"]].copy(),
+                proximal=d.qpos[self._hand_q["proximal"]].copy(),
+                distal=d.qpos[self._hand_q["distal"]].copy(),
+                spread_velocity=d.qvel[self._hand_v["spread"]].copy(),
+                proximal_velocity=d.qvel[self._hand_v["proximal"]].copy(),
+                distal_velocity=d.qvel[self._hand_v["distal"]].copy(),
+                pads=pad_forces,
+                tip_loads=self._loads.copy(),
+            )
+
+
+#: Slack [rad] on the hand's joint ranges: bhand_srvs' float32 fields round a limit such as
+#: 2.44 rad up by ~ 6e-8 rad.
+RANGE_TOLERANCE = 1e-6
+
+
+def _in_range(values: np.ndarray, what: str) -> np.ndarray:
+    """The values clipped to the joint's range; ValueError when they lie outside it."""
+    lo, hi = HAND.spread_range if what == "spread" else HAND.proximal_range
+    inside = (values >= lo - RANGE_TOLERANCE) & (values <= hi + RANGE_TOLERANCE)
+    if not (np.all(np.isfinite(values)) and np.all(inside)):
+        raise ValueError(f"{what} {values.tolist()} outside [{lo}, {hi}] rad")
+    return np.clip(values, lo, hi)

@@ -1,0 +1,611 @@
+r"""Emulated hardware drivers driven by MuJoCo: the interfaces of a WAM under a ros2_control
+JointTrajectoryController, Barrett's BarrettHand services (wam_node) and three ATI Net F/T
+boxes, with a real grasp happening behind them (rrg_hw_bridge.fake.emulated_robot).
+
+    python -m rrg_hw_bridge.fake.fake_hw_node \
+        [--ros-args -p object_name:=box -p sensor_noise:=1.0 -p rdt_port:=49152]
+
+* action ``/<controller_name>/follow_joint_trajectory`` (control_msgs/FollowJointTrajectory):
+  goals must name the 7 arm joints wam_j1_joint … wam_j7_joint (any order) with finite points
+  of 7 positions and strictly increasing times; others are rejected (as JTC does). A new goal
+  preempts the running one; a cancel holds the arm at once. Feedback ~50 Hz.
+* ``/joint_states`` (sensor_msgs/JointState) at joint_state_rate: arm joints (effort: the
+  external contact torque [N m], noisy) and the hand's spread, proximal and distal joints
+  (effort NaN: not measured).
+* services ``/bhand/moveToFingerPositions``, ``/bhand/moveToSpreadPosition``,
+  ``/bhand/moveToFingerVelocities``, ``/bhand/moveToGraspPosition`` (bhand_srvs) and
+  ``/bhand/openGrasp``, ``/bhand/closeGrasp``, ``/bhand/idle`` (std_srvs/Trigger): the move
+  starts and the call returns at once, as wam_node's do.
+* ``/bhand/contact_pads`` (rrg_msgs/ContactPads) at pad_rate.
+* three emulated Net F/T boxes (RDT over UDP on rdt_hosts:rdt_port) streaming the fingertip
+  loads at rdt_rate.
+* ``/fake_hw/events`` (diagnostic_msgs/DiagnosticStatus): goal_accepted, cancel_received,
+  goal_finished, first_crossing, each with its time.monotonic() instant.
+* simulation only: ``/rrg/reset_sim``, ``/rrg/eval/judge_grasp``, ``/rrg/eval/object_pose``,
+  ``/rrg/eval/grasp_outcome`` (rrg_sim.ros.eval_services, as the simulator node).
+
+Faults and benchmarks are parameters settable at run time (``fault.*``, ``bench.*``).
+"""
+
+from __future__ import annotations
+
+import array
+import logging
+import sys
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from bhand_srvs.srv import FingerPosition, FingerVelocity, GraspPosition, SpreadPosition
+from control_msgs.action import FollowJointTrajectory
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.action.server import GoalEvent, ServerGoalHandle
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+from trajectory_msgs.msg import JointTrajectoryPoint
+
+from rrg_msgs.msg import ContactPads
+from rrg_sim.config import HAND, PHYSICS, SENSING
+from rrg_sim.objects import OBJECT_NAMES
+from rrg_sim.ros.eval_services import EvalNames, EvalServices
+from rrg_sim.ros_common.guarded_move_goal import START_TOLERANCE
+from rrg_sim.ros_common.node_main import keep_serving, run_node
+
+from ..fake_netft import FakeNetFtBox
+from ..rdt import Calibration
+from .emulated_robot import EmulatedRobot, Event, GoalState
+
+NODE_NAME = "fake_hw"
+#: Driver joint names (ros2_control / Barrett URDF; PLAN.md).
+ARM_JOINTS = tuple(f"wam_j{i}_joint" for i in range(1, 8))
+SPREAD_JOINTS = ("bhand_j11_joint", "bhand_j21_joint")
+PROXIMAL_JOINTS = ("bhand_j12_joint", "bhand_j22_joint", "bhand_j32_joint")
+DISTAL_JOINTS = ("bhand_j13_joint", "bhand_j23_joint", "bhand_j33_joint")
+JOINT_NAMES = ARM_JOINTS + SPREAD_JOINTS + PROXIMAL_JOINTS + DISTAL_JOINTS
+HAND_FRAME = "bhand_palm_link"
+#: Efforts of the hand joints in /joint_states: not measured.
+UNMEASURED_EFFORT = np.full(8, np.nan)
+#: Feedback period [s] of a trajectory goal (chosen; JTC's action_monitor_rate default, 20 Hz,
+#: is coarser).
+FEEDBACK_PERIOD = 0.02
+#: Period [s] of the check for first force crossings of the armed boxes (chosen: the crossing
+#: instant is recorded by the box itself; this only delays the event message).
+CROSSING_POLL_PERIOD = 0.02
+#: Longest wait [s] for the action server to mark a canceled goal as canceling.
+CANCEL_STATE_WAIT = 1.0
+#: How many boxes fault.silent_box can silence at once: 3 means all of them.
+ALL_BOXES = 3
+
+
+@dataclass(frozen=True)
+class _Fault:
+    """A run-time parameter: its default, description and range."""
+
+    default: object
+    description: str
+    lo: float | None = None
+    hi: float | None = None
+
+
+FAULTS: dict[str, _Fault] = {
+    "fault.silent_box": _Fault(-1, "Silence one Net F/T box (0-2), all (3) or none (-1)", -1, 3),
+    "fault.drop_probability": _Fault(0.0, "Drop each RDT record with this probability", 0.0, 1.0),
+    "fault.packet_delay": _Fault(0.0, "Send every RDT record this late [s]", 0.0, 1.0),
+    "fault.status_word": _Fault(0, "Status word in every RDT record (0: healthy)", 0, 2**32 - 1),
+    "fault.wrong_length": _Fault(False, "Send 35-byte datagrams instead of RDT records"),
+    "fault.joint_limit": _Fault(False, "Report joint 4 past its upper limit (encoder glitch)"),
+    "fault.stuck_finger": _Fault(-1, "Finger (0-2) that ignores every command; -1: none", -1, 2),
+    "fault.extra_force": _Fault(
+        0.0, "Force [N] added to fingertip 1's load along its z (synthetic contact)", -100.0, 100.0
+    ),
+    "bench.crossing_threshold": _Fault(
+        0.0, "Record every box's first |force| over this [N] (0: off)", 0.0, 1000.0
+    ),
+}
+
+
+def _seconds(duration) -> float:
+    return duration.sec + 1e-9 * duration.nanosec
+
+
+def validate_trajectory(goal, q_now: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(q (M,7) in ARM_JOINTS order [rad], t (M,) [s]) of a FollowJointTrajectory goal; ValueError
+    with the reason when a JTC would reject it."""
+    traj = goal.trajectory
+    names = list(traj.joint_names)
+    if len(names) != 7 or set(names) != set(ARM_JOINTS):
+        raise ValueError(f"joint_names must be the 7 arm joints {list(ARM_JOINTS)}, got {names}")
+    if not traj.points:
+        raise ValueError("the trajectory has no points")
+    order = [names.index(n) for n in ARM_JOINTS]
+    q, t = [], []
+    for k, p in enumerate(traj.points):
+        if len(p.positions) != 7:
+            raise ValueError(f"point {k} has {len(p.positions)} positions, not 7")
+        for field in ("velocities", "accelerations"):
+            n = len(getattr(p, field))
+            if n not in (0, 7):
+                raise ValueError(f"point {k} has {n} {field}, not 0 or 7")
+            if n and not np.all(np.isfinite(getattr(p, field))):
+                raise ValueError(f"point {k} has non-finite {field}")
+        q.append(np.asarray(p.positions, dtype=float)[order])
+        t.append(_seconds(p.time_from_start))
+    q, t = np.array(q), np.array(t)
+    if not np.all(np.isfinite(q)):
+        raise ValueError("non-finite positions")
+    if t[0] < 0.0 or np.any(np.diff(t) <= 0.0):
+        raise ValueError(f"time_from_start must increase strictly from >= 0, got {t.tolist()}")
+    last_v = traj.points[-1].velocities
+    if len(last_v) and np.any(np.asarray(last_v) != 0.0):
+        raise ValueError("the last point must have zero velocity")
+    if t[0] == 0.0 and np.abs(q[0] - q_now).max() > START_TOLERANCE:
+        raise ValueError("the first point, at time 0, is away from the arm's configuration")
+    return q, t
+
+
+class FakeHwNode(Node):
+    """The emulated drivers (see the module doc)."""
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        self._declare_parameters()
+        p = lambda name: self.get_parameter(name).value
+        self.robot = EmulatedRobot(p("object_name"), p("seed"), p("sensor_noise"))
+        group = ReentrantCallbackGroup()
+        self.events_pub = self.create_publisher(DiagnosticStatus, "/fake_hw/events", 100)
+        self._goal_done: dict[int, threading.Event] = {}
+        self._goal_ids: dict[bytes, int] = {}
+        self._map_lock = threading.RLock()
+        self.robot.add_listener(self._on_event)
+        self.joint_pub = self.create_publisher(JointState, "/joint_states", 10)
+        self._js_msg = JointState(name=list(JOINT_NAMES))
+        self.pads_pub = self.create_publisher(ContactPads, "/bhand/contact_pads", 10)
+        action = f"/{p('controller_name')}/follow_joint_trajectory"
+        self._action = ActionServer(
+            self,
+            FollowJointTrajectory,
+            action,
+            execute_callback=self._execute,
+            goal_callback=self._on_goal,
+            cancel_callback=self._on_cancel,
+            callback_group=group,
+        )
+        srv = lambda kind, name, cb: self.create_service(kind, name, cb, callback_group=group)
+        srv(FingerPosition, "/bhand/moveToFingerPositions", self.on_finger_positions)
+        srv(SpreadPosition, "/bhand/moveToSpreadPosition", self.on_spread_position)
+        srv(FingerVelocity, "/bhand/moveToFingerVelocities", self.on_finger_velocities)
+        srv(GraspPosition, "/bhand/moveToGraspPosition", self.on_grasp_position)
+        srv(Trigger, "/bhand/openGrasp", self.on_open_grasp)
+        srv(Trigger, "/bhand/closeGrasp", self.on_close_grasp)
+        srv(Trigger, "/bhand/idle", self.on_idle)
+        self.eval = EvalServices(
+            self,
+            world=lambda: self.robot.world,
+            exclusive=self.robot.exclusive,
+            reset_world=self.robot.reset,
+            group=group,
+            names=EvalNames(
+                reset="/rrg/reset_sim",
+                judge="/rrg/eval/judge_grasp",
+                object_pose="/rrg/eval/object_pose",
+                outcome="/rrg/eval/grasp_outcome",
+                observation="/rrg/observation",
+            ),
+        )
+        calibration = Calibration(p("counts_per_force"), p("counts_per_torque"))
+        noise = p("sensor_noise")
+        self.boxes: list[FakeNetFtBox] = []
+        try:
+            for i, host in enumerate(p("rdt_hosts")):
+                self.boxes.append(
+                    FakeNetFtBox(
+                        host,
+                        lambda i=i: self.robot.tip_load(i),
+                        calibration,
+                        rate_hz=p("rdt_rate"),
+                        port=p("rdt_port"),
+                        noise_n=SENSING.nano17_force_noise * noise,
+                        noise_nm=PHYSICS.nano17_torque_noise * noise,
+                        seed=p("seed") + 1 + i,
+                    )
+                )
+        except OSError:
+            self._close_boxes()
+            raise
+        self._crossing: tuple[float, list[bool]] | None = None
+        self._apply({name: p(name) for name in FAULTS}, startup=True)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.create_timer(CROSSING_POLL_PERIOD, self._poll_crossings, callback_group=group)
+        self.robot.start()
+        self._stop = threading.Event()
+        self._publisher = threading.Thread(
+            target=self._publish_loop, name="fake_hw_pub", daemon=True
+        )
+        self._publisher.start()
+        self.get_logger().info(
+            f"emulated drivers ready: {self.robot.world.obj.name}, {action}, /bhand/*, "
+            f"Net F/T boxes at {', '.join(b.host for b in self.boxes)}:{p('rdt_port')}"
+        )
+
+    def _declare_parameters(self) -> None:
+        ro = dict(read_only=True)
+        d = self.declare_parameter
+        d(
+            "object_name",
+            "powerdrill",
+            ParameterDescriptor(
+                description=f"Object at start ({', '.join(OBJECT_NAMES)}); reset_sim may change it",
+                **ro,
+            ),
+        )
+        d(
+            "seed",
+            0,
+            ParameterDescriptor(
+                description="Seed of the sensor noise",
+                integer_range=[IntegerRange(from_value=0, to_value=2**31 - 1, step=1)],
+                **ro,
+            ),
+        )
+        d(
+            "sensor_noise",
+            1.0,
+            ParameterDescriptor(
+                description="Scale of every sensor's noise sigma (1: config values, 0: noiseless)",
+                floating_point_range=[FloatingPointRange(from_value=0.0, to_value=10.0)],
+                **ro,
+            ),
+        )
+        for name, default, lo, hi, text in (
+            ("joint_state_rate", 500.0, 1.0, 1000.0, "Rate [Hz] of /joint_states (wam_node: 500)"),
+            ("pad_rate", 50.0, 1.0, 500.0, "Rate [Hz] of the pads (BarrettHand feedback: 50)"),
+            ("rdt_rate", 1000.0, 1.0, 7000.0, "Rate [Hz] of each Net F/T box's RDT stream"),
+            ("counts_per_force", 1e6, 1.0, 1e9, "Net F/T calibration [counts/N]"),
+            ("counts_per_torque", 1e6, 1.0, 1e9, "Net F/T calibration [counts/(N m)]"),
+        ):
+            d(
+                name,
+                default,
+                ParameterDescriptor(
+                    description=text,
+                    floating_point_range=[FloatingPointRange(from_value=lo, to_value=hi)],
+                    **ro,
+                ),
+            )
+        d(
+            "rdt_hosts",
+            ["127.0.0.2", "127.0.0.3", "127.0.0.4"],
+            ParameterDescriptor(description="Addresses of the Net F/T boxes, fingers 1-3", **ro),
+        )
+        d(
+            "rdt_port",
+            49152,
+            ParameterDescriptor(
+                description="UDP port of every Net F/T box (RDT: 49152)",
+                integer_range=[IntegerRange(from_value=1, to_value=65535, step=1)],
+                **ro,
+            ),
+        )
+        d(
+            "controller_name",
+            "arm_controller",
+            ParameterDescriptor(description="Name of the emulated trajectory controller", **ro),
+        )
+        for name, f in FAULTS.items():
+            desc = ParameterDescriptor(description=f.description)
+            if isinstance(f.default, bool):
+                pass
+            elif isinstance(f.default, int):
+                desc.integer_range = [IntegerRange(from_value=f.lo, to_value=f.hi, step=1)]
+            else:
+                desc.floating_point_range = [FloatingPointRange(from_value=f.lo, to_value=f.hi)]
+            d(name, f.default, desc)
+
+    # ------------------------------------------------------------------ faults
+    def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        values = {}
+        for prm in params:
+            if prm.name not in FAULTS:
+                continue  # read-only ones are refused by their descriptors
+            f, v = FAULTS[prm.name], prm.value
+            kind = type(f.default)
+            if kind is float and type(v) is int:
+                v = float(v)
+            if type(v) is not kind or (
+                f.lo is not None and not (np.isfinite(v) and f.lo <= v <= f.hi)
+            ):
+                return SetParametersResult(
+                    successful=False,
+                    reason=f"{prm.name}: {v!r} is not a {kind.__name__} in [{f.lo}, {f.hi}]",
+                )
+            values[prm.name] = v
+        self._apply(values)
+        return SetParametersResult(successful=True)
+
+    def _apply(self, values: dict, startup: bool = False) -> None:
+        """Put validated fault/bench parameter values into effect."""
+        for name, v in values.items():
+            if name == "fault.silent_box":
+                for i, box in enumerate(self.boxes):
+                    box.silence(v in (i, ALL_BOXES))
+            elif name == "fault.drop_probability":
+                for box in self.boxes:
+                    box.drop_probability(v)
+            elif name == "fault.packet_delay":
+                for box in self.boxes:
+                    box.delay(v)
+            elif name == "fault.status_word":
+                for box in self.boxes:
+                    box.status_word(v)
+            elif name == "fault.wrong_length":
+                for box in self.boxes:
+                    box.wrong_length(v)
+            elif name == "fault.joint_limit":
+                self.robot.set_joint_limit_fault(v)
+            elif name == "fault.stuck_finger":
+                self.robot.set_stuck_finger(None if v < 0 else v)
+            elif name == "fault.extra_force":
+                self.robot.set_extra_force(v)
+            elif name == "bench.crossing_threshold":
+                self._crossing = None
+                if v > 0.0:
+                    for box in self.boxes:
+                        box.arm_crossing(v)
+                    self._crossing = (v, [False] * len(self.boxes))
+            if v != FAULTS[name].default:
+                self.get_logger().warn(f"{name} = {v}")
+            elif not startup:
+                self.get_logger().info(f"{name} = {v} (off)")
+
+    def _poll_crossings(self) -> None:
+        crossing = self._crossing
+        if crossing is None:
+            return
+        threshold, reported = crossing
+        for i, box in enumerate(self.boxes):
+            t = box.first_crossing(threshold)
+            if t is not None and not reported[i]:
+                reported[i] = True
+                self._publish_event(
+                    Event("first_crossing", t, {"box": i, "host": box.host, "threshold": threshold})
+                )
+
+    # ------------------------------------------------------------------ events and state
+    def _on_event(self, event: Event) -> None:
+        if event.name == "goal_finished":
+            with self._map_lock:
+                done = self._goal_done.get(event.details["goal_id"])
+            if done is not None:
+                done.set()
+        self._publish_event(event)
+
+    def _publish_event(self, event: Event) -> None:
+        values = [KeyValue(key="time", value=f"{event.time_s:.9f}")]
+        values += [KeyValue(key=k, value=str(v)) for k, v in event.details.items()]
+        self.events_pub.publish(
+            DiagnosticStatus(
+                level=DiagnosticStatus.OK,
+                name=event.name,
+                message=", ".join(f"{k}={v}" for k, v in event.details.items()),
+                hardware_id=NODE_NAME,
+                values=values,
+            )
+        )
+
+    def _publish_loop(self) -> None:
+        """Joint states at joint_state_rate, pads and the true object pose at pad_rate (a thread
+        of its own: an executor timer at 500 Hz costs far more)."""
+        js_period = 1.0 / self.get_parameter("joint_state_rate").value
+        pad_period = 1.0 / self.get_parameter("pad_rate").value
+        next_js = next_pad = time.monotonic()
+        while not self._stop.is_set():
+            now = time.monotonic()
+            wake = min(next_js, next_pad)
+            if now < wake:
+                time.sleep(wake - now)
+                continue
+            try:
+                pads_due = now >= next_pad
+                s = self.robot.snapshot(pads=pads_due)
+                stamp = self.get_clock().now().to_msg()
+                if now >= next_js:
+                    self.joint_pub.publish(self._joint_state(s, stamp))
+                    next_js = max(next_js + js_period, now - js_period)
+                if pads_due:
+                    pads = ContactPads(
+                        in_contact=[bool(f) for f in s.pads > SENSING.pad_force_threshold],
+                        force=s.pads.tolist(),
+                    )
+                    pads.header.stamp, pads.header.frame_id = stamp, HAND_FRAME
+                    self.pads_pub.publish(pads)
+                    self.eval.publish_truth(stamp, self.robot.object_pose())
+                    next_pad = max(next_pad + pad_period, now - pad_period)
+            except Exception as exc:
+                if self._stop.is_set() or not self.context.ok():  # shutting down
+                    return
+                self.get_logger().error(f"state publishing failed: {type(exc).__name__}: {exc}")
+                time.sleep(0.1)
+
+    def _joint_state(self, s, stamp) -> JointState:
+        """The JointState of a snapshot, in one reused message (publish serializes it at once;
+        array.array fields skip the per-element checks)."""
+        doubles = lambda *parts: array.array("d", np.concatenate(parts).tobytes())
+        msg = self._js_msg
+        msg.header.stamp = stamp
+        msg.position = doubles(s.arm_q, s.spread, s.proximal, s.distal)
+        msg.velocity = doubles(s.arm_qd, s.spread_velocity, s.proximal_velocity, s.distal_velocity)
+        msg.effort = doubles(s.arm_effort, UNMEASURED_EFFORT)
+        return msg
+
+    # ------------------------------------------------------------------ trajectory controller
+    def _on_goal(self, goal: FollowJointTrajectory.Goal) -> GoalResponse:
+        try:
+            validate_trajectory(goal, self.robot.snapshot(pads=False).arm_q)
+        except ValueError as exc:
+            self.get_logger().error(f"follow_joint_trajectory goal rejected: {exc}")
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    def _on_cancel(self, handle: ServerGoalHandle) -> CancelResponse:
+        with self._map_lock:
+            goal_id = self._goal_ids.get(bytes(handle.goal_id.uuid))
+        if goal_id is not None:
+            self.robot.cancel(goal_id)
+        return CancelResponse.ACCEPT
+
+    def _execute(self, handle: ServerGoalHandle) -> FollowJointTrajectory.Result:
+        R = FollowJointTrajectory.Result
+        result = R(error_code=R.SUCCESSFUL)
+        key = bytes(handle.goal_id.uuid)
+        try:
+            q, t = validate_trajectory(handle.request, self.robot.snapshot(pads=False).arm_q)
+        except ValueError as exc:  # the arm moved since the goal was accepted
+            result.error_code, result.error_string = R.INVALID_GOAL, str(exc)
+            handle.abort()
+            return result
+        if handle.is_cancel_requested:
+            handle.canceled()
+            return result
+        done = threading.Event()
+        goal_id = self.robot.follow(q, t)
+        with self._map_lock:
+            self._goal_ids[key] = goal_id
+            self._goal_done[goal_id] = done
+            if self.robot.goal_status(goal_id).state is not GoalState.ACTIVE:
+                done.set()
+        try:
+            while not done.wait(FEEDBACK_PERIOD):
+                if handle.is_cancel_requested:  # a cancel that raced the goal's start
+                    self.robot.cancel(goal_id)
+                    continue
+                self._feedback(handle, goal_id)
+            status = self.robot.goal_status(goal_id)
+        finally:
+            with self._map_lock:
+                self._goal_ids.pop(key, None)
+                self._goal_done.pop(goal_id, None)
+        result.error_string = status.message
+        if status.state is GoalState.SUCCEEDED:
+            handle.succeed()
+        elif status.state is GoalState.CANCELED:
+            deadline = time.monotonic() + CANCEL_STATE_WAIT
+            while not handle.is_cancel_requested and time.monotonic() < deadline:
+                time.sleep(0.001)  # the server marks it canceling after our cancel callback
+            handle.canceled()
+        elif status.state is GoalState.PREEMPTED:
+            if not handle.is_cancel_requested:  # JTC cancels a preempted goal
+                handle._update_state(GoalEvent.CANCEL_GOAL)
+            handle.canceled()
+        else:
+            result.error_code = R.INVALID_GOAL
+            handle.abort()
+        return result
+
+    def _feedback(self, handle: ServerGoalHandle, goal_id: int) -> None:
+        status = self.robot.goal_status(goal_id)
+        s = self.robot.snapshot(pads=False)
+        fb = FollowJointTrajectory.Feedback(joint_names=list(ARM_JOINTS))
+        fb.header.stamp = self.get_clock().now().to_msg()
+        fb.desired = JointTrajectoryPoint(positions=status.desired.tolist())
+        fb.actual = JointTrajectoryPoint(positions=s.arm_q.tolist(), velocities=s.arm_qd.tolist())
+        fb.error = JointTrajectoryPoint(positions=(status.desired - s.arm_q).tolist())
+        handle.publish_feedback(fb)
+
+    # ------------------------------------------------------------------ BarrettHand services
+    def _hand(self, what: str, command, *args) -> bool:
+        try:
+            command(*args)
+        except ValueError as exc:
+            self.get_logger().warn(f"{what} refused: {exc}")
+            return False
+        return True
+
+    @staticmethod
+    def _three(values) -> np.ndarray:
+        v = np.asarray(values, dtype=float)
+        if v.shape != (3,):
+            raise ValueError(f"need 3 values, got {len(v)}")
+        return v
+
+    @keep_serving
+    def on_finger_positions(self, req, resp):
+        resp.response = self._hand(
+            "moveToFingerPositions",
+            lambda: self.robot.move_fingers(self._three(req.position)),
+        )
+        return resp
+
+    @keep_serving
+    def on_spread_position(self, req, resp):
+        resp.response = self._hand("moveToSpreadPosition", self.robot.move_spread, req.position)
+        return resp
+
+    @keep_serving
+    def on_finger_velocities(self, req, resp):
+        resp.response = self._hand(
+            "moveToFingerVelocities",
+            lambda: self.robot.finger_velocities(self._three(req.velocity)),
+        )
+        return resp
+
+    @keep_serving
+    def on_grasp_position(self, req, resp):
+        resp.response = self._hand("moveToGraspPosition", self.robot.move_fingers, req.position)
+        return resp
+
+    @keep_serving
+    def on_open_grasp(self, req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
+        self.robot.open_grasp()
+        resp.success, resp.message = True, "opening"
+        return resp
+
+    @keep_serving
+    def on_close_grasp(self, req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
+        self.robot.close_grasp()
+        resp.success, resp.message = True, f"closing to {HAND.proximal_range[1]} rad"
+        return resp
+
+    @keep_serving
+    def on_idle(self, req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
+        self.robot.idle()
+        resp.success, resp.message = True, "idle: motions stopped, fingers braked"
+        return resp
+
+    # ------------------------------------------------------------------ shutdown
+    def _close_boxes(self) -> None:
+        for box in self.boxes:
+            box.close()
+
+    def destroy_node(self) -> None:
+        if hasattr(self, "_stop"):
+            self._stop.set()
+            self._publisher.join(timeout=1.0)
+        if hasattr(self, "robot"):
+            self.robot.stop()
+            t = self.robot.timing
+            logging.getLogger(NODE_NAME).info(  # the context may be shut down: no rosout
+                f"real time: {t.steps} steps, {t.overruns} dropped periods, "
+                f"{t.late_steps} late steps, max lateness {1e3 * t.max_lateness_s:.2f} ms"
+            )
+        if hasattr(self, "boxes"):
+            self._close_boxes()
+        super().destroy_node()
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_node(FakeHwNode, multi_threaded=True, argv=argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
