@@ -143,3 +143,24 @@ class ContactGuard:
         if change[j] > self.effort_threshold:
             return Trip(np.zeros(10, bool), j, float(change[j]))
         return None
+
+
+class VelocityEstimate:
+    """Joint velocities [rad/s] from positions alone, for drivers whose joint states carry none
+    (Barrett's wam_node): finite differences, low-passed with time constant ``tau_s``."""
+
+    def __init__(self, n: int, tau_s: float = 0.01):
+        self.tau_s = tau_s
+        self.velocity = np.zeros(n)
+        self._q: np.ndarray | None = None
+        self._t = 0.0
+
+    def update(self, q: np.ndarray, t_s: float) -> np.ndarray:
+        """The estimate after positions q (n,) [rad] measured at time t_s [s]."""
+        q = np.asarray(q, dtype=float)
+        if self._q is not None and t_s > self._t:
+            dt = t_s - self._t
+            raw = np.nan_to_num((q - self._q) / dt)
+            self.velocity += (raw - self.velocity) * (1.0 - np.exp(-dt / self.tau_s))
+        self._q, self._t = q.copy(), t_s
+        return self.velocity.copy()

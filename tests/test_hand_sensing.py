@@ -131,3 +131,16 @@ def test_path_index_projects_a_measured_configuration():
     assert path_index(q, probe) == pytest.approx(0.5)
     probe[0] = 1.0
     assert path_index(q, probe) == pytest.approx(3.0)
+
+
+def test_velocity_estimate_follows_a_ramp_and_settles_at_rest():
+    from rrg_hw_bridge.guard import VelocityEstimate
+
+    est = VelocityEstimate(2, tau_s=0.01)
+    dt = 0.002  # a 500 Hz driver
+    for k in range(100):  # 0.2 s at 0.5 rad/s on joint 0
+        v = est.update(np.array([0.5 * k * dt, 1.0]), k * dt)
+    assert v[0] == pytest.approx(0.5, rel=1e-3) and v[1] == 0.0
+    for k in range(100, 150):  # stopped
+        v = est.update(np.array([0.5 * 99 * dt, 1.0]), k * dt)
+    assert abs(v[0]) < PHYSICS.stall_speed

@@ -16,6 +16,10 @@ readings are noisy (arm external torque, pads); the fingertip loads are noise-fr
 tared, since the emulated Net F/T boxes add their own noise and the bias is the client's job.
 Faults: a stuck finger, a joint-4 encoder glitch past its limit, and a synthetic force on
 fingertip 1.
+
+The same arm also answers as Barrett's own ROS 2 wam_node does (its own section below): a
+real-time joint position stream that sets the servo targets and holds the arm after 0.5 s of
+silence, holdJointPosition, and moveToJointPosition as a trapezoidal move.
 """
 
 from __future__ import annotations
@@ -33,7 +37,7 @@ import numpy as np
 from rrg_sim import wam
 from rrg_sim.config import HAND, PHYSICS
 from rrg_sim.executor.trajectory import servo_targets
-from rrg_sim.physics.mjcf_robot import TIP_FORCE, TIP_TORQUE
+from rrg_sim.physics.mjcf_robot import ARM_JOINTS, TIP_FORCE, TIP_TORQUE
 from rrg_sim.physics.sensing import HandSensors
 from rrg_sim.physics.world import PhysicsWorld
 
@@ -61,6 +65,24 @@ DISTAL_JOINTS = tuple(f"bh/f{i}_dist" for i in (1, 2, 3))
 
 # Hand channel modes.
 _HOLD, _POSITION, _VELOCITY = 0, 1, 2
+
+# wam_node's arm interface (Barrett's barrett-ros2-pkg; its wam_node/src at e9056c2 of the copy
+# github.com/gaolongsen/WAM-ROS2: wam_subscribers.h and wam_services.h).
+#: wam_node holds the arm when no real-time command arrived for this long [s] (kRtMsgTimeout).
+WAM_RT_TIMEOUT = 0.5
+#: libbarrett's Wam::moveTo defaults, used by wam_node's moveToJointPosition: 0.5 rad/s and
+#: 0.5 rad/s² along the straight joint-space line (systems/wam.h).
+MOVE_TO_VELOCITY = 0.5
+MOVE_TO_ACCELERATION = 0.5
+#: Spacing [s] of the via-points an emulated moveTo samples its trapezoid at (chosen).
+MOVE_TO_SAMPLE = 0.02
+#: A streamed command's velocity feed-forward applies while it is this fresh [s] (chosen: 5
+#: periods; a stream that stops leaves the arm at its last position, not ahead of it).
+RT_FEED_FORWARD_AGE = 0.01
+#: Messages of the goals that wam_node's commands end (emulation's own).
+RT_PREEMPTED_MESSAGE = "replaced by wam_node's real-time joint position stream"
+RT_TIMEOUT_MESSAGE = "wam_node: RT Control timed-out (holding)"
+HOLD_MESSAGE = "replaced by wam_node's holdJointPosition"
 
 
 class GoalState(Enum):
@@ -113,6 +135,7 @@ class Snapshot:
     distal_velocity: np.ndarray  # (3,) [rad/s]
     pads: np.ndarray  # (7,) pad forces [N], noisy
     tip_loads: np.ndarray  # (3,6) load on each fingertip [N, N m], sensor frame, noise-free
+    arm_torque: np.ndarray | None = None  # (7,) commanded joint torques [N m] (wam_node's)
 
 
 @dataclass
@@ -188,6 +211,7 @@ class EmulatedRobot:
         self._finger_speed = np.zeros(3)
         self._braked = np.zeros(3, bool)
         self._loads = self._read_loads()
+        self._wam_reset()
 
     def _read_loads(self) -> np.ndarray:
         """(3,6) raw fingertip loads (HandSensors.read's wrench, noise-free, bias zero) with the
@@ -288,12 +312,15 @@ class EmulatedRobot:
         """One control period (call under the lock)."""
         w = self.world
         arm = None
+        self._rt_watch()
         goal = self._goal
         if goal is not None:
             arm = goal.ctrl[goal.k]
             goal.k += 1
             if goal.k >= len(goal.ctrl):
                 self._finish(goal, GoalState.SUCCEEDED, "", time.monotonic())
+        elif self._rt_tracking:
+            arm = self._rt_target()
         self._hand_step()
         w.step(arm, self._hand_target)
         self._loads = self._read_loads()
@@ -357,6 +384,7 @@ class EmulatedRobot:
             if t[0] > 0.0:
                 q, t = np.vstack([self.world.arm_q(), q]), np.r_[0.0, t]
             ctrl, index = servo_targets(q, t)
+            self._rt_tracking = False  # the goal replaces wam_node's stream
             if self._goal is not None:
                 self._finish(self._goal, GoalState.PREEMPTED, PREEMPTED_MESSAGE, received)
             goal = _Goal(self._next_goal_id, q, ctrl, index)
@@ -406,6 +434,123 @@ class EmulatedRobot:
     def active_goal(self) -> int | None:
         goal = self._goal
         return None if goal is None else goal.goal_id
+
+    # ------------------------------------------------------------------ wam_node's arm interface
+    # Barrett's ROS 2 wam_node on the same arm: the real-time joint position stream and its
+    # timeout (wam_subscribers.h: rtJointPositionCb, updateRT), holdJointPosition and
+    # moveToJointPosition (wam_services.h). One arm: a stream, a hold, a move and a trajectory
+    # goal each replace what the arm tracked before.
+
+    def _wam_reset(self) -> None:
+        """wam_node's real-time mode off (call under the lock)."""
+        self._rt_active = False  # wam_node's rt_joint_position_status_
+        self._rt_tracking = False  # the arm tracks the streamed reference (jp_track_)
+        self._rt_last = -np.inf  # sim time [s] of the newest streamed command
+        self._rt_q = self.world.arm_q()  # the streamed reference [rad]
+        self._rt_ff = np.zeros(7)  # its velocity feed-forward [rad]
+        self._rt_prev: tuple[float, np.ndarray] | None = None  # (stamp [s], q) of the last one
+        self._rt_ignored = False  # a command the arm does not track arrived (reported once)
+        m = self.world.model
+        self._arm_dof = np.array([m.jnt_dofadr[m.joint(n).id] for n in ARM_JOINTS])
+
+    def rt_joint_positions(self, q, stamp_s: float = 0.0) -> None:
+        """One command of wam_node's real-time joint position stream (/wam/RTJointPositionCMD):
+        joint positions (7,) [rad] stamped ``stamp_s`` [s] (its header's; 0: unknown). As
+        wam_node: the first command of a stream starts tracking at the measured configuration
+        (its positions are ignored) and replaces any move; later ones set the reference the arm
+        tracks, unless a hold or a move replaced the stream since it started: then they only
+        keep it alive (event rt_command_ignored, once). Stream silence for WAM_RT_TIMEOUT holds
+        the arm (event rt_timeout). The model's servo damping would lag the reference by
+        kv/kp q̇, which the real arm's stiff, lightly damped PD does not: the velocity between
+        two stamped commands is fed forward as servo_targets does. ValueError for a command of
+        the wrong size (wam_node drops it) or non-finite positions (wam_node would send them
+        to the arm)."""
+        received = time.monotonic()
+        q = np.asarray(q, dtype=float)
+        if q.shape != (7,):
+            raise ValueError(f"need 7 joint positions, got {q.size}")
+        if not np.all(np.isfinite(q)):
+            raise ValueError(f"non-finite joint positions {q.tolist()}")
+        with self._lock:
+            if not self._rt_active:
+                self._rt_active = self._rt_tracking = True
+                self._rt_ignored = False
+                if self._goal is not None:
+                    self._finish(self._goal, GoalState.PREEMPTED, RT_PREEMPTED_MESSAGE, received)
+                self._rt_q, self._rt_ff = self.world.arm_q(), np.zeros(7)
+                self._emit("rt_stream_started", received)
+            else:
+                self._rt_q, self._rt_ff = q, np.zeros(7)
+                if self._rt_prev is not None and 0.0 < stamp_s - self._rt_prev[0] <= 0.1:
+                    velocity = (q - self._rt_prev[1]) / (stamp_s - self._rt_prev[0])
+                    self._rt_ff = velocity * (np.asarray(PHYSICS.arm_kv) / PHYSICS.arm_kp)
+                if not self._rt_tracking and not self._rt_ignored:
+                    self._rt_ignored = True
+                    self._emit("rt_command_ignored", received)
+            self._rt_prev = (stamp_s, q) if stamp_s > 0.0 else None
+            self._rt_last = self.world.sim_time
+        self._dispatch()
+
+    def _rt_target(self) -> np.ndarray:
+        """The arm's servo target while it tracks the stream (call under the lock)."""
+        if self.world.sim_time - self._rt_last <= RT_FEED_FORWARD_AGE:
+            return self._rt_q + self._rt_ff
+        return self._rt_q
+
+    def _rt_watch(self) -> None:
+        """wam_node's updateRT: a stream silent for WAM_RT_TIMEOUT ends the real-time mode and
+        holds the arm where it is, whatever it was doing (call under the lock)."""
+        if self._rt_active and self.world.sim_time - self._rt_last > WAM_RT_TIMEOUT:
+            now = time.monotonic()
+            self._rt_active = self._rt_tracking = False
+            if self._goal is not None:
+                self._finish(self._goal, GoalState.ABORTED, RT_TIMEOUT_MESSAGE, now)
+            self.world.hold_arm()
+            self._emit("rt_timeout", now)
+
+    def hold_joint_position(self, hold: bool = True) -> None:
+        """wam_node's /wam/holdJointPosition: true holds the arm where it is measured
+        (libbarrett's moveTo(getJointPositions(), false)), replacing any stream, move or goal; a
+        stream's real-time mode goes on until its timeout, and its commands meanwhile do not
+        reach the arm. false (wam_node: idle, the arm floats in gravity compensation) is
+        emulated as a hold, the model having no idle mode (event release_received)."""
+        received = time.monotonic()
+        with self._lock:
+            self._rt_tracking = False
+            if self._goal is not None:
+                self._finish(self._goal, GoalState.PREEMPTED, HOLD_MESSAGE, received)
+            self.world.hold_arm()
+            self._emit("hold_received" if hold else "release_received", received)
+        self._dispatch()
+
+    def move_to_joint_position(self, q) -> int:
+        """wam_node's /wam/moveToJointPosition: a straight joint-space move from the measured
+        configuration to q (7,) [rad] with a trapezoidal speed profile (MOVE_TO_VELOCITY,
+        MOVE_TO_ACCELERATION, from rest), a trajectory goal of its own (goal_status); returns
+        its goal id. ValueError for a wrong size or non-finite positions."""
+        q = np.asarray(q, dtype=float)
+        if q.shape != (7,) or not np.all(np.isfinite(q)):
+            raise ValueError(f"need 7 finite joint positions, got {q.tolist()}")
+        with self._lock:
+            q0 = self.world.arm_q()
+        length = float(np.linalg.norm(q - q0))
+        v, a = MOVE_TO_VELOCITY, MOVE_TO_ACCELERATION
+        ramp = min(v / a, np.sqrt(length / a))  # [s] accelerating (and decelerating)
+        peak = a * ramp
+        cruise = (length - peak * ramp) / peak if peak > 0.0 else 0.0
+        total = max(2.0 * ramp + cruise, PHYSICS.timestep)
+        t = np.r_[np.arange(MOVE_TO_SAMPLE, total, MOVE_TO_SAMPLE), total]
+        up, flat = np.minimum(t, ramp), np.clip(t - ramp, 0.0, cruise)
+        down = np.clip(t - ramp - cruise, 0.0, ramp)
+        s = a * up**2 / 2 + peak * flat + peak * down - a * down**2 / 2
+        fraction = np.clip(s / length, 0.0, 1.0) if length > 0.0 else np.ones_like(t)
+        return self.follow(q0 + fraction[:, None] * (q - q0), t)
+
+    def _joint_torques(self) -> np.ndarray:
+        """(7,) the arm's commanded joint torques [N m], gravity compensation included: what
+        wam_node reports as effort (libbarrett's getJointTorques; call under the lock)."""
+        d = self.world.data
+        return d.qfrc_actuator[self._arm_dof] + d.qfrc_gravcomp[self._arm_dof]
 
     # ------------------------------------------------------------------ hand
     def _commandable(self, fingers) -> np.ndarray:
@@ -555,6 +700,7 @@ class EmulatedRobot:
                 distal_velocity=d.qvel[self._hand_v["distal"]].copy(),
                 pads=pad_forces,
                 tip_loads=self._loads.copy(),
+                arm_torque=self._joint_torques(),
             )
 
 

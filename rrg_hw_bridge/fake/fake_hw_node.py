@@ -1,6 +1,7 @@
 r"""Emulated hardware drivers driven by MuJoCo: the interfaces of a WAM under a ros2_control
-JointTrajectoryController, Barrett's BarrettHand services (wam_node) and three ATI Net F/T
-boxes, with a real grasp happening behind them (rrg_hw_bridge.fake.emulated_robot).
+JointTrajectoryController and under Barrett's wam_node, Barrett's BarrettHand services
+(wam_node) and three ATI Net F/T boxes, with a real grasp happening behind them
+(rrg_hw_bridge.fake.emulated_robot).
 
     python -m rrg_hw_bridge.fake.fake_hw_node \
         [--ros-args -p object_name:=box -p sensor_noise:=1.0 -p rdt_port:=49152]
@@ -9,9 +10,15 @@ boxes, with a real grasp happening behind them (rrg_hw_bridge.fake.emulated_robo
   goals must name the 7 arm joints wam_j1_joint … wam_j7_joint (any order) with finite points
   of 7 positions and strictly increasing times; others are rejected (as JTC does). A new goal
   preempts the running one; a cancel holds the arm at once. Feedback ~50 Hz.
-* ``/joint_states`` (sensor_msgs/JointState) at joint_state_rate: arm joints (effort: the
-  external contact torque [N m], noisy) and the hand's spread, proximal and distal joints
-  (effort NaN: not measured).
+* Barrett's wam_node arm interface (WamNodeInterface): ``/wam/RTJointPositionCMD``
+  (wam_msgs/RTJointPositions) streaming the servo targets, held 0.5 s after it falls silent;
+  ``/wam/holdJointPosition`` (std_srvs/SetBool); ``/wam/moveToJointPosition`` (wam_srvs/JointMove,
+  a trapezoidal move). ``arm_interface`` chooses follow_joint_trajectory, wam_node or both (the
+  default); both drive the one arm, each command replacing what it tracked.
+* ``/joint_states`` (sensor_msgs/JointState) at joint_state_rate: arm joints wam_j1_joint …
+  (effort: the external contact torque [N m], noisy) and, with wam_node, q1 … q7 (effort: the
+  commanded torque; wam_node alone: no velocities, as wam_node's), then the hand's spread,
+  proximal and distal joints (effort NaN: not measured).
 * services ``/bhand/moveToFingerPositions``, ``/bhand/moveToSpreadPosition``,
   ``/bhand/moveToFingerVelocities``, ``/bhand/moveToGraspPosition`` (bhand_srvs) and
   ``/bhand/openGrasp``, ``/bhand/closeGrasp``, ``/bhand/idle`` (std_srvs/Trigger): the move
@@ -20,7 +27,8 @@ boxes, with a real grasp happening behind them (rrg_hw_bridge.fake.emulated_robo
 * three emulated Net F/T boxes (RDT over UDP on rdt_hosts:rdt_port) streaming the fingertip
   loads at rdt_rate.
 * ``/fake_hw/events`` (diagnostic_msgs/DiagnosticStatus): goal_accepted, cancel_received,
-  goal_finished, first_crossing, each with its time.monotonic() instant.
+  goal_finished, first_crossing and wam_node's rt_stream_started, rt_command_ignored,
+  rt_timeout, hold_received, release_received, each with its time.monotonic() instant.
 * simulation only: ``/rrg/reset_sim``, ``/rrg/eval/judge_grasp``, ``/rrg/eval/object_pose``,
   ``/rrg/eval/grasp_outcome`` (rrg_sim.ros.eval_services, as the simulator node).
 
@@ -49,11 +57,14 @@ from rcl_interfaces.msg import (
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.action.server import GoalEvent, ServerGoalHandle
 from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
-from std_srvs.srv import Trigger
+from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectoryPoint
+from wam_msgs.msg import RTJointPositions
+from wam_srvs.srv import JointMove
 
 from rrg_msgs.msg import ContactPads
 from rrg_sim.config import HAND, PHYSICS, SENSING
@@ -73,6 +84,13 @@ SPREAD_JOINTS = ("bhand_j11_joint", "bhand_j21_joint")
 PROXIMAL_JOINTS = ("bhand_j12_joint", "bhand_j22_joint", "bhand_j32_joint")
 DISTAL_JOINTS = ("bhand_j13_joint", "bhand_j23_joint", "bhand_j33_joint")
 JOINT_NAMES = ARM_JOINTS + SPREAD_JOINTS + PROXIMAL_JOINTS + DISTAL_JOINTS
+#: The arm interfaces the node can serve (parameter arm_interface): the trajectory controller,
+#: Barrett's wam_node (WamNodeInterface), or both on the one arm.
+ARM_INTERFACES = ("follow_joint_trajectory", "wam_node", "both")
+#: wam_node's arm joint names in /joint_states (wam_publishers.h: "q" + (i + 1)).
+WAM_NODE_ARM_JOINTS = tuple(f"q{i}" for i in range(1, 8))
+#: Efforts of the hand joints in wam_node's /joint_states: never set, so 0.
+WAM_NODE_HAND_EFFORT = np.zeros(8)
 HAND_FRAME = "bhand_palm_link"
 #: Efforts of the hand joints in /joint_states: not measured.
 UNMEASURED_EFFORT = np.full(8, np.nan)
@@ -169,18 +187,25 @@ class FakeHwNode(Node):
         self._map_lock = threading.RLock()
         self.robot.add_listener(self._on_event)
         self.joint_pub = self.create_publisher(JointState, "/joint_states", 10)
-        self._js_msg = JointState(name=list(JOINT_NAMES))
+        self.arm_interface = p("arm_interface")
+        if self.arm_interface not in ARM_INTERFACES:
+            raise ValueError(f"arm_interface must be one of {ARM_INTERFACES}")
+        self._js_msg = JointState(name=list(self._joint_names()))
         self.pads_pub = self.create_publisher(ContactPads, "/bhand/contact_pads", 10)
         action = f"/{p('controller_name')}/follow_joint_trajectory"
-        self._action = ActionServer(
-            self,
-            FollowJointTrajectory,
-            action,
-            execute_callback=self._execute,
-            goal_callback=self._on_goal,
-            cancel_callback=self._on_cancel,
-            callback_group=group,
-        )
+        if self.arm_interface != "wam_node":
+            self._action = ActionServer(
+                self,
+                FollowJointTrajectory,
+                action,
+                execute_callback=self._execute,
+                goal_callback=self._on_goal,
+                cancel_callback=self._on_cancel,
+                callback_group=group,
+            )
+        self._wam = None
+        if self.arm_interface != "follow_joint_trajectory":
+            self._wam = WamNodeInterface(self, self.robot, group)
         srv = lambda kind, name, cb: self.create_service(kind, name, cb, callback_group=group)
         srv(FingerPosition, "/bhand/moveToFingerPositions", self.on_finger_positions)
         srv(SpreadPosition, "/bhand/moveToSpreadPosition", self.on_spread_position)
@@ -233,8 +258,10 @@ class FakeHwNode(Node):
             target=self._publish_loop, name="fake_hw_pub", daemon=True
         )
         self._publisher.start()
+        arm = {"follow_joint_trajectory": action, "wam_node": "/wam/*"}
         self.get_logger().info(
-            f"emulated drivers ready: {self.robot.world.obj.name}, {action}, /bhand/*, "
+            f"emulated drivers ready: {self.robot.world.obj.name}, "
+            f"{arm.get(self.arm_interface, f'{action} and /wam/*')}, /bhand/*, "
             f"Net F/T boxes at {', '.join(b.host for b in self.boxes)}:{p('rdt_port')}"
         )
 
@@ -301,6 +328,15 @@ class FakeHwNode(Node):
             "controller_name",
             "arm_controller",
             ParameterDescriptor(description="Name of the emulated trajectory controller", **ro),
+        )
+        d(
+            "arm_interface",
+            "both",
+            ParameterDescriptor(
+                description="The arm's driver interface: the trajectory controller, Barrett's "
+                f"wam_node, or both (one of {', '.join(ARM_INTERFACES)})",
+                **ro,
+            ),
         )
         for name, f in FAULTS.items():
             desc = ParameterDescriptor(description=f.description)
@@ -437,15 +473,37 @@ class FakeHwNode(Node):
                 self.get_logger().error(f"state publishing failed: {type(exc).__name__}: {exc}")
                 time.sleep(0.1)
 
+    def _joint_names(self) -> tuple[str, ...]:
+        """The /joint_states names: the trajectory controller's arm joints (effort: external
+        torque), wam_node's (effort: commanded torque), or both, then the hand's."""
+        arm = {
+            "follow_joint_trajectory": ARM_JOINTS,
+            "wam_node": WAM_NODE_ARM_JOINTS,
+            "both": ARM_JOINTS + WAM_NODE_ARM_JOINTS,
+        }[self.arm_interface]
+        return arm + JOINT_NAMES[len(ARM_JOINTS) :]
+
     def _joint_state(self, s, stamp) -> JointState:
         """The JointState of a snapshot, in one reused message (publish serializes it at once;
-        array.array fields skip the per-element checks)."""
+        array.array fields skip the per-element checks). wam_node's alone has no velocities and
+        zero hand efforts, as wam_node's (wam_publishers.h)."""
         doubles = lambda *parts: array.array("d", np.concatenate(parts).tobytes())
         msg = self._js_msg
         msg.header.stamp = stamp
-        msg.position = doubles(s.arm_q, s.spread, s.proximal, s.distal)
-        msg.velocity = doubles(s.arm_qd, s.spread_velocity, s.proximal_velocity, s.distal_velocity)
-        msg.effort = doubles(s.arm_effort, UNMEASURED_EFFORT)
+        hand_q = (s.spread, s.proximal, s.distal)
+        hand_v = (s.spread_velocity, s.proximal_velocity, s.distal_velocity)
+        if self.arm_interface == "follow_joint_trajectory":
+            msg.position = doubles(s.arm_q, *hand_q)
+            msg.velocity = doubles(s.arm_qd, *hand_v)
+            msg.effort = doubles(s.arm_effort, UNMEASURED_EFFORT)
+        elif self.arm_interface == "wam_node":
+            msg.position = doubles(s.arm_q, *hand_q)
+            msg.velocity = array.array("d")
+            msg.effort = doubles(s.arm_torque, WAM_NODE_HAND_EFFORT)
+        else:
+            msg.position = doubles(s.arm_q, s.arm_q, *hand_q)
+            msg.velocity = doubles(s.arm_qd, s.arm_qd, *hand_v)
+            msg.effort = doubles(s.arm_effort, s.arm_torque, UNMEASURED_EFFORT)
         return msg
 
     # ------------------------------------------------------------------ trajectory controller
@@ -588,6 +646,8 @@ class FakeHwNode(Node):
             box.close()
 
     def destroy_node(self) -> None:
+        if getattr(self, "_wam", None) is not None:
+            self._wam.close()
         if hasattr(self, "_stop"):
             self._stop.set()
             self._publisher.join(timeout=1.0)
@@ -601,6 +661,95 @@ class FakeHwNode(Node):
         if hasattr(self, "boxes"):
             self._close_boxes()
         super().destroy_node()
+
+
+# ---------------------------------------------------------------------- wam_node's arm interface
+class WamNodeInterface:
+    """Barrett's own ROS 2 wam_node (barrett-ros2-pkg; its wam_node/src at e9056c2 of the copy
+    github.com/gaolongsen/WAM-ROS2) on the emulated arm: ``/wam/RTJointPositionCMD``
+    (wam_msgs/RTJointPositions) streams the servo targets and its silence for 0.5 s holds the
+    arm; ``/wam/holdJointPosition`` (std_srvs/SetBool: true holds where the arm is, false idles,
+    emulated as a hold); ``/wam/moveToJointPosition`` (wam_srvs/JointMove: a trapezoidal move,
+    answered once it has ended, as libbarrett's blocking moveTo); ``/wam/idle`` (std_srvs/Trigger,
+    emulated as a hold, and logged: the real arm would go limp). The behaviour is
+    EmulatedRobot's (rt_joint_positions, hold_joint_position, move_to_joint_position)."""
+
+    def __init__(self, node: Node, robot: EmulatedRobot, group):
+        self.node, self.robot = node, robot
+        srv = lambda kind, name, cb: node.create_service(kind, name, cb, callback_group=group)
+        srv(SetBool, "/wam/holdJointPosition", self.on_hold)
+        srv(JointMove, "/wam/moveToJointPosition", self.on_move)
+        srv(Trigger, "/wam/idle", self.on_idle)
+        # The 500 Hz stream on a node of its own, spun by a single-threaded executor (as the
+        # bridge's I/O: rclpy's multi-threaded executor does not keep up with 500 Hz).
+        self.io = Node(f"{NODE_NAME}_wam_io", context=node.context)
+        self.io.create_subscription(
+            RTJointPositions, "/wam/RTJointPositionCMD", self.on_rt_joint_positions, 100
+        )
+        self._executor = SingleThreadedExecutor(context=node.context)
+        self._executor.add_node(self.io)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, name="fake_hw_wam_io", daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        while not self._stop.is_set() and self.node.context.ok():
+            try:
+                self._executor.spin_once(timeout_sec=0.05)
+            except (ExternalShutdownException, KeyboardInterrupt):
+                break
+            except Exception as exc:
+                if self._stop.is_set() or not self.node.context.ok():
+                    break
+                self.node.get_logger().error(f"wam_node stream: {type(exc).__name__}: {exc}")
+
+    def on_rt_joint_positions(self, msg: RTJointPositions) -> None:
+        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        try:
+            self.robot.rt_joint_positions(msg.joint_states, stamp)
+        except ValueError as exc:
+            self.node.get_logger().error(
+                f"Invalid Joint Position Command received: {exc}", throttle_duration_sec=1.0
+            )
+
+    @keep_serving
+    def on_hold(self, req: SetBool.Request, resp: SetBool.Response) -> SetBool.Response:
+        self.robot.hold_joint_position(req.data)
+        if req.data:
+            resp.message = "Holding WAM Joint Positions"
+        else:
+            resp.message = "idle: emulated as a hold (the real arm floats in gravity compensation)"
+            self.node.get_logger().warn(f"/wam/holdJointPosition false: {resp.message}")
+        resp.success = True
+        return resp
+
+    @keep_serving
+    def on_move(self, req: JointMove.Request, resp: JointMove.Response) -> JointMove.Response:
+        try:
+            goal = self.robot.move_to_joint_position(req.joint_state.position)
+        except ValueError as exc:
+            self.node.get_logger().error(f"/wam/moveToJointPosition refused: {exc}")
+            resp.response = False
+            return resp
+        while self.robot.goal_status(goal).state is GoalState.ACTIVE:
+            time.sleep(FEEDBACK_PERIOD)
+        resp.response = True
+        return resp
+
+    @keep_serving
+    def on_idle(self, req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
+        self.robot.hold_joint_position(False)
+        self.node.get_logger().error(
+            "/wam/idle called: the real arm would go limp; emulated as a hold"
+        )
+        resp.success, resp.message = True, "idle (emulated as a hold)"
+        return resp
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=1.0)
+        self._executor.shutdown(timeout_sec=1.0)
+        self.io.destroy_node()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,6 +1,7 @@
 """Clients of the real drivers below the bridge, one class per backend: the arm's
-FollowJointTrajectory controller, Barrett's BarrettHand services, and the fingertip sensors
-(the built-in Net F/T RDT client, or WrenchStamped topics of an existing driver).
+FollowJointTrajectory controller or Barrett's wam_node, Barrett's BarrettHand services, and the
+fingertip sensors (the built-in Net F/T RDT client, or WrenchStamped topics of an existing
+driver).
 
 Every class is used from inside callbacks of a MultiThreadedExecutor (reentrant callback
 group) and never blocks longer than its timeout.
@@ -8,17 +9,25 @@ group) and never blocks longer than its timeout.
 
 from __future__ import annotations
 
+import itertools
+import threading
+import time
+from collections import deque
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
+from action_msgs.msg import GoalStatus
 from bhand_srvs.srv import FingerPosition, FingerVelocity, SpreadPosition
 from builtin_interfaces.msg import Duration
 from control_msgs.action import FollowJointTrajectory
 from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
-from std_srvs.srv import Trigger
+from rclpy.task import Future
+from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+from wam_msgs.msg import RTJointPositions
 
 from rrg_sim.ros_common.futures import ThreadSafeActionClient, WaitTimeout, wait_for
 
@@ -72,6 +81,324 @@ class TrajectoryArm:
         if not handle.accepted:
             raise DriverError(f"{self.action_name} rejected the goal")
         return handle
+
+
+# ---------------------------------------------------------------------- Barrett's wam_node
+#: wam_node's real-time rate [Hz]: its updateRT loop and /joint_states run at 500 Hz
+#: (barrett-ros2-pkg wam_node, wam_subscribers.h: kPublishFrequency), libbarrett's 2 ms period.
+WAM_COMMAND_RATE = 500.0
+#: wam_node holds the arm (moveTo its measured position) when no real-time command arrived for
+#: this long [s], and only then leaves its real-time mode (wam_subscribers.h: kRtMsgTimeout,
+#: updateRT). A stream that starts after a hold but before that is ignored: holdJointPosition
+#: replaces the reference the arm tracks without leaving the real-time mode, whose commands then
+#: keep it alive without reaching the arm.
+WAM_RT_TIMEOUT = 0.5
+#: Margin [s] on WAM_RT_TIMEOUT (chosen: 50 of wam_node's periods, for DDS and executor latency).
+WAM_RT_MARGIN = 0.1
+#: Largest distance [rad] between the measured arm and the command being streamed; beyond it the
+#: stream stops and the arm holds (chosen: twice the lag of a PD that tracks the 1.5 rad/s limit
+#: with 0.07 s lag, the model's largest kv/kp; catches a stream that does not reach the arm).
+WAM_TRACKING_TOLERANCE = 0.2
+#: The arm has stopped when every joint stayed within a range of this speed times the window
+#: [rad/s] (chosen: half BRIDGE.settle_speed, for positions rather than velocities) ...
+WAM_STILL_SPEED = 0.01
+#: ... over this window [s] of measured joint states (chosen: 50 wam_node periods; a shorter one
+#: takes the turning point of a joint's swing after a hold for a stop) ...
+WAM_STILL_WINDOW = 0.1
+#: ... or, after a hold, once this long [s] has passed (chosen: a WAM stops in ~ 0.05 s).
+WAM_STOP_TIMEOUT = 0.5
+
+
+@dataclass
+class WamStream:
+    """A WamNodeArm goal: via-points q (K,7) [rad] at times t (K,) [s] > 0 after the start (the
+    measured configuration is prepended at 0), and the same as a JointTrajectory (the plan)."""
+
+    q: np.ndarray
+    t: np.ndarray
+    goal_time_tolerance: float
+    trajectory: JointTrajectory
+
+
+@dataclass
+class WamStreamResult:
+    """What a WamStreamHandle's get_result_async() resolves to, shaped like an action's result:
+    status (action_msgs/GoalStatus) and result (FollowJointTrajectory.Result: error_code 0,
+    PATH_TOLERANCE_VIOLATED or GOAL_TOLERANCE_VIOLATED, and error_string)."""
+
+    status: int
+    result: FollowJointTrajectory.Result
+
+
+class WamStreamHandle:
+    """A stream being sent, used as the bridge uses a ClientGoalHandle: cancel_goal_async() stops
+    the stream and holds the arm at once; get_result_async() resolves once the stream has ended
+    and the arm has stopped."""
+
+    accepted = True
+
+    def __init__(self, arm: WamNodeArm):
+        self._arm = arm
+        self._result = Future()
+        self.canceled = False
+        self.wake = threading.Event()  # set on cancel, once the hold is sent
+        self.hold_future: Future | None = None  # the cancel's holdJointPosition call
+
+    def cancel_goal_async(self) -> Future:
+        return self._arm._cancel(self)
+
+    def get_result_async(self) -> Future:
+        return self._result
+
+
+def _sample(t: np.ndarray, q: np.ndarray, s: float) -> np.ndarray:
+    """The via-point polyline q (K,7) at times t (K,) [s], at time s (held past its end)."""
+    i = int(np.clip(np.searchsorted(t, s, side="right") - 1, 0, len(t) - 2))
+    a = float(np.clip((s - t[i]) / (t[i + 1] - t[i]), 0.0, 1.0))
+    return q[i] + a * (q[i + 1] - q[i])
+
+
+class _Stillness:
+    """Whether the arm has stopped: measured positions (7,) over the last WAM_STILL_WINDOW."""
+
+    def __init__(self):
+        self.samples: deque[tuple[float, np.ndarray]] = deque()
+
+    def add(self, now: float, q: np.ndarray) -> bool:
+        """Add a measurement; True once every joint stayed within WAM_STILL_SPEED ×
+        WAM_STILL_WINDOW over a full window."""
+        self.samples.append((now, q))
+        while len(self.samples) > 2 and now - self.samples[1][0] >= WAM_STILL_WINDOW:
+            self.samples.popleft()
+        if now - self.samples[0][0] < WAM_STILL_WINDOW:
+            return False
+        window = np.array([qk for _, qk in self.samples])
+        if not np.all(np.isfinite(window)):
+            return False
+        return bool(np.ptp(window, axis=0).max() < WAM_STILL_SPEED * WAM_STILL_WINDOW)
+
+
+class WamNodeArm:
+    """The arm through Barrett's own ROS 2 ``wam_node`` (barrett-ros2-pkg), the same interface as
+    TrajectoryArm for the bridge: goal(q, t, tolerance) → send(goal) → a handle with
+    cancel_goal_async() and get_result_async().
+
+    A goal is streamed on wam_node's real-time joint position topic (wam_msgs/RTJointPositions)
+    at WAM_COMMAND_RATE from a thread paced by deadlines: the via-points interpolated linearly in
+    time from the measured configuration, one period further per command (a late command delays
+    the rest, the reference never jumps), then the last one until the arm has stopped (or the
+    goal time tolerance has passed: GOAL_TOLERANCE_VIOLATED). Before a stream the arm is made to
+    hold (holdJointPosition true) unless it still tracks the previous stream's end, and after a
+    hold the stream waits until wam_node has left its real-time mode (WAM_RT_TIMEOUT). A cancel
+    stops the stream and calls holdJointPosition(true) at once, so the arm holds now rather than
+    after wam_node's 0.5 s timeout; a command the arm does not follow (WAM_TRACKING_TOLERANCE)
+    does the same (PATH_TOLERANCE_VIOLATED). /wam/idle is never called: it releases the arm.
+
+    measured() returns the newest measured arm configuration (7,) [rad], J1-J7 (NaN: none yet).
+    """
+
+    def __init__(
+        self,
+        node: Node,
+        joint_names: tuple[str, ...],
+        group,
+        measured: Callable[[], np.ndarray],
+        rt_topic: str = "/wam/RTJointPositionCMD",
+        hold_service: str = "/wam/holdJointPosition",
+    ):
+        self.node, self.joint_names, self.measured = node, joint_names, measured
+        self.rt_topic, self.hold_service = rt_topic, hold_service
+        self.publisher = node.create_publisher(RTJointPositions, rt_topic, 10)
+        self.hold_client = node.create_client(SetBool, hold_service, callback_group=group)
+        self._lock = threading.Lock()
+        self._active: WamStreamHandle | None = None
+        self._last_sent = -np.inf  # time.monotonic() of the newest streamed command
+        self._tracking = False  # the arm tracks that stream (no hold since)
+
+    def ready(self) -> bool:
+        return self.hold_client.service_is_ready() and self.publisher.get_subscription_count() > 0
+
+    def describe(self) -> str:
+        return f"wam_node ({self.rt_topic} at {WAM_COMMAND_RATE:.0f} Hz, {self.hold_service})"
+
+    def goal(self, q: np.ndarray, t: np.ndarray, goal_time_tolerance: float) -> WamStream:
+        """The stream of via-points q (K,7) [rad] at times t (K,) [s] > 0."""
+        q, t = np.asarray(q, dtype=float), np.asarray(t, dtype=float)
+        traj = JointTrajectory(
+            joint_names=list(self.joint_names),
+            points=[
+                JointTrajectoryPoint(positions=qk.tolist(), time_from_start=duration(tk))
+                for qk, tk in zip(q, t)
+            ],
+        )
+        return WamStream(q, t, float(goal_time_tolerance), traj)
+
+    def send(self, goal: WamStream) -> WamStreamHandle:
+        """Start streaming ``goal`` (after making the arm hold); DriverError when the goal is
+        malformed, wam_node is not there or the hold is refused."""
+        q, t = goal.q, goal.t
+        if q.ndim != 2 or q.shape[1] != 7 or len(q) == 0 or t.shape != (len(q),):
+            raise DriverError(f"need q (K,7) and t (K,), got {q.shape} and {t.shape}")
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(t))):
+            raise DriverError("non-finite via-points or times")
+        if t[0] <= 0.0 or np.any(np.diff(t) <= 0.0):
+            raise DriverError("via-point times must be > 0 and increase strictly")
+        if self.publisher.get_subscription_count() == 0:
+            raise DriverError(f"nothing subscribes to {self.rt_topic}: is wam_node running?")
+        with self._lock:
+            if self._active is not None:
+                raise DriverError("a stream is still running")
+            start_after = time.monotonic()
+            tracking = self._tracking and start_after - self._last_sent < (
+                WAM_RT_TIMEOUT - WAM_RT_MARGIN
+            )
+        if not tracking:  # the arm may be anywhere: hold first, then wait out the RT mode
+            self._hold(wait=True)
+            start_after = max(start_after, self._last_sent + WAM_RT_TIMEOUT + WAM_RT_MARGIN)
+        handle = WamStreamHandle(self)
+        with self._lock:
+            self._active = handle
+        threading.Thread(
+            target=self._stream,
+            args=(handle, q, t, goal.goal_time_tolerance, start_after),
+            name="wam_stream",
+            daemon=True,
+        ).start()
+        return handle
+
+    def _hold(self, wait: bool) -> Future:
+        """holdJointPosition(true); waiting for the answer (DriverError if refused or missing)."""
+        with self._lock:
+            self._tracking = False
+        if wait and not self.hold_client.service_is_ready():
+            raise DriverError(f"{self.hold_service} is not available: is wam_node running?")
+        future = self.hold_client.call_async(SetBool.Request(data=True))
+        if not wait:
+            return future
+        try:
+            response = wait_for(future, DRIVER_TIMEOUT)
+        except WaitTimeout as exc:
+            raise DriverError(f"{self.hold_service}: no answer") from exc
+        if not response.success:
+            raise DriverError(f"{self.hold_service} refused: {response.message}")
+        return future
+
+    def _cancel(self, handle: WamStreamHandle) -> Future:
+        with self._lock:
+            if handle.canceled or handle._result.done():
+                done = Future()
+                done.set_result(None)
+                return done
+            handle.canceled = True  # checked under the lock before every publish
+        handle.hold_future = self._hold(wait=False)
+        handle.wake.set()
+        return handle.hold_future
+
+    def _stream(self, handle, q, t, tolerance, start_after) -> None:
+        try:
+            outcome = self._run(handle, q, t, tolerance, start_after)
+        except Exception as exc:  # never leave the bridge without an answer
+            try:
+                self._hold(wait=False)
+            except Exception:  # shutting down: wam_node holds after its stream timeout
+                pass
+            outcome = self._outcome(
+                GoalStatus.STATUS_ABORTED,
+                FollowJointTrajectory.Result.INVALID_GOAL,
+                f"streaming failed: {type(exc).__name__}: {exc}",
+            )
+        with self._lock:
+            self._active = None
+        handle._result.set_result(outcome)
+
+    @staticmethod
+    def _outcome(status: int, code: int, text: str) -> WamStreamResult:
+        return WamStreamResult(
+            status, FollowJointTrajectory.Result(error_code=code, error_string=text)
+        )
+
+    def _run(self, handle, q, t, tolerance, start_after) -> WamStreamResult:
+        R = FollowJointTrajectory.Result
+        wait = start_after - time.monotonic()
+        if wait > 0.0:
+            handle.wake.wait(wait)
+        if handle.canceled:
+            return self._stopped(handle)
+        q0 = np.asarray(self.measured(), dtype=float)
+        if not np.all(np.isfinite(q0)):
+            self._hold(wait=False)
+            return self._outcome(GoalStatus.STATUS_ABORTED, R.INVALID_GOAL, "no measured arm")
+        tq, qq = np.r_[0.0, t], np.vstack([q0, q])
+        period = 1.0 / WAM_COMMAND_RATE
+        msg = RTJointPositions()
+        still = _Stillness()
+        start, start_ns = time.monotonic(), self.node.get_clock().now().nanoseconds
+        deadline, ended = start, None
+        # Command k is the polyline at k periods: a late tick delays the rest of the trajectory
+        # instead of jumping ahead, so the arm never gets a step (wam_node does not limit the
+        # rate of its reference).
+        for k in itertools.count():
+            if deadline > time.monotonic():
+                handle.wake.wait(deadline - time.monotonic())
+            now = time.monotonic()
+            deadline = max(deadline + period, now + 0.75 * period)  # no burst after a stall
+            s = k * period
+            command = _sample(tq, qq, s)
+            stamp_ns = start_ns + int(round((now - start) * 1e9))
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+            msg.joint_states = command.tolist()
+            with self._lock:
+                if handle.canceled:
+                    break
+                self.publisher.publish(msg)
+                self._last_sent, self._tracking = time.monotonic(), True
+            measured = np.asarray(self.measured(), dtype=float)
+            error = np.abs(measured - command)
+            if np.nanmax(error) > WAM_TRACKING_TOLERANCE:
+                self._hold(wait=False)
+                j = int(np.nanargmax(error))
+                return self._outcome(
+                    GoalStatus.STATUS_ABORTED,
+                    R.PATH_TOLERANCE_VIOLATED,
+                    f"joint {j + 1} is {error[j]:.3f} rad from the streamed command at "
+                    f"{s:.2f} s (over {WAM_TRACKING_TOLERANCE} rad): holding",
+                )
+            if s >= tq[-1]:
+                ended = now if ended is None else ended
+                if still.add(now, measured):
+                    return self._outcome(GoalStatus.STATUS_SUCCEEDED, R.SUCCESSFUL, "")
+                if now - ended > tolerance:
+                    self._hold(wait=False)
+                    return self._outcome(
+                        GoalStatus.STATUS_ABORTED,
+                        R.GOAL_TOLERANCE_VIOLATED,
+                        f"the arm still moves {tolerance:.2f} s after the trajectory's end: "
+                        "holding",
+                    )
+        return self._stopped(handle)
+
+    def _stopped(self, handle: WamStreamHandle) -> WamStreamResult:
+        """After a cancel: wait for the hold's answer and for the arm to stop."""
+        R = FollowJointTrajectory.Result
+        text = "canceled: holding"
+        handle.wake.wait(DRIVER_TIMEOUT)  # the cancel has sent the hold
+        try:
+            if handle.hold_future is None:
+                raise WaitTimeout("the hold was not sent")
+            if not wait_for(handle.hold_future, DRIVER_TIMEOUT).success:
+                text = f"canceled, but {self.hold_service} refused to hold"
+        except WaitTimeout:
+            text = (
+                f"canceled; {self.hold_service} did not answer (wam_node holds "
+                f"{WAM_RT_TIMEOUT} s after the stream's end)"
+            )
+        still, deadline = _Stillness(), time.monotonic() + WAM_STOP_TIMEOUT
+        period = 1.0 / WAM_COMMAND_RATE
+        while time.monotonic() < deadline:
+            if still.add(time.monotonic(), np.asarray(self.measured(), dtype=float)):
+                break
+            time.sleep(period)
+        return self._outcome(GoalStatus.STATUS_CANCELED, R.SUCCESSFUL, text)
 
 
 class BarrettHandServices:

@@ -102,6 +102,15 @@ class BagRecorder(Node):
                 integer_range=[IntegerRange(from_value=1, to_value=10000)],
             ),
         )
+        self.declare_parameter(
+            "exclude_topics",
+            [""],
+            ParameterDescriptor(
+                description="Topics not to record (e.g. a driver's 500 Hz joint states)",
+                read_only=True,
+            ),
+        )
+        self._excluded = {t for t in self.get_parameter("exclude_topics").value if t}
         self._depth = self.get_parameter("qos_depth").value
         self.writer = writer
         self._recorded: dict[str, Subscription] = {}
@@ -110,12 +119,20 @@ class BagRecorder(Node):
         self._discovery = self.create_timer(
             self.get_parameter("discovery_period").value, self.discover
         )
-        self.get_logger().info(f"recording all topics to {writer.bag_dir}")
+        self.get_logger().info(
+            f"recording all topics to {writer.bag_dir}"
+            + (f" except {', '.join(sorted(self._excluded))}" if self._excluded else "")
+        )
 
     def discover(self) -> None:
         """Subscribe to every topic that has a publisher and is not recorded yet."""
         for topic, types in self.get_topic_names_and_types():
-            if topic in self._recorded or topic in self._skipped or is_hidden(topic):
+            if (
+                topic in self._recorded
+                or topic in self._skipped
+                or topic in self._excluded
+                or is_hidden(topic)
+            ):
                 continue
             publishers = self.get_publishers_info_by_topic(topic)
             if not publishers:

@@ -71,6 +71,9 @@ NODES = {
 #: The arm/hand interface's processes per mode: the simulator, the bridge on the real drivers,
 #: or the bridge on emulated drivers.
 INTERFACE = {"sim": ("sim",), "hw": ("hw_bridge",), "fake_hw": ("fake_hw", "hw_bridge")}
+#: Drivers' topics not recorded in hw mode: the 500 Hz joint states would cost the recorder
+#: ~ 40 % of a core (measured); the bridge's /rrg/joint_states carries the arm and hand at 50 Hz.
+DRIVER_TOPICS = ("/joint_states",)
 #: Simulation-only services (the simulator's, or the emulated drivers').
 EVAL_SERVICES = ("/rrg/reset_sim", "/rrg/eval/judge_grasp")
 #: What must answer before the graph counts as ready (with EVAL_SERVICES when simulated).
@@ -196,7 +199,16 @@ class Graph:
                     "rrg_planner.bags.recorder_node",
                     "--output",
                     str(self.bag_dir),
-                    *ros_args({"discovery_period": 0.1}),
+                    *ros_args(
+                        {
+                            "discovery_period": 0.1,
+                            **(
+                                {"exclude_topics": f"[{','.join(map(repr, DRIVER_TOPICS))}]"}
+                                if self.interface != "sim"
+                                else {}
+                            ),
+                        }
+                    ),
                 ],
             )
         world = {"object_name": object_name, "seed": seed, "sensor_noise": sensor_noise}
@@ -339,8 +351,13 @@ class Graph:
         """Whether the recorder subscribes to every visible topic that has a publisher."""
         from rrg_planner.bags.recorder_node import is_hidden
 
+        excluded = DRIVER_TOPICS if self.interface != "sim" else ()
         for topic, _ in self.node.get_topic_names_and_types():
-            if is_hidden(topic) or not self.node.get_publishers_info_by_topic(topic):
+            if (
+                is_hidden(topic)
+                or topic in excluded
+                or not self.node.get_publishers_info_by_topic(topic)
+            ):
                 continue
             if not any(
                 s.node_name == RECORDER for s in self.node.get_subscriptions_info_by_topic(topic)

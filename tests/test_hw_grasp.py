@@ -1,0 +1,81 @@
+"""End to end through the hardware bridge: ``rrg-launch --mode hw --fake-hw`` runs a robust
+grasp of the drill on the emulated drivers, the MuJoCo judge scores it, and its bag opens in
+both readers. A module of its own, so no other graph shares the machine while it runs."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+
+import pytest
+from ros_testing import ROOT, exclusive_domain_id, ros_env
+from rosbags.highlevel import AnyReader
+
+from rrg_planner.bags.bag_cli import bag_info
+
+NODE_MODULES = ROOT / ".cache" / "npm" / "node_modules"
+#: Longest run of the launcher [s] (a grasp takes ~ 1.5 min in real time).
+E2E_TIMEOUT_S = 600
+
+pytestmark = pytest.mark.slow
+
+
+def test_a_robust_grasp_runs_end_to_end_through_the_bridge(tmp_path):
+    """rrg-launch in hw mode on the emulated drivers, in a DDS domain of its own."""
+    logs = tmp_path / "logs"
+    with exclusive_domain_id() as domain_id:
+        proc = subprocess.Popen(
+            [
+                str(ROOT / ".venv" / "bin" / "rrg-launch"),
+                *("--mode", "hw", "--fake-hw", "--grasp", "powerdrill", "--level", "high"),
+                *("--seed", "0", "--json", "--domain-id", str(domain_id)),
+                *("--bags", str(tmp_path), "--bag-name", "hw", "--log-dir", str(logs)),
+            ],
+            env=ros_env(domain_id),
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            stdout, stderr = proc.communicate(timeout=E2E_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            # Ctrl-C: the launcher stops its children (each in its own session) in order
+            proc.send_signal(signal.SIGINT)
+            stdout, stderr = proc.communicate(timeout=60)
+            pytest.fail(f"rrg-launch took over {E2E_TIMEOUT_S} s: {stdout[-3000:]}")
+    assert proc.returncode == 0, stdout[-3000:] + stderr[-3000:]
+    outcome = json.loads(stdout.strip().splitlines()[-1])
+    print(f"actions {outcome['actions']}: {outcome['judge']}")
+    assert outcome["error"] == "", outcome["error"]
+    assert outcome["actions"], outcome
+    assert outcome["judge"].startswith(("SUCCESS", "FAILURE")), outcome["judge"]
+    assert outcome["success"] == outcome["judge"].startswith("SUCCESS")
+
+    bag = tmp_path / "hw"
+    info = bag_info(bag)
+    assert info.finalized and info.profile == "ros2" and info.message_count > 0
+    counts = {t.name: t.count for t in info.topics if t.count}
+    assert {"/rrg/joint_states", "/rrg/fingertip1/wrench", "/rrg/observation"} <= set(counts)
+    decoded: dict[str, int] = {}
+    with AnyReader([bag]) as reader:
+        for conn, _, raw in reader.messages():
+            reader.deserialize(raw, conn.msgtype)
+            decoded[conn.topic] = decoded.get(conn.topic, 0) + 1
+    assert decoded == counts
+    fox = subprocess.run(
+        ["node", str(ROOT / "tests" / "foxglove_bag_reader.cjs"), str(NODE_MODULES)]
+        + [str(bag / "hw_0.mcap")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert fox.returncode == 0, fox.stderr
+    topics = json.loads(fox.stdout)["topics"]
+    assert {t: v["count"] for t, v in topics.items() if v["count"]} == counts
+
+    texts = {p.name: p.read_text() for p in logs.glob("*.log")}
+    assert {"fake_hw.log", "hw_bridge.log"} <= set(texts)
+    texts["stdout+stderr"] = stdout + stderr
+    assert not [name for name, text in texts.items() if "Traceback" in text]
