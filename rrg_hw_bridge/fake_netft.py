@@ -281,13 +281,13 @@ class FakeNetFtBox:
             self._send(data, target, force)
 
     def _send(self, data: bytes, target: tuple[str, int], force: float) -> None:
+        t = time.monotonic()  # before sendto: the client may act on the record before it returns
         try:
             self._sock.sendto(data, target)
         except OSError:  # a client that went away (ICMP): the real box keeps going too
             return
         self.records_sent += 1
         if self._crossings:
-            t = time.monotonic()
             with self._lock:
                 for threshold, first in self._crossings.items():
                     if first is None and force > threshold:

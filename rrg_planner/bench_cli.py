@@ -3,13 +3,16 @@
     rrg-bench plan [--object powerdrill] [--level high] [--json]
     rrg-bench sim  [--json]
     rrg-bench ros  [--json]
+    rrg-bench hw   [--trials 50] [--json]
 
 ``plan`` times action selection at H = 1, 2, 3, one belief update and one table build,
 for the fast and the naive reference implementations, and prints their ratios; then the
 core operations on full-size grids: a belief update on a contact reading (with its bump)
 and the naive reference's likelihood pass, the table indices, the bump, the re-gridding
 (varres.maybe_refine), and the WAM's batch IK, reachability test and feasibility-map build.
-With ``--json`` the last line is one JSON object with the medians.
+With ``--json`` the last line is one JSON object with the medians. ``sim``, ``ros`` and ``hw``
+(the hardware bridge's stop latency and sensor rates on the emulated drivers) are described in
+their own modules.
 """
 
 from __future__ import annotations
@@ -241,7 +244,13 @@ def bench_ros(argv: list[str]) -> int:
     return run(argv)
 
 
-COMMANDS = {"plan": bench_plan, "sim": bench_sim, "ros": bench_ros}
+def bench_hw(argv: list[str]) -> int:
+    from rrg_planner.bringup.hw_benchmark import bench_hw as run
+
+    return run(argv)
+
+
+COMMANDS = {"plan": bench_plan, "sim": bench_sim, "ros": bench_ros, "hw": bench_hw}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -211,19 +211,8 @@ class Graph:
                     ),
                 ],
             )
-        world = {"object_name": object_name, "seed": seed, "sensor_noise": sensor_noise}
-        rdt_hosts = rdt_addresses(int(self.env["ROS_DOMAIN_ID"]))
+        self.start_interface(object_name, seed, real_time_factor, sensor_noise, hw_params)
         params = {
-            "sim": {**world, "real_time_factor": real_time_factor},
-            "fake_hw": {**world, "rdt_hosts": f"[{','.join(repr(h) for h in rdt_hosts)}]"},
-            "hw_bridge": {
-                **(
-                    {"rdt_hosts": f"[{','.join(repr(h) for h in rdt_hosts)}]"}
-                    if self.interface == "fake_hw"
-                    else {}
-                ),
-                **(hw_params or {}),
-            },
             "executor": {},
             "estimator": {},
             "planner": {
@@ -231,7 +220,29 @@ class Graph:
                 "preload": f"['{object_name}']",
             },
         }
-        for name in [*INTERFACE[self.interface], "executor", "estimator", "planner"]:
+        for name, values in params.items():
+            self.spawn(name, ["-m", NODES[name], *ros_args(values)])
+
+    def start_interface(
+        self,
+        object_name: str,
+        seed: int,
+        real_time_factor: float = 0.0,
+        sensor_noise: float = 1.0,
+        hw_params: dict[str, str] | None = None,
+    ) -> None:
+        """Start the arm/hand interface's processes (INTERFACE[self.interface])."""
+        world = {"object_name": object_name, "seed": seed, "sensor_noise": sensor_noise}
+        hosts = f"[{','.join(repr(h) for h in rdt_addresses(int(self.env['ROS_DOMAIN_ID'])))}]"
+        params = {
+            "sim": {**world, "real_time_factor": real_time_factor},
+            "fake_hw": {**world, "rdt_hosts": hosts},
+            "hw_bridge": {
+                **({"rdt_hosts": hosts} if self.interface == "fake_hw" else {}),
+                **(hw_params or {}),
+            },
+        }
+        for name in INTERFACE[self.interface]:
             self.spawn(name, ["-m", NODES[name], *ros_args(params[name])])
 
     def check_children(self) -> None:
