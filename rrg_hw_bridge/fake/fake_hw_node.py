@@ -70,7 +70,7 @@ from rrg_msgs.msg import ContactPads
 from rrg_sim.config import HAND, PHYSICS, SENSING
 from rrg_sim.objects import OBJECT_NAMES
 from rrg_sim.ros.eval_services import EvalNames, EvalServices
-from rrg_sim.ros_common.guarded_move_goal import START_TOLERANCE
+from rrg_sim.ros_common.arm_hand_interface import START_TOLERANCE
 from rrg_sim.ros_common.node_main import keep_serving, run_node
 
 from ..fake_netft import FakeNetFtBox

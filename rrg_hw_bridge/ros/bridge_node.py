@@ -32,7 +32,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import WrenchStamped
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
-from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.action import GoalResponse
 from rclpy.action.server import ServerGoalHandle
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -47,11 +47,13 @@ from rrg_msgs.msg import ContactPads
 from rrg_msgs.srv import HandCommand
 from rrg_sim.config import HAND, PHYSICS, SENSING, SENSOR_NAMES
 from rrg_sim.hand_sensing import FingerClosing
-from rrg_sim.ros_common.guarded_move_goal import (
+from rrg_sim.ros_common.arm_hand_interface import (
     START_TOLERANCE,
     GoalError,
+    StatePublishers,
     client_fraction,
     goal_via_points,
+    serve_arm_hand_interface,
 )
 from rrg_sim.ros_common.msg_conversions import (
     ARM_JOINT_NAMES,
@@ -273,23 +275,12 @@ class BridgeNode(Node):
         self.io.create_subscription(Bool, p("estop_topic"), self.on_estop, 10)
 
         # -------------------------------------------------------------- upward: RRG
-        self.joint_pub = self.create_publisher(JointState, "joint_states", 10)
-        self.wrench_pubs = [
-            self.create_publisher(WrenchStamped, f"fingertip{i}/wrench", 10) for i in (1, 2, 3)
-        ]
-        self.pads_pub = self.create_publisher(ContactPads, "contact_pads", 10)
+        self.state_pubs = StatePublishers.create(self)
         self.plan_pub = self.create_publisher(JointTrajectory, "bridge/plan", 10)
         self.safety_pub = self.create_publisher(DiagnosticStatus, "bridge/safety", 10)
-        ActionServer(
-            self,
-            GuardedMove,
-            "guarded_move",
-            execute_callback=self.execute_guarded_move,
-            goal_callback=self.on_move_goal,
-            cancel_callback=lambda _: CancelResponse.ACCEPT,
-            callback_group=group,
+        serve_arm_hand_interface(
+            self, self.execute_guarded_move, self.on_move_goal, self.on_hand_command, group
         )
-        self.create_service(HandCommand, "hand_command", self.on_hand_command, callback_group=group)
         self.create_service(
             Trigger, "bridge/reset_estop", self.on_reset_estop, callback_group=group
         )
@@ -660,9 +651,9 @@ class BridgeNode(Node):
         if not np.isfinite(m.arm_q).all():
             return
         js = self.joint_state()
-        self.joint_pub.publish(js)
+        self.state_pubs.joints.publish(js)
         tips = self.hand.tips()
-        for i, pub in enumerate(self.wrench_pubs):
+        for i, pub in enumerate(self.state_pubs.wrenches):
             w = WrenchStamped()
             w.header.stamp, w.header.frame_id = js.header.stamp, f"bh_f{i + 1}_tip"
             w.wrench.force, w.wrench.torque = vector_to_msg(tips[i, :3]), vector_to_msg(tips[i, 3:])
@@ -670,7 +661,7 @@ class BridgeNode(Node):
         pads = self.hand.pads()
         msg = ContactPads(in_contact=[bool(f) for f in self.hand.fired()[:7]], force=pads.tolist())
         msg.header.stamp, msg.header.frame_id = js.header.stamp, "bh_palm"
-        self.pads_pub.publish(msg)
+        self.state_pubs.pads.publish(msg)
 
     def publish_status(self) -> None:
         """Once a second on bridge/status: the drivers' stream rates and the safety state; a

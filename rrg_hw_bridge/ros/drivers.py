@@ -41,6 +41,15 @@ class DriverError(RuntimeError):
     """A driver refused a request or did not answer in time."""
 
 
+def answer(future: Future, service: str):
+    """The response of a service call, waiting at most DRIVER_TIMEOUT; DriverError when the
+    driver does not answer."""
+    try:
+        return wait_for(future, DRIVER_TIMEOUT)
+    except WaitTimeout as exc:
+        raise DriverError(f"{service}: no answer") from exc
+
+
 def duration(seconds: float) -> Duration:
     sec = int(np.floor(seconds))
     return Duration(sec=sec, nanosec=int(round((seconds - sec) * 1e9)) % 1_000_000_000)
@@ -275,10 +284,7 @@ class WamNodeArm:
         future = self.hold_client.call_async(SetBool.Request(data=True))
         if not wait:
             return future
-        try:
-            response = wait_for(future, DRIVER_TIMEOUT)
-        except WaitTimeout as exc:
-            raise DriverError(f"{self.hold_service}: no answer") from exc
+        response = answer(future, self.hold_service)
         if not response.success:
             raise DriverError(f"{self.hold_service} refused: {response.message}")
         return future
@@ -421,10 +427,7 @@ class BarrettHandServices:
         future = client.call_async(request)
         if not wait:
             return future
-        try:
-            response = wait_for(future, DRIVER_TIMEOUT)
-        except WaitTimeout as exc:
-            raise DriverError(f"{client.srv_name}: no answer") from exc
+        response = answer(future, client.srv_name)
         ok = response.success if isinstance(response, Trigger.Response) else response.response
         if not ok:
             raise DriverError(f"{client.srv_name} refused the command")

@@ -34,7 +34,7 @@ from collections.abc import Callable
 import numpy as np
 from geometry_msgs.msg import WrenchStamped
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.action import GoalResponse
 from rclpy.action.server import ServerGoalHandle
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
@@ -43,7 +43,13 @@ from sensor_msgs.msg import JointState
 from rrg_msgs.action import GuardedMove
 from rrg_msgs.msg import ContactPads
 from rrg_msgs.srv import HandCommand
-from rrg_sim.ros_common.guarded_move_goal import GoalError, client_fraction, goal_via_points
+from rrg_sim.ros_common.arm_hand_interface import (
+    GoalError,
+    StatePublishers,
+    client_fraction,
+    goal_via_points,
+    serve_arm_hand_interface,
+)
 from rrg_sim.ros_common.msg_conversions import (
     tip_contacts_to_msg,
     vector_to_msg,
@@ -124,11 +130,7 @@ class SimNode(Node):
         self._move_active = False
         self.world = self._make_world(self.get_parameter("object_name").value)
         group = ReentrantCallbackGroup()
-        self.joint_pub = self.create_publisher(JointState, "joint_states", 10)
-        self.wrench_pubs = [
-            self.create_publisher(WrenchStamped, f"fingertip{i}/wrench", 10) for i in (1, 2, 3)
-        ]
-        self.pads_pub = self.create_publisher(ContactPads, "contact_pads", 10)
+        self.state_pubs = StatePublishers.create(self)
         self.eval = EvalServices(
             self,
             world=lambda: self.world,
@@ -137,15 +139,8 @@ class SimNode(Node):
             group=group,
             on_change=self.publish_state,
         )
-        self.create_service(HandCommand, "hand_command", self.on_hand_command, callback_group=group)
-        ActionServer(
-            self,
-            GuardedMove,
-            "guarded_move",
-            execute_callback=self.execute_guarded_move,
-            goal_callback=self.on_move_goal,
-            cancel_callback=lambda _: CancelResponse.ACCEPT,
-            callback_group=group,
+        serve_arm_hand_interface(
+            self, self.execute_guarded_move, self.on_move_goal, self.on_hand_command, group
         )
         self.create_timer(
             1.0 / self.get_parameter("state_rate").value, self.on_idle_timer, callback_group=group
@@ -184,10 +179,10 @@ class SimNode(Node):
         stamp = self.get_clock().now().to_msg()
         js = self.joint_state()
         js.header.stamp = stamp
-        self.joint_pub.publish(js)
+        self.state_pubs.joints.publish(js)
         self._state_sensors.bias = self.world.sensors.bias  # the same tare as the guarded moves
         pads, wrench = self._state_sensors.read()
-        for i, pub in enumerate(self.wrench_pubs):
+        for i, pub in enumerate(self.state_pubs.wrenches):
             w = WrenchStamped()
             w.header.stamp, w.header.frame_id = stamp, ros_joint_name(TIP_BODIES[i])
             w.wrench.force, w.wrench.torque = (
@@ -199,7 +194,7 @@ class SimNode(Node):
             in_contact=[bool(f) for f in pads > SENSING.pad_force_threshold], force=pads.tolist()
         )
         p.header.stamp, p.header.frame_id = stamp, ros_joint_name("bh/palm")
-        self.pads_pub.publish(p)
+        self.state_pubs.pads.publish(p)
         self.eval.publish_truth(stamp)
 
     def on_idle_timer(self) -> None:

@@ -1,11 +1,22 @@
-"""Reading an rrg_msgs/GuardedMove goal into joint via-points: shared by the arm/hand
-interface nodes (the simulator and the hardware bridge), so that both accept the same goals."""
+"""The arm/hand interface (design §7) as the simulator node and the hardware bridge both serve
+it: its state publishers, its servers, and the reading of a GuardedMove goal into joint
+via-points, so that both accept the same goals."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import numpy as np
+from geometry_msgs.msg import WrenchStamped
+from rclpy.action import ActionServer, CancelResponse
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+from sensor_msgs.msg import JointState
 
 from rrg_msgs.action import GuardedMove
+from rrg_msgs.msg import ContactPads
+from rrg_msgs.srv import HandCommand
 from rrg_sim import wam
 from rrg_sim.executor.trajectory import DensePath, sample_times
 from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES
@@ -60,3 +71,42 @@ def client_fraction(index: float, n: int) -> float:
     """Fraction [0, 1] of a client's n via-points done at fractional index ``index`` of the
     followed points (the arm's configuration prepended to the client's)."""
     return float(np.clip(index if n == 1 else (index - 1.0) / (n - 1), 0.0, 1.0))
+
+
+@dataclass
+class StatePublishers:
+    """The interface's state topics: ``joint_states``, ``fingertip{1,2,3}/wrench`` (each Nano17 in
+    its own frame) and ``contact_pads`` (relative names: the node's namespace applies)."""
+
+    joints: Publisher
+    wrenches: list[Publisher]
+    pads: Publisher
+
+    @classmethod
+    def create(cls, node: Node) -> StatePublishers:
+        return cls(
+            node.create_publisher(JointState, "joint_states", 10),
+            [node.create_publisher(WrenchStamped, f"fingertip{i}/wrench", 10) for i in (1, 2, 3)],
+            node.create_publisher(ContactPads, "contact_pads", 10),
+        )
+
+
+def serve_arm_hand_interface(
+    node: Node,
+    execute_guarded_move: Callable,
+    accept_move: Callable,
+    hand_command: Callable,
+    group,
+) -> ActionServer:
+    """The ``guarded_move`` action (goals filtered by ``accept_move``, cancellable) and the
+    ``hand_command`` service."""
+    node.create_service(HandCommand, "hand_command", hand_command, callback_group=group)
+    return ActionServer(
+        node,
+        GuardedMove,
+        "guarded_move",
+        execute_callback=execute_guarded_move,
+        goal_callback=accept_move,
+        cancel_callback=lambda _: CancelResponse.ACCEPT,
+        callback_group=group,
+    )
