@@ -75,7 +75,7 @@ from rrg_sim.ros_common.node_main import keep_serving, run_node
 
 from ..fake_netft import FakeNetFtBox
 from ..rdt import Calibration
-from .emulated_robot import EmulatedRobot, Event, GoalState
+from .emulated_robot import PREEMPTED_MESSAGE, EmulatedRobot, Event, GoalState
 
 NODE_NAME = "fake_hw"
 #: Driver joint names (ros2_control / Barrett URDF; PLAN.md).
@@ -185,6 +185,8 @@ class FakeHwNode(Node):
         self._goal_done: dict[int, threading.Event] = {}
         self._goal_ids: dict[bytes, int] = {}
         self._map_lock = threading.RLock()
+        self._accepted = 0  # trajectory goals accepted so far
+        self._accept_order: dict[bytes, int] = {}  # goal id → its acceptance number
         self.robot.add_listener(self._on_event)
         self.joint_pub = self.create_publisher(JointState, "/joint_states", 10)
         self.arm_interface = p("arm_interface")
@@ -200,6 +202,7 @@ class FakeHwNode(Node):
                 action,
                 execute_callback=self._execute,
                 goal_callback=self._on_goal,
+                handle_accepted_callback=self._on_accepted,
                 cancel_callback=self._on_cancel,
                 callback_group=group,
             )
@@ -515,6 +518,14 @@ class FakeHwNode(Node):
             return GoalResponse.REJECT
         return GoalResponse.ACCEPT
 
+    def _on_accepted(self, handle: ServerGoalHandle) -> None:
+        """Number the goals in the order they are accepted: the newest one runs (JTC preempts
+        by arrival, whatever order the executor runs the execute callbacks in)."""
+        with self._map_lock:
+            self._accepted += 1
+            self._accept_order[bytes(handle.goal_id.uuid)] = self._accepted
+        handle.execute()
+
     def _on_cancel(self, handle: ServerGoalHandle) -> CancelResponse:
         with self._map_lock:
             goal_id = self._goal_ids.get(bytes(handle.goal_id.uuid))
@@ -536,8 +547,14 @@ class FakeHwNode(Node):
             handle.canceled()
             return result
         done = threading.Event()
-        goal_id = self.robot.follow(q, t)
         with self._map_lock:
+            if self._accept_order.pop(key, self._accepted) < self._accepted:
+                # a newer goal was accepted before this one started: it is preempted at once
+                result.error_string = PREEMPTED_MESSAGE
+                handle._update_state(GoalEvent.CANCEL_GOAL)
+                handle.canceled()
+                return result
+            goal_id = self.robot.follow(q, t)
             self._goal_ids[key] = goal_id
             self._goal_done[goal_id] = done
             if self.robot.goal_status(goal_id).state is not GoalState.ACTIVE:
