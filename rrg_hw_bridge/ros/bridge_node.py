@@ -51,6 +51,7 @@ from rrg_sim.ros_common.arm_hand_interface import (
     START_TOLERANCE,
     GoalError,
     StatePublishers,
+    check_hand_command,
     client_fraction,
     goal_via_points,
     serve_arm_hand_interface,
@@ -870,16 +871,7 @@ class BridgeNode(Node):
     ) -> HandCommand.Response:
         Q = HandCommand.Request
         proximal = np.asarray(req.proximal, dtype=float)
-        lo, hi = HAND.proximal_range
-        if req.mode not in (Q.MODE_POSITION, Q.MODE_OPEN, Q.MODE_CLOSE, Q.MODE_CLOSE_GUARDED):
-            resp.error_code, resp.error_msg = H.INVALID_MODE, f"unknown mode {req.mode}"
-        elif not HAND.spread_range[0] <= req.spread <= HAND.spread_range[1]:
-            resp.error_code = H.OUT_OF_RANGE
-            resp.error_msg = f"spread {req.spread} outside {HAND.spread_range} rad"
-        elif req.mode == Q.MODE_POSITION and not np.all((proximal >= lo) & (proximal <= hi)):
-            resp.error_code = H.OUT_OF_RANGE
-            resp.error_msg = f"proximal {proximal.tolist()} outside {(lo, hi)} rad"
-        else:
+        if check_hand_command(req, resp):
             refusal = self.gate()
             if refusal is not None:
                 resp.error_code, resp.error_msg = H.REFUSED, refusal.message

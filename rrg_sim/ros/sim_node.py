@@ -46,6 +46,7 @@ from rrg_msgs.srv import HandCommand
 from rrg_sim.ros_common.arm_hand_interface import (
     GoalError,
     StatePublishers,
+    check_hand_command,
     client_fraction,
     goal_via_points,
     serve_arm_hand_interface,
@@ -57,7 +58,7 @@ from rrg_sim.ros_common.msg_conversions import (
 from rrg_sim.ros_common.node_main import keep_serving, run_node
 
 from .. import wam
-from ..config import HAND, SENSING
+from ..config import SENSING
 from ..objects import OBJECT_NAMES
 from ..physics.mjcf_robot import TIP_BODIES
 from ..physics.sensing import HandSensors
@@ -328,29 +329,8 @@ class SimNode(Node):
     def on_hand_command(
         self, req: HandCommand.Request, resp: HandCommand.Response
     ) -> HandCommand.Response:
-        R = HandCommand.Response
         proximal = np.asarray(req.proximal, dtype=float)
-        lo, hi = HAND.proximal_range
-        if req.mode not in (
-            HandCommand.Request.MODE_POSITION,
-            HandCommand.Request.MODE_OPEN,
-            HandCommand.Request.MODE_CLOSE,
-            HandCommand.Request.MODE_CLOSE_GUARDED,
-        ):
-            resp.error_code, resp.error_msg = R.INVALID_MODE, f"unknown mode {req.mode}"
-        elif not HAND.spread_range[0] <= req.spread <= HAND.spread_range[1]:
-            resp.error_code, resp.error_msg = (
-                R.OUT_OF_RANGE,
-                f"spread {req.spread} outside {HAND.spread_range} rad",
-            )
-        elif req.mode == HandCommand.Request.MODE_POSITION and not np.all(
-            (proximal >= lo) & (proximal <= hi)
-        ):
-            resp.error_code, resp.error_msg = (
-                R.OUT_OF_RANGE,
-                f"proximal {proximal.tolist()} outside {(lo, hi)} rad",
-            )
-        if resp.error_code != R.NONE:
+        if not check_hand_command(req, resp):
             self.get_logger().warn(f"hand_command refused: {resp.error_msg}")
             return resp
         with self._lock:

@@ -18,6 +18,7 @@ from rrg_msgs.action import GuardedMove
 from rrg_msgs.msg import ContactPads
 from rrg_msgs.srv import HandCommand
 from rrg_sim import wam
+from rrg_sim.config import HAND
 from rrg_sim.executor.trajectory import DensePath, sample_times
 from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES
 
@@ -65,6 +66,22 @@ def goal_via_points(goal: GuardedMove.Goal, q0: np.ndarray) -> tuple[np.ndarray,
             R.INVALID_TRAJECTORY,
         )
     return q, np.r_[0.0, t]
+
+
+def check_hand_command(req: HandCommand.Request, resp: HandCommand.Response) -> bool:
+    """Whether a hand command is valid; if not, its error code and message are set on resp."""
+    Q, R = HandCommand.Request, HandCommand.Response
+    proximal = np.asarray(req.proximal, dtype=float)
+    lo, hi = HAND.proximal_range
+    if req.mode not in (Q.MODE_POSITION, Q.MODE_OPEN, Q.MODE_CLOSE, Q.MODE_CLOSE_GUARDED):
+        resp.error_code, resp.error_msg = R.INVALID_MODE, f"unknown mode {req.mode}"
+    elif not HAND.spread_range[0] <= req.spread <= HAND.spread_range[1]:
+        resp.error_code = R.OUT_OF_RANGE
+        resp.error_msg = f"spread {req.spread} outside {HAND.spread_range} rad"
+    elif req.mode == Q.MODE_POSITION and not np.all((proximal >= lo) & (proximal <= hi)):
+        resp.error_code = R.OUT_OF_RANGE
+        resp.error_msg = f"proximal {proximal.tolist()} outside {(lo, hi)} rad"
+    return resp.error_code == R.NONE
 
 
 def client_fraction(index: float, n: int) -> float:
