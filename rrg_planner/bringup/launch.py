@@ -160,6 +160,7 @@ class Graph:
         self.actions: dict = {}  # action name → ActionClient
         self.outcomes_seen = 0  # grasp outcome messages the launcher has received
         self.goal_handle = None  # the running robust grasp, if any
+        self.interrupted = False  # set by Ctrl-C or SIGTERM, acted on in spin_until
 
     # ------------------------------------------------------------------ processes
     def spawn(self, name: str, args: list[str]) -> None:
@@ -304,6 +305,9 @@ class Graph:
         child."""
         deadline = time.monotonic() + timeout_s
         while not condition():
+            if self.interrupted:
+                self.interrupted = False  # once: the shutdown that follows may spin again
+                raise KeyboardInterrupt
             self.check_children()
             if time.monotonic() > deadline:
                 raise LaunchError(f"timed out after {timeout_s:.0f} s waiting for {what}")
@@ -620,8 +624,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"rrg-launch: bag folder already exists: {bag_dir}", file=sys.stderr)
         return 2
 
-    def terminate(signum, _frame):  # SIGTERM behaves as Ctrl-C
-        raise KeyboardInterrupt
+    def interrupt(signum, _frame):  # Ctrl-C or SIGTERM: the graph's spin loop raises
+        graph.interrupted = True  # KeyboardInterrupt (raised inside rclpy's C++ it would turn
+        # into a RuntimeError)
 
     interface = "sim" if args.mode == "sim" else ("fake_hw" if args.fake_hw else "hw")
     graph = Graph(ros_environment(args.domain_id), bag_dir, args.log_dir, interface)
@@ -635,12 +640,12 @@ def main(argv: list[str] | None = None) -> int:
         )
         warm_tables(object_name, levels)
         signal.signal(
-            signal.SIGTERM, terminate
+            signal.SIGTERM, interrupt
         )  # after the table workers, which must not inherit it
         # Ctrl-C stops the graph even if this process started with SIGINT ignored (a background
         # job of a non-interactive shell: Python keeps an inherited SIG_IGN), and the nodes
         # started next inherit the default instead of the ignore.
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGINT, interrupt)
         graph.start(
             object_name,
             levels,
