@@ -389,11 +389,6 @@ def bench_hw(argv: list[str]) -> int:
 
 
 def run_bench(args: argparse.Namespace) -> int:
-    def terminate(signum, _frame):  # SIGTERM behaves as Ctrl-C
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, terminate)
-    signal.signal(signal.SIGINT, signal.default_int_handler)
     domain = args.domain_id
     rng = np.random.default_rng(args.seed)
     load_before = os.getloadavg()[0]
@@ -405,6 +400,12 @@ def run_bench(args: argparse.Namespace) -> int:
     ):
         log_dir = args.log_dir or Path(tmp) / "logs"
         bench = HwBench(domain, log_dir)
+
+        def interrupt(signum, _frame):  # Ctrl-C or SIGTERM: acted on in Graph.spin_until
+            bench.graph.interrupted = True
+
+        signal.signal(signal.SIGTERM, interrupt)
+        signal.signal(signal.SIGINT, interrupt)
         obs = bench.obs
         try:
             bench.start(args.seed)
