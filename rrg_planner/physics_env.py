@@ -20,11 +20,15 @@ class PhysicsEnvironment:
         self.last_judgement: dict = {}
 
     @classmethod
-    def for_object(cls, object_name: str, seed: int = 0) -> PhysicsEnvironment:
-        return cls(PhysicsWorld(object_name, seed=seed))
+    def for_object(
+        cls, object_name: str, seed: int = 0, profile: str = "nominal"
+    ) -> PhysicsEnvironment:
+        """A world of one object under a world profile (rrg_sim.config.WORLD_PROFILES)."""
+        return cls(PhysicsWorld(object_name, seed=seed, profile=profile))
 
     def reset(self, true_pose, seed: int) -> None:
-        """Start a trial: robot home, object at its true pose, sensor noise reseeded."""
+        """Start a trial: sensor noise reseeded and the profile's conditions drawn from
+        ``seed``, robot home, object at its true pose."""
         self.world.reseed(seed)
         self.world.reset(np.asarray(true_pose, dtype=float))
         self.last_judgement = {}

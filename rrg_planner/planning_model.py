@@ -18,7 +18,7 @@ from rrg_estimator.obs_model import likelihood_params
 from rrg_estimator.obs_tables import ObservationTable, load_or_build
 from rrg_planner.clustering import ObservationClusters, cluster_table
 from rrg_planner.config import GOAL_AIM_FRACTION, GOAL_MIN_PROBABILITY
-from rrg_sim.config import REORIENT_MIN_FINGERS, SENSOR_NAMES
+from rrg_sim.config import REORIENT_MIN_FINGERS
 from rrg_sim.executor.wrt_executor import executed_poses
 from rrg_sim.objects import ObjectModel, get_object
 from rrg_sim.observation import holds_object
@@ -30,11 +30,8 @@ log = logging.getLogger(__name__)
 
 def _grasp_made(obj: ObjectModel, contact: np.ndarray, sensors: np.ndarray) -> np.ndarray:
     """(N,) bool: the hand reached the grasp pose without an early contact (contact (N,)) and
-    made the required contacts (sensors (N,10))."""
-    ok = holds_object(contact, sensors, obj.goal.min_fingers)
-    for name in obj.goal.required_sensors:
-        ok &= sensors[:, SENSOR_NAMES.index(name)]
-    return ok
+    closed with at least the goal's fingers on the object (sensors (N,10))."""
+    return holds_object(contact, sensors, obj.goal.min_fingers)
 
 
 def goal_holds(
@@ -54,10 +51,12 @@ def goal_weights(
     cell: tuple[float, float, float] | np.ndarray | None = None,
 ) -> np.ndarray:
     """P(G | Δ) (N,) for a goal grasp executed relative to an estimate, the object really at
-    offset delta (N,3): the grasp made (as in goal_holds), and the object, moved by the
+    offset delta (N,3): the grasp made (as in goal_holds), the object, moved by the
     closing as the settling study measured it (Settling.outcome: Δ_closed ~ N(μ(Δ),
-    σ(Δ)²) inside the study's box), inside the goal region. Outside the box, or for an object
-    without a study, the object is taken not to move (goal_holds).
+    σ(Δ)²) inside the study's box), inside the goal region, and the grasp making its
+    required contacts and holding through the lift (Settling.hold_probability, measured by
+    the judge's own test). Outside the box, or for an object without a study, the object is
+    taken not to move and to hold (goal_holds).
 
     cell: (3,) [m, m, rad] grid spacing when delta are grid points that each stand for their
     cell (a belief grid's weight is the mass of the cell around its point): the region is
@@ -79,7 +78,9 @@ def goal_weights(
         mean, sigma = settling.outcome(delta[near], "closed")
         # a uniform offset u in the cell moves the closed Δ by A u: variance Σ_j A_kj² g_j²/12
         sigma = np.sqrt(sigma**2 + (settling.closed.A**2) @ spread2)
-        p[near] = made[near] * obj.goal.probability(mean, sigma)
+        p[near] = (
+            made[near] * obj.goal.probability(mean, sigma) * settling.hold_probability(delta[near])
+        )
     p[p < GOAL_MIN_PROBABILITY] = 0.0
     return p
 

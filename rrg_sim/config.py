@@ -366,6 +366,101 @@ class PhysicsParams:
 PHYSICS = PhysicsParams()
 
 
+# ------------------------------------------------------------------ world profiles
+@dataclass(frozen=True)
+class WorldProfile:
+    """How far the simulated world departs from the planner's models (rrg_sim.physics.realism).
+
+    Per-trial draws are fixed for a whole trial; the planner knows these distributions, never
+    a trial's draw. Every default is "off": the nominal world, whose robot is its own model.
+    """
+
+    name: str = "nominal"
+    #: σ of each WAM joint's zero offset (calibration error) [rad], drawn per trial: the
+    #: encoders read q_true + offset, so the servos and the forward kinematics are off by it.
+    joint_offset_sigma: float = 0.0
+    #: Resolution of each WAM joint reading [rad] (0: exact).
+    joint_resolution: tuple[float, ...] = (0.0,) * 7
+    #: Torque limit of each WAM joint servo's output [N m], gravity compensation apart (None:
+    #: unlimited).
+    arm_torque_limit: tuple[float, ...] | None = None
+    #: Sample period of the touch pads [s] (0: every control period); a sample is held until
+    #: the next one.
+    pad_period: float = 0.0
+    #: P(a touched pad stays silent for a whole guarded move and its closing).
+    pad_miss: float = 0.0
+    #: P(a pad fires falsely during a guarded move), for one sample at a uniform instant.
+    pad_false_alarm: float = 0.0
+    #: Nano17 noise σ per axis [N] and [N m]; None: the config's SENSING / PHYSICS values.
+    nano17_force_noise: float | None = None
+    nano17_torque_noise: float | None = None
+    #: Range of the object's sliding friction coefficient against the table, uniform per trial
+    #: (None: the catalogue's value against the table's).
+    friction_range: tuple[float, float] | None = None
+    #: Range of the distance [m] of the object's centre of mass from its modelled one, uniform
+    #: per trial, in a uniformly drawn horizontal direction.
+    com_offset_range: tuple[float, float] = (0.0, 0.0)
+    #: σ of the table top's height about its modelled height [m], per trial.
+    table_height_sigma: float = 0.0
+
+
+NOMINAL = WorldProfile()
+
+#: WAM drive ratios, motor turns per joint turn (libbarrett config/wam7w.conf, j2mp; J2/J3 and
+#: J5/J6 are differentials, their diagonal terms used) and motor encoder counts per turn
+#: (Barrett WAM User's Manual D1001, FAQ: CTS 40960 for the optical encoders).
+WAM_DRIVE_RATIOS = (42.0, 28.25, 28.25, 18.0, 9.7, 9.7, 14.93)
+WAM_ENCODER_COUNTS = 40960
+
+#: The realistic world: a real WAM, BarrettHand and Nano17s as their makers and the literature
+#: describe them. Sources per field; where no source gives a number, the nearest one is named.
+#: Not modelled, for want of any published figure: cable-drive compliance, the gravity model's
+#: residual, unit-to-unit object mass, Nano17 bias drift (the sensors are tared before every
+#: guarded move), and sensing latency beyond the sample period (the Net F/T's 288 µs, ATI,
+#: is below one control period).
+REALISTIC = WorldProfile(
+    name="realistic",
+    # The WAM is zeroed by eye against scribe marks (Barrett, "WAM Arm Calibration" wiki;
+    # libbarrett config/calibration.conf) and no published study gives its residual. Sized to
+    # the nearest published figure: a 6-DOF arm's 9 mm mean position error before kinematic
+    # calibration (Joubair, Zhao, Bigras, Bonev, "Use of a Force-Torque Sensor for
+    # Self-Calibration of a 6-DOF Medical Robot", Sensors 16(6) 798, 2016). On the WAM, 1 mrad
+    # on every joint moves the palm 0.88 mm on average over home and the ten goal grasps
+    # (forward kinematics, 2000 draws each), so 9 mm needs 10 mrad.
+    joint_offset_sigma=0.010,
+    joint_resolution=tuple(2 * math.pi / (WAM_ENCODER_COUNTS * n) for n in WAM_DRIVE_RATIOS),
+    # libbarrett config/wam7w.conf: control_signal_limit of the joint position PID.
+    arm_torque_limit=(25.0, 20.0, 15.0, 15.0, 5.0, 5.0, 5.0),
+    # Barrett's ROS 2 driver publishes the tactile states at 50 Hz (shared/notes/
+    # hardware-interfaces.md); Barrett recommends ≥ 50 Hz for the hand (wiki,
+    # Hand/282/ControlModes).
+    pad_period=0.02,
+    # No published miss or false-alarm rate for binary contact pads was found (nor BarrettHand
+    # tactile cell noise); the rates the estimator's likelihood assumes are used
+    # (rrg_estimator.config.LIKELIHOOD: p_detect 0.90, p_false_alarm 0.04).
+    pad_miss=0.10,
+    pad_false_alarm=0.04,
+    # ATI Nano17 SI-12-0.12 resolution: 1/320 N, 1/64 N mm (ATI, "F/T Sensor: Nano17").
+    nano17_force_noise=1.0 / 320.0,
+    nano17_torque_noise=1.0 / 64.0 * 1e-3,
+    # Static friction measured for seven household objects, 0.23 (a can) to 1.1 (an eraser)
+    # (thesis "Development of Grasps", Table 4.1, object characteristics; the nearest source:
+    # the counter-surface is not stated).
+    friction_range=(0.23, 1.1),
+    # Same table: centre-of-mass offsets from the geometric centre of 2 to 11.5 mm.
+    com_offset_range=(0.002, 0.0115),
+    # Kinect depth noise grows with the square of range to about 4 cm at 5 m (Khoshelham and
+    # Oude Elberink, "Accuracy and Resolution of Kinect Depth Data for Indoor Mapping
+    # Applications", Sensors 12(2) 1437, 2012): 2.3 mm at the 1.2 m from a head camera to
+    # the table.
+    table_height_sigma=0.0023,
+)
+
+
+#: The world profiles by name (``--world``).
+WORLD_PROFILES: dict[str, WorldProfile] = {p.name: p for p in (NOMINAL, REALISTIC)}
+
+
 def as_array(t: tuple[float, ...]) -> np.ndarray:
     """Tuple constant → float array (helper for the frozen dataclasses above)."""
     return np.asarray(t, dtype=float)

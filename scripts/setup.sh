@@ -2,7 +2,7 @@
 # Set up RRG's environment in .venv/ (idempotent; fast when nothing changed).
 #   - Debian packages the build needs (python3-venv, cmake, g++), only when missing;
 #   - the Python virtual environment with the core dependencies;
-#   - RRG itself, installed editable, with its command-line tools.
+#   - RRG itself, installed editable, with its command-line tools and the test and ray extras.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 VENV="$ROOT/.venv"
@@ -35,7 +35,7 @@ SUM="$(sha256sum "$ROOT/pyproject.toml" | cut -d' ' -f1)"
 if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$SUM" ]; then
   log "installing Python dependencies and RRG (editable)"
   "$VPY" -m pip install -q --upgrade pip
-  "$VPY" -m pip install -q -e "$ROOT[test]"
+  "$VPY" -m pip install -q -e "$ROOT[test,ray]"
   echo "$SUM" > "$STAMP"
 fi
 

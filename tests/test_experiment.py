@@ -1,5 +1,6 @@
 """The experiment runner: the --quick preset runs real physics trials and writes consistent
-outputs; a second run resumes (runs nothing new); Fig. 9 is drawn from its records."""
+outputs, the same on Ray as in local processes; a second run resumes (runs nothing new) and
+refuses other campaigns' records; Fig. 9 is drawn from its records."""
 
 from __future__ import annotations
 
@@ -10,21 +11,41 @@ import pytest
 
 from rrg_estimator.config import LEVELS
 from rrg_planner.experiment.experiment_cli import QUICK, main
-from rrg_planner.experiment.report import fig9, fig9_frontier, fig9_table, summarize, wilson
-from rrg_planner.experiment.trials import Cell, TrialSpec, load_records
+from rrg_planner.experiment.provenance import DEV_SEED, campaign_seed, code_version
+from rrg_planner.experiment.report import (
+    fig9,
+    fig9_frontier,
+    fig9_paired,
+    fig9_paired_table,
+    fig9_table,
+    summarize,
+    wilson,
+)
+from rrg_planner.experiment.trials import (
+    CampaignMismatch,
+    Cell,
+    TrialSpec,
+    check_stamps,
+    drop_torn_tail,
+    load_records,
+    outcome,
+)
 from rrg_sim.config import WORLD
 from rrg_sim.poses import relative_planar
 
 
 @pytest.mark.slow  # a MuJoCo campaign
 def test_quick_campaign_outputs_are_consistent_and_resumable(tmp_path):
-    assert main(["--quick", "--out", str(tmp_path), "--workers", "2"]) == 0
+    assert main(["--quick", "--dev", "--out", str(tmp_path), "--workers", "2"]) == 0
     for name in ("trials.jsonl", "table.md", "summary.json", "fig7_low.png", "fig8_high.png"):
         assert (tmp_path / name).stat().st_size > 0, name
     records = load_records(tmp_path / "trials.jsonl")
     n_cells = len(QUICK["objects"]) * len(QUICK["levels"]) * 3
     assert len(records) == n_cells * QUICK["trials"]
     summary = json.loads((tmp_path / "summary.json").read_text())
+    campaign, summary = summary["campaign"], summary["cells"]
+    assert campaign["commit"] == code_version() and campaign["world"] == "nominal"
+    assert campaign["seed"] == DEV_SEED and campaign["seed_source"] == "--dev"
     assert len(summary) == n_cells
     for key, s in summary.items():
         rs = [r for r in records if r["cell"] == key]
@@ -43,6 +64,7 @@ def test_quick_campaign_outputs_are_consistent_and_resumable(tmp_path):
         assert f"{s['successes']}/{s['trials']}" in row
     for r in records:
         assert not r["error"], r
+        assert (r["commit"], r["base_seed"], r["world"]) == (code_version(), DEV_SEED, "nominal")
         assert 1 <= r["n_actions"] <= 10 and len(r["actions"]) == r["n_actions"]
         assert r["strategy"] != "open-loop" or r["actions"] == ["goal"]
         # The record's seed replays its true pose, drawn from the level's initial Gaussian.
@@ -57,14 +79,99 @@ def test_quick_campaign_outputs_are_consistent_and_resumable(tmp_path):
         by_trial.setdefault((r["level"], r["trial"]), set()).add(tuple(r["true_pose"]))
     assert all(len(v) == 1 for v in by_trial.values())
     # Resume: nothing new runs, nothing is duplicated.
-    assert main(["--quick", "--out", str(tmp_path), "--workers", "1"]) == 0
+    assert main(["--quick", "--dev", "--out", str(tmp_path), "--workers", "1"]) == 0
+    assert len(load_records(tmp_path / "trials.jsonl")) == len(records)
+    # The same campaign on a local Ray cluster: the same records, the same table.
+    ray_out = tmp_path / "ray"
+    assert main(["--quick", "--dev", "--out", str(ray_out), "--ray", "auto", "--workers", "2"]) == 0
+    by_id = lambda rs: sorted((outcome(r) for r in rs), key=lambda r: r["id"])
+    assert by_id(load_records(ray_out / "trials.jsonl")) == by_id(records)
+    assert (ray_out / "table.md").read_bytes() == (tmp_path / "table.md").read_bytes()
+    # Another seed, or another world, is refused rather than mixed in.
+    assert main(["--quick", "--seed", "7", "--out", str(tmp_path)]) == 2
+    assert main(["--quick", "--dev", "--world", "realistic", "--out", str(tmp_path)]) == 2
     assert len(load_records(tmp_path / "trials.jsonl")) == len(records)
 
 
-def test_wilson_interval_and_fig9(tmp_path):
-    assert wilson(0, 10)[0] == 0.0 and wilson(10, 10)[1] == 1.0
+def test_wilson_interval_matches_hand_computed_values_where_wald_fails():
+    """1 of 10: Wilson's 95 % interval, by hand, is (p + z²/2n ± z √(p(1-p)/n + z²/4n²)) /
+    (1 + z²/n) = 0.21102 ± 0.19314 → [0.0179, 0.4042]; the Wald interval p ± z √(p(1-p)/n)
+    = 0.1 ± 0.1859 would reach below 0. 0 of 10: Wald collapses to [0, 0], Wilson's upper
+    bound is (z²/n) / (1 + z²/n) = 0.2775. 95 of 100: Wilson [0.8882, 0.9785], Wald
+    [0.9073, 0.9927]."""
+    lo, hi = wilson(1, 10)
+    assert lo == pytest.approx(0.017875, abs=1e-5) and hi == pytest.approx(0.404150, abs=1e-5)
+    assert wilson(0, 10) == (0.0, pytest.approx(0.277540, abs=1e-5))
+    assert wilson(10, 10) == (pytest.approx(1 - 0.277540, abs=1e-5), 1.0)
     lo, hi = wilson(95, 100)
-    assert lo < 0.95 < hi and hi - lo < 0.1
+    assert lo == pytest.approx(0.888246, abs=1e-5) and hi == pytest.approx(0.978457, abs=1e-5)
+
+
+def test_the_base_seed_comes_from_the_code_version():
+    """A reported campaign's seed is a function of the code version: another version,
+    another seed; the development seed is reserved for probes."""
+    version = code_version()
+    assert len(version) >= 12 and campaign_seed(version) == campaign_seed(version)
+    assert campaign_seed(version) != campaign_seed(version + "x")
+    assert campaign_seed(version) != DEV_SEED and 0 <= campaign_seed(version) < 2**32
+
+
+def _record(i: int, **stamp) -> dict:
+    return dict(id=f"box/low/rrg-info#{i}", commit="c1", base_seed=5, world="nominal") | stamp
+
+
+def test_resume_cuts_a_half_written_line_and_refuses_other_campaigns(tmp_path):
+    """A run killed while writing leaves a torn last line: it is dropped before appending, so
+    the next record starts a line of its own; records of another code version, seed or world
+    stop the resume with a clear error."""
+    path = tmp_path / "trials.jsonl"
+    lines = [json.dumps(_record(i)) for i in range(3)]
+    path.write_text("\n".join(lines) + "\n" + lines[0][:17])
+    drop_torn_tail(path)
+    assert path.read_text() == "\n".join(lines) + "\n"
+    assert [r["id"] for r in load_records(path)] == [f"box/low/rrg-info#{i}" for i in range(3)]
+    stamp = dict(commit="c1", base_seed=5, world="nominal")
+    check_stamps(load_records(path), stamp, path)  # same campaign: fine
+    for key, other in (("commit", "c2"), ("base_seed", 6), ("world", "realistic")):
+        with pytest.raises(CampaignMismatch, match=key):
+            check_stamps(load_records(path), stamp | {key: other}, path)
+
+
+@pytest.mark.slow  # a MuJoCo campaign killed partway
+def test_a_killed_campaign_runs_only_its_missing_trials(tmp_path):
+    """SIGKILL a --quick campaign once its first records are written; the rerun runs only
+    the trials that are missing and each trial appears once."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "c"
+    cmd = [sys.executable, "-m", "rrg_planner.experiment.experiment_cli", "--quick", "--dev"]
+    cmd += ["--workers", "1", "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    path = out / "trials.jsonl"
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and len(load_records(path)) < 3:
+        time.sleep(0.2)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    before = load_records(path)
+    total = len(QUICK["objects"]) * len(QUICK["levels"]) * 3 * QUICK["trials"]
+    assert 3 <= len(before) < total
+    with path.open("a") as f:  # as if killed mid-write
+        f.write(json.dumps(before[0])[:25])
+    log = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert log.returncode == 0, log.stderr[-2000:]
+    after = load_records(path)
+    ids = [r["id"] for r in after]
+    assert len(ids) == len(set(ids)) == total
+    assert after[: len(before)] == before  # the first run's records were kept as they were
+    assert f"{total} trials, {len(before)} already done, {total - len(before)} to run" in log.stderr
+
+
+def test_fig9(tmp_path):
     records = [
         dict(
             cell=f"powerdrill/high/rrg-info/H{h}/d{d}",
@@ -89,7 +196,10 @@ def test_wilson_interval_and_fig9(tmp_path):
     # trials 0 and 3 of every cell failed: 0 out of the goal region and dropped, 3 dropped
     # though declared
     assert all(
-        s["failures"] == dict(failed=2, declared=1, no_grasp=0, out_of_region=1, not_held=2)
+        s["failures"]
+        == dict(
+            failed=2, declared=1, no_grasp=0, out_of_region=1, not_held=2, fingers=0, required=0
+        )
         for s in summary.values()
     )
     fig9(summary, tmp_path / "fig9.png")
@@ -167,3 +277,34 @@ def test_a_cell_key_names_its_cell_and_nothing_else():
 def test_replay_refuses_a_bad_trial_id(trial_id, capsys):
     assert main(["--replay", trial_id]) == 2
     assert "bad trial id" in capsys.readouterr().err
+
+
+def test_fig9_pairs_h2_with_h1_by_trial_with_a_bootstrap_interval():
+    """Paired by trial index: H = 2 succeeds where H = 1 fails on 2 of 10 trials and takes
+    one action fewer on each; the difference is +20 points and -1 action, its interval
+    brackets it, and a constant difference has a degenerate interval."""
+    records = [
+        dict(
+            object="powerdrill",
+            level="high",
+            strategy="rrg-info",
+            horizon=h,
+            delta=0.3,
+            trial=i,
+            success=(i >= 2) if h == 1 else True,
+            n_actions=5 if h == 1 else 4,
+        )
+        for h in (1, 2)
+        for i in range(10)
+    ]
+    paired = fig9_paired(records)
+    d = paired["0.3"]
+    assert d["pairs"] == 10
+    assert d["success"]["diff"] == pytest.approx(0.2)
+    lo, hi = d["success"]["ci95"]
+    assert 0.0 <= lo < 0.2 < hi <= 0.5
+    assert d["actions"]["diff"] == -1.0 and d["actions"]["ci95"] == [-1.0, -1.0]
+    assert "| 0.3 | 10 | 80% → 100% | +20.0 pts" in fig9_paired_table(paired)
+    # unpaired trials are left out
+    records.append(dict(records[-1], trial=99))
+    assert fig9_paired(records)["0.3"]["pairs"] == 10

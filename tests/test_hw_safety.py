@@ -606,8 +606,8 @@ def test_executor_moves_fit_positions_and_workspace(executor_moves):
         lo, hi = np.minimum(lo, p.min(axis=0)), np.maximum(hi, p.max(axis=0))
     # The margins the limits file states (workspace.source.z_min).
     margin_lo, margin_hi = lo - LIMITS.workspace_min, LIMITS.workspace_max - hi
-    assert margin_lo[2] >= 0.05
-    assert min(margin_lo.min(), margin_hi.min()) >= 0.05
+    assert margin_lo[2] >= 0.025
+    assert min(margin_lo.min(), margin_hi.min()) >= 0.025
 
 
 def test_executor_moves_velocity_and_acceleration(executor_moves):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -12,6 +14,7 @@ from rrg_sim.geometric_sim import GeometricSimulator
 from rrg_sim.objects import OBJECT_NAMES, GoalRegion, Primitive, get_object, signed_distance
 from rrg_sim.objects.clearance import hand_points, scene, transform_points
 from rrg_sim.objects.composites import box, cylinder, turn_about_z
+from rrg_sim.objects.object_model import RequiredContact
 from rrg_sim.objects.primitives import box_distance, surface_samples
 from rrg_sim.objects.wrt_generation import (
     APPROACH_CLEARANCE,
@@ -266,8 +269,23 @@ def test_goal_region_contains():
         assert bool(o.goal.contains([0.0, 0.0, np.pi])) == (
             o.symmetric or name in ("box", "teabox", "cooler")
         )
-    with pytest.raises(ValueError):
-        GoalRegion((0.01, 0.01, 0.1), required_sensors=("thumb",))
+    for bad in (
+        dict(name="x", parts=(0,), fingers=(4,)),
+        dict(name="x", parts=(0,), fingers=(1,), min_fingers=2),
+        dict(name="x", parts=()),
+    ):
+        with pytest.raises(ValueError):
+            RequiredContact(**bad)
+    drill = get_object("powerdrill")
+    with pytest.raises(ValueError, match="missing part"):  # a part the object does not have
+        dataclasses.replace(
+            drill,
+            goal=dataclasses.replace(
+                drill.goal, required_contacts=(RequiredContact("x", (len(drill.parts),)),)
+            ),
+        )
+    trigger = drill.goal.required_contacts[0]
+    assert trigger.met({1: {4}}) and trigger.met({2: {1, 4}}) and not trigger.met({3: {4}, 1: {1}})
 
 
 def test_signed_distance_of_primitives():

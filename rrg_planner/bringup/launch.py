@@ -44,7 +44,7 @@ import numpy as np
 from rrg_estimator.config import LEVELS
 from rrg_planner.config import SEARCH
 from rrg_planner.requests import STRATEGIES
-from rrg_sim.config import WORLD
+from rrg_sim.config import WORLD, WORLD_PROFILES
 from rrg_sim.objects import OBJECT_NAMES
 from rrg_sim.poses import compose_planar
 
@@ -188,9 +188,11 @@ class Graph:
         real_time_factor: float,
         sensor_noise: float = 1.0,
         hw_params: dict[str, str] | None = None,
+        world_profile: str = "nominal",
     ) -> None:
         """Start the recorder (if recording), the arm/hand interface and the executor, estimator
-        and planner (the launch time counts from here). ``hw_params``: the bridge's parameters."""
+        and planner (the launch time counts from here). ``hw_params``: the bridge's parameters;
+        ``world_profile``: the simulator's (rrg_sim.config.WORLD_PROFILES)."""
         self.started = time.monotonic()
         if self.bag_dir is not None:
             self.spawn(
@@ -212,7 +214,9 @@ class Graph:
                     ),
                 ],
             )
-        self.start_interface(object_name, seed, real_time_factor, sensor_noise, hw_params)
+        self.start_interface(
+            object_name, seed, real_time_factor, sensor_noise, hw_params, world_profile
+        )
         params = {
             "executor": {},
             "estimator": {},
@@ -231,12 +235,13 @@ class Graph:
         real_time_factor: float = 0.0,
         sensor_noise: float = 1.0,
         hw_params: dict[str, str] | None = None,
+        world_profile: str = "nominal",
     ) -> None:
         """Start the arm/hand interface's processes (INTERFACE[self.interface])."""
         world = {"object_name": object_name, "seed": seed, "sensor_noise": sensor_noise}
         hosts = f"[{','.join(repr(h) for h in rdt_addresses(int(self.env['ROS_DOMAIN_ID'])))}]"
         params = {
-            "sim": {**world, "real_time_factor": real_time_factor},
+            "sim": {**world, "real_time_factor": real_time_factor, "world_profile": world_profile},
             "fake_hw": {**world, "rdt_hosts": hosts},
             "hw_bridge": {
                 **({"rdt_hosts": hosts} if self.interface == "fake_hw" else {}),
@@ -588,6 +593,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=1.0,
         help="scale of the simulated sensors' noise (1 = config values, 0 = noiseless)",
     )
+    p.add_argument(
+        "--world",
+        choices=sorted(WORLD_PROFILES),
+        default="nominal",
+        help="the simulated world's profile (rrg_sim.config.WORLD_PROFILES; sim mode only)",
+    )
     p.add_argument("--bags", type=Path, default=ROOT / "bags", help="folder of the bags")
     p.add_argument("--bag-name", help="bag folder name (default: rrg_<object>_<time>)")
     p.add_argument("--no-bag", action="store_true", help="do not record")
@@ -653,6 +664,7 @@ def main(argv: list[str] | None = None) -> int:
             args.real_time_factor,
             args.sensor_noise,
             dict(args.hw_param),
+            args.world,
         )
         graph.connect()
         print(

@@ -1,11 +1,15 @@
 """``rrg-experiment``: reproduce the paper's Fig. 7, 8 and 9 in MuJoCo physics.
 
-    rrg-experiment                 # the full campaign into results/paper/
-    rrg-experiment --quick --out /tmp/quick
-    rrg-experiment --replay 'powerdrill/high/rrg-info#17'   # one trial again, verbosely
+    rrg-experiment --world realistic   # the full campaign into results/realistic/
+    rrg-experiment                     # the nominal world into results/paper/
+    rrg-experiment --dev --quick --out /tmp/quick
+    rrg-experiment --replay 'powerdrill/high/rrg-info#17' --seed 1234   # one trial, verbosely
 
-A stopped run resumes: trials already in <out>/trials.jsonl are not run again. A replay needs
-only the trial's id (and --seed, if the campaign had another).
+The base seed comes from the code version (its git commit), so a campaign runs on trials no
+earlier version was tuned on; --seed sets it, and --dev uses the development seed for probes
+whose results are not to be reported. A stopped run resumes: trials already in
+<out>/trials.jsonl are not run again, and records of another code version, seed or world are
+refused.
 """
 
 from __future__ import annotations
@@ -19,9 +23,17 @@ from pathlib import Path
 
 from rrg_estimator.config import LEVELS
 from rrg_planner.config import SEARCH
+from rrg_planner.experiment.provenance import DEV_SEED, campaign_seed, code_version
 from rrg_planner.experiment.report import write_outputs
-from rrg_planner.experiment.trials import Cell, TrialSpec, run_campaign, run_trial
+from rrg_planner.experiment.trials import (
+    CampaignMismatch,
+    Cell,
+    TrialSpec,
+    run_campaign,
+    run_trial,
+)
 from rrg_planner.requests import STRATEGIES
+from rrg_sim.config import WORLD_PROFILES
 from rrg_sim.objects import OBJECT_NAMES
 
 QUICK = dict(objects=["box"], levels=["low", "high"], trials=2, fig9_trials=0)
@@ -37,9 +49,17 @@ def unknown_names(objects, levels, strategies) -> list[str]:
     )
 
 
-def campaign_specs(objects, levels, strategies, trials, fig9_trials, seed) -> list[TrialSpec]:
+#: Where each world profile's campaign goes by default.
+DEFAULT_OUT = {"nominal": Path("results/paper"), "realistic": Path("results/realistic")}
+
+
+def campaign_specs(
+    objects, levels, strategies, trials, fig9_trials, seed, world="nominal"
+) -> list[TrialSpec]:
+    """Every trial of a campaign: the main cells, then Fig. 9's δ and horizon sweep on the
+    drill at high uncertainty (its cells that the main ones already hold are not repeated)."""
     specs = [
-        TrialSpec(Cell(o, lv, s), i, seed)
+        TrialSpec(Cell(o, lv, s), i, seed, world)
         for o in objects
         for lv in levels
         for s in strategies
@@ -54,7 +74,10 @@ def campaign_specs(objects, levels, strategies, trials, fig9_trials, seed) -> li
         ]
         known = {s.cell for s in specs}
         specs += [
-            TrialSpec(c, i, seed) for c in cells if c not in known for i in range(fig9_trials)
+            TrialSpec(c, i, seed, world)
+            for c in cells
+            if c not in known
+            for i in range(fig9_trials)
         ]
     return specs
 
@@ -71,14 +94,29 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--strategies", default=",".join(STRATEGIES))
     ap.add_argument("--trials", type=int, default=100, help="trials per cell")
     ap.add_argument(
-        "--fig9-trials",
-        type=int,
-        default=60,
-        help="trials per Fig. 9 point (0: skip Fig. 9); 60 keeps the campaign under an hour",
+        "--fig9-trials", type=int, default=100, help="trials per Fig. 9 point (0: skip Fig. 9)"
     )
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path, default=Path("results/paper"))
+    ap.add_argument(
+        "--world",
+        choices=sorted(WORLD_PROFILES),
+        default="nominal",
+        help="world profile (rrg_sim.config.WORLD_PROFILES)",
+    )
+    ap.add_argument("--workers", type=int, default=2, help="worker processes (or Ray CPUs)")
+    ap.add_argument(
+        "--ray",
+        metavar="ADDRESS",
+        help="run the trials on Ray: 'auto' (a running cluster, else a local one of --workers "
+        "CPUs) or a cluster address",
+    )
+    seeds = ap.add_mutually_exclusive_group()
+    seeds.add_argument("--seed", type=int, help="base seed (default: drawn from the code version)")
+    seeds.add_argument(
+        "--dev", action="store_true", help=f"the development seed ({DEV_SEED}): for probes only"
+    )
+    ap.add_argument(
+        "--out", type=Path, help="output folder (default: results/paper, or results/realistic)"
+    )
     ap.add_argument(
         "--replay",
         metavar="TRIAL_ID",
@@ -89,6 +127,13 @@ def main(argv: list[str] | None = None) -> int:
         level=logging.INFO if args.replay else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",
     )
+    version = code_version()
+    if args.seed is not None:
+        seed, seed_source = args.seed, "--seed"
+    elif args.dev:
+        seed, seed_source = DEV_SEED, "--dev"
+    else:
+        seed, seed_source = campaign_seed(version), "code version"
     if args.replay:
         cell_key, _, idx = args.replay.rpartition("#")
         try:
@@ -103,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
         if bad:
             print(f"bad trial id {args.replay!r}: unknown {bad}", file=sys.stderr)
             return 2
-        print(json.dumps(run_trial(TrialSpec(cell, index, args.seed)), indent=1))
+        print(json.dumps(run_trial(TrialSpec(cell, index, seed, args.world)), indent=1))
         return 0
 
     objects = QUICK["objects"] if args.quick else args.objects.split(",")
@@ -115,15 +160,28 @@ def main(argv: list[str] | None = None) -> int:
     if bad:
         print(f"unknown objects/levels/strategies: {bad}", file=sys.stderr)
         return 2
+    out = args.out or DEFAULT_OUT[args.world]
+    if "+dirty" in version:
+        print(f"note: uncommitted changes to the code: version {version}", file=sys.stderr)
+    print(f"code {version}, base seed {seed} ({seed_source}), world {args.world}", flush=True)
     t0 = time.perf_counter()
-    specs = campaign_specs(objects, levels, strategies, trials, fig9_trials, args.seed)
-    records = run_campaign(specs, args.out / "trials.jsonl", workers=args.workers)
-    summary = write_outputs(records, args.out, objects, levels)
-    print((args.out / "table.md").read_text())
+    specs = campaign_specs(objects, levels, strategies, trials, fig9_trials, seed, args.world)
+    try:
+        records = run_campaign(
+            specs, out / "trials.jsonl", version, workers=args.workers, ray=args.ray
+        )
+    except CampaignMismatch as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    campaign = dict(commit=version, seed=seed, seed_source=seed_source, world=args.world)
+    summary = write_outputs(records, out, objects, levels, campaign)
+    print((out / "table.md").read_text())
     main_cells = [
-        s for s in summary.values() if s["delta"] == SEARCH.delta and s["horizon"] == SEARCH.horizon
+        s
+        for s in summary["cells"].values()
+        if s["delta"] == SEARCH.delta and s["horizon"] == SEARCH.horizon
     ]
-    print(f"{len(records)} trials in {len(main_cells)} main cells; outputs in {args.out}/")
+    print(f"{len(records)} trials in {len(main_cells)} main cells; outputs in {out}/")
     print(f"wall time: {time.perf_counter() - t0:.0f} s")
     return 0
 

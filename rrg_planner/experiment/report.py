@@ -46,6 +46,7 @@ def summarize(records: list[dict]) -> dict[str, dict]:
     for key, rs in sorted(by_cell.items()):
         k = sum(bool(r["success"]) for r in rs)
         lo, hi = wilson(k, len(rs))
+        strict = sum(bool((r.get("judge") or {}).get("strict_success", False)) for r in rs)
         out[key] = dict(
             object=rs[0]["object"],
             level=rs[0]["level"],
@@ -56,6 +57,9 @@ def summarize(records: list[dict]) -> dict[str, dict]:
             successes=k,
             success_rate=k / len(rs),
             ci95=[lo, hi],
+            strict_successes=strict,
+            strict_rate=strict / len(rs),
+            strict_ci95=list(wilson(strict, len(rs))),
             mean_actions=float(np.mean([r["n_actions"] for r in rs])),
             mean_planning_s=float(np.mean([r["planning_time_s"] for r in rs])),
             errors=sum(bool(r["error"]) for r in rs),
@@ -67,7 +71,8 @@ def summarize(records: list[dict]) -> dict[str, dict]:
 def failure_reasons(records: list[dict]) -> dict[str, int]:
     """Why the failed trials of a cell failed (a trial can count under several judge reasons):
     declared (the agent believed P(G) > 1 − δ), no_grasp (no goal grasp judged: nothing was
-    feasible, or the trial crashed), out_of_region, not_held, fingers (too few in contact)."""
+    feasible, or the trial crashed), out_of_region, not_held, fingers (too few in contact),
+    required (a required contact missed)."""
     failed = [r for r in records if not r["success"]]
     judged = [r.get("judge") or {} for r in failed]
     return dict(
@@ -76,6 +81,8 @@ def failure_reasons(records: list[dict]) -> dict[str, int]:
         no_grasp=sum(not j for j in judged),
         out_of_region=sum(bool(j) and not j.get("in_region", True) for j in judged),
         not_held=sum(bool(j) and not j.get("held", True) for j in judged),
+        fingers=sum(bool(j) and not j.get("fingers_ok", True) for j in judged),
+        required=sum(bool(j) and not j.get("required_ok", True) for j in judged),
     )
 
 
@@ -87,8 +94,8 @@ def failure_table(
         f"**why {STRATEGY_LABELS[strategy]} trials failed** (a trial may have several reasons)",
         "",
         "| object | level | failed | declared success | no grasp judged | out of goal region "
-        "| not held |",
-        "|---|---|---|---|---|---|---|",
+        "| not held | too few fingers | required contact missed |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for level in levels:
         for obj in objects:
@@ -98,7 +105,8 @@ def failure_table(
             f = s["failures"]
             lines.append(
                 f"| {obj} | {level} | {f['failed']}/{s['trials']} | {f['declared']} | "
-                f"{f['no_grasp']} | {f['out_of_region']} | {f['not_held']} |"
+                f"{f['no_grasp']} | {f['out_of_region']} | {f['not_held']} | "
+                f"{f.get('fingers', 0)} | {f.get('required', 0)} |"
             )
     return "\n".join(lines) + "\n"
 
@@ -110,9 +118,9 @@ def markdown_table(summary: dict[str, dict], objects: list[str], levels: list[st
         lines += [
             f"**{level} uncertainty**",
             "",
-            "| object | open-loop | RRG-Goal | RRG-Info (H=2) | paper RRG-Info "
-            "| mean actions (Info) |",
-            "|---|---|---|---|---|---|",
+            "| object | open-loop | RRG-Goal | RRG-Info (H=2) | RRG-Info, strict "
+            "| paper RRG-Info | mean actions (Info) |",
+            "|---|---|---|---|---|---|---|",
         ]
         for obj in objects:
             cells = []
@@ -126,8 +134,15 @@ def markdown_table(summary: dict[str, dict], objects: list[str], levels: list[st
                 )
             info = summary.get(f"{obj}/{level}/rrg-info")
             acts = f"{info['mean_actions']:.1f}" if info else "–"
+            strict = (
+                f"{100 * info['strict_rate']:.0f}% ({info['strict_successes']}/{info['trials']})"
+                if info
+                else "–"
+            )
             lines.append(
-                f"| {obj} | " + " | ".join(cells) + f" | {paper_rrg_info(obj, level)} | {acts} |"
+                f"| {obj} | "
+                + " | ".join(cells)
+                + f" | {strict} | {paper_rrg_info(obj, level)} | {acts} |"
             )
         lines.append("")
     return "\n".join(lines)
@@ -224,21 +239,93 @@ def fig9_table(summary: dict[str, dict], target: float = 0.9) -> str:
     return "\n".join(rows) + "\n"
 
 
+def campaign_header(campaign: dict) -> str:
+    """Markdown: the code version, base seed and world profile the table comes from."""
+    return (
+        f"World profile **{campaign['world']}**; base seed {campaign['seed']} "
+        f"({campaign['seed_source']}); code {campaign['commit']}.\n"
+    )
+
+
+def paired_difference(
+    a: list[dict], b: list[dict], n_boot: int = 10_000, seed: int = 0
+) -> dict | None:
+    """Trials of two cells paired by trial index (the same true poses): the mean difference
+    b − a in success and in the number of actions, each with a 95 % percentile bootstrap
+    interval over the pairs (``n_boot`` resamples, seeded). None without common trials."""
+    by_trial = {r["trial"]: r for r in a}
+    pairs = [(by_trial[r["trial"]], r) for r in b if r["trial"] in by_trial]
+    if not pairs:
+        return None
+    success = np.array([[ra["success"], rb["success"]] for ra, rb in pairs], dtype=float)
+    actions = np.array([[ra["n_actions"], rb["n_actions"]] for ra, rb in pairs], dtype=float)
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, len(pairs), (n_boot, len(pairs)))
+    out = dict(pairs=len(pairs))
+    for name, values in (("success", success), ("actions", actions)):
+        diff = values[:, 1] - values[:, 0]
+        boot = diff[idx].mean(axis=1)
+        lo, hi = np.percentile(boot, [2.5, 97.5])
+        out[name] = dict(a=float(values[:, 0].mean()), b=float(values[:, 1].mean()))
+        out[name].update(diff=float(diff.mean()), ci95=[float(lo), float(hi)])
+    return out
+
+
+def fig9_paired(records: list[dict], obj: str = "powerdrill", level: str = "high") -> dict:
+    """Fig. 9's H = 2 against H = 1 at every δ both ran (paired_difference), by δ."""
+    cells: dict[tuple[int, float], list[dict]] = defaultdict(list)
+    for r in records:
+        if (r["object"], r["level"], r["strategy"]) == (obj, level, "rrg-info"):
+            cells[r["horizon"], r["delta"]].append(r)
+    out = {}
+    for delta in sorted({d for _, d in cells}, reverse=True):
+        if (1, delta) in cells and (2, delta) in cells:
+            out[f"{delta:g}"] = paired_difference(cells[1, delta], cells[2, delta])
+    return out
+
+
+def fig9_paired_table(paired: dict) -> str:
+    """Markdown: H = 2 − H = 1 per δ, success and actions, with the bootstrap intervals."""
+    rows = [
+        "**Fig. 9: H = 2 against H = 1 on the same trials (powerdrill, high)**: difference "
+        "H = 2 − H = 1, 95 % paired bootstrap interval",
+        "",
+        "| δ | pairs | success H=1 → H=2 | Δ success | mean actions H=1 → H=2 | Δ actions |",
+        "|---|---|---|---|---|---|",
+    ]
+    for delta, d in paired.items():
+        s, a = d["success"], d["actions"]
+        rows.append(
+            f"| {delta} | {d['pairs']} | {s['a']:.0%} → {s['b']:.0%} | "
+            f"{100 * s['diff']:+.1f} pts "
+            f"({100 * s['ci95'][0]:+.1f} to {100 * s['ci95'][1]:+.1f}) | "
+            f"{a['a']:.2f} → {a['b']:.2f} | {a['diff']:+.2f} ({a['ci95'][0]:+.2f} to "
+            f"{a['ci95'][1]:+.2f}) |"
+        )
+    return "\n".join(rows) + "\n"
+
+
 def write_outputs(
-    records: list[dict], out_dir: Path, objects: list[str], levels: list[str]
+    records: list[dict], out_dir: Path, objects: list[str], levels: list[str], campaign: dict
 ) -> dict:
-    """summary.json, table.md and the figures that the records support."""
+    """summary.json ({"campaign": its stamp, "cells": per-cell summaries}), table.md and the
+    figures that the records support; returns the summary."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    summary = summarize(records)
+    cells = summarize(records)
+    paired = fig9_paired(records)
+    summary = dict(campaign=dict(campaign, trials=len(records)), cells=cells, fig9_paired=paired)
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=1))
     fig9_cells = any(
-        s["delta"] != SEARCH.delta or s["horizon"] != SEARCH.horizon for s in summary.values()
+        s["delta"] != SEARCH.delta or s["horizon"] != SEARCH.horizon for s in cells.values()
     )
     (out_dir / "table.md").write_text(
-        markdown_table(summary, objects, levels)
+        campaign_header(campaign)
         + "\n"
-        + failure_table(summary, objects, levels)
-        + ("\n" + fig9_table(summary) if fig9_cells else "")
+        + markdown_table(cells, objects, levels)
+        + "\n"
+        + failure_table(cells, objects, levels)
+        + ("\n" + fig9_table(cells) if fig9_cells else "")
+        + ("\n" + fig9_paired_table(paired) if paired else "")
     )
     titles = {
         "low": "Fig. 7: simulation, low uncertainty (1 cm, 1 cm, 3°)",
@@ -246,7 +333,9 @@ def write_outputs(
     }
     for level, fig_name in (("low", "fig7_low.png"), ("high", "fig8_high.png")):
         if level in levels:
-            bar_chart(summary, objects, level, out_dir / fig_name, titles[level])
+            bar_chart(
+                cells, objects, level, out_dir / fig_name, f"{titles[level]}, {campaign['world']}"
+            )
     if fig9_cells:
-        fig9(summary, out_dir / "fig9_powerdrill.png")
+        fig9(cells, out_dir / "fig9_powerdrill.png")
     return summary

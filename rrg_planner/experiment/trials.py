@@ -3,8 +3,10 @@
 Each trial's true pose is drawn from the initial belief's Gaussian (the paper: "placed at
 random positions drawn from the same distribution as the initial uncertainty"), seeded by
 (base seed, object, level, trial index) only, so every strategy faces the same poses. Any
-trial replays alone from its id (cell key and index) and the base seed. Results append to a
-JSONL file, one line per trial, so a stopped campaign resumes where it left off.
+trial replays alone from its id (cell key and index), the base seed and the world profile.
+Results append to a JSONL file, one line per trial, each stamped with the code version, the
+base seed and the world profile, so a stopped campaign resumes where it left off, and
+refuses to mix in records of other code, another seed or another world.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from __future__ import annotations
 import json
 import logging
 import multiprocessing as mp
+import sys
 import time
 import zlib
 from collections.abc import Iterable, Iterator
@@ -19,6 +22,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from rrg_estimator.config import LEVELS
@@ -71,9 +75,12 @@ class Cell:
 
 @dataclass(frozen=True)
 class TrialSpec:
+    """One trial: its cell, its index in the cell, the campaign's base seed and world profile."""
+
     cell: Cell
     index: int
     base_seed: int
+    world: str = "nominal"
 
     @property
     def seed(self) -> int:
@@ -115,23 +122,29 @@ def _model(obj: str, level: str):
     return _MODELS[key]
 
 
-def _env(obj: str):
+def _env(obj: str, world: str):
     from rrg_planner.physics_env import PhysicsEnvironment
 
-    if obj not in _ENVS:
-        _ENVS[obj] = PhysicsEnvironment.for_object(obj)
-    return _ENVS[obj]
+    if (obj, world) not in _ENVS:
+        _ENVS[obj, world] = PhysicsEnvironment.for_object(obj, profile=world)
+    return _ENVS[obj, world]
 
 
 def run_trial(spec: TrialSpec) -> dict:
-    """Run one physics trial and return its JSON-able record."""
+    """Run one physics trial and return its JSON-able record. BLAS runs on one thread, so
+    the record is the same bit for bit in any process (sums over threads round differently)."""
+    with threadpool_limits(1):
+        return _run_trial(spec)
+
+
+def _run_trial(spec: TrialSpec) -> dict:
     from rrg_planner.agent import RobustGraspAgent
     from rrg_planner.closed_loop import run_in_process
 
     cell = spec.cell
     t0 = time.perf_counter()
     true = spec.true_pose()
-    env = _env(cell.object)
+    env = _env(cell.object, spec.world)
     env.reset(true, seed=spec.seed)
     agent = RobustGraspAgent(
         _model(cell.object, cell.level),
@@ -168,6 +181,8 @@ def run_trial(spec: TrialSpec) -> dict:
         cell=cell.key,
         **asdict(cell),
         trial=spec.index,
+        base_seed=spec.base_seed,
+        world=spec.world,
         seed=spec.seed,
         true_pose=[float(v) for v in true],
         wall_s=time.perf_counter() - t0,
@@ -190,6 +205,23 @@ def _jsonable(info: dict) -> dict:
 
 
 # ------------------------------------------------------------------ campaign
+#: Record fields that measure time: they differ between runs of the same trial; every other
+#: field is a function of the trial's spec and the code.
+TIMING_FIELDS = ("wall_s", "planning_time_s")
+
+#: The campaign-wide stamp of every record: the code version, the base seed and the world.
+STAMP_FIELDS = ("commit", "base_seed", "world")
+
+
+class CampaignMismatch(ValueError):
+    """A results file holds records of another code version, base seed or world profile."""
+
+
+def outcome(record: dict) -> dict:
+    """A record without its TIMING_FIELDS: equal for two runs of the same trial."""
+    return {k: v for k, v in record.items() if k not in TIMING_FIELDS}
+
+
 def load_records(path: Path) -> list[dict]:
     """Records already in a JSONL file (a torn last line from a killed run is ignored)."""
     if not path.exists():
@@ -203,6 +235,35 @@ def load_records(path: Path) -> list[dict]:
     return records
 
 
+def drop_torn_tail(path: Path) -> None:
+    """Cut a half-written last line (a run killed while writing) off a JSONL file, so that
+    records appended next start on a line of their own."""
+    if not path.exists():
+        return
+    data = path.read_bytes()
+    end = data.rfind(b"\n") + 1
+    if end < len(data):
+        log.warning("%s: dropping a half-written last line (%d bytes)", path, len(data) - end)
+        with path.open("r+b") as f:
+            f.truncate(end)
+
+
+def check_stamps(records: list[dict], stamp: dict, path: Path) -> None:
+    """Raise CampaignMismatch if any record's stamp differs from ``stamp``."""
+    for r in records:
+        theirs = {k: r.get(k) for k in STAMP_FIELDS}
+        if theirs != stamp:
+            diff = ", ".join(
+                f"{k} {theirs[k]!r} (this run: {stamp[k]!r})"
+                for k in STAMP_FIELDS
+                if theirs[k] != stamp[k]
+            )
+            raise CampaignMismatch(
+                f"{path} holds trial {r.get('id')!r} of another campaign: {diff}. "
+                "Resume it with the same code, seed and world, or write to another --out."
+            )
+
+
 def prepare_models(specs: Iterable[TrialSpec]) -> None:
     """Build (or load) every table the trials need, in this process, with progress bars,
     so the workers only read the cache."""
@@ -212,33 +273,51 @@ def prepare_models(specs: Iterable[TrialSpec]) -> None:
         PlanningModel(obj, levels=model_levels(level), progress=True)
 
 
-def run_campaign(specs: list[TrialSpec], out: Path, workers: int = 2) -> list[dict]:
-    """Run the trials not yet in out (JSONL), appending each as it finishes."""
+def run_campaign(
+    specs: list[TrialSpec], out: Path, commit: str, workers: int = 2, ray: str | None = None
+) -> list[dict]:
+    """Run the trials not yet in ``out`` (JSONL), appending each as it finishes, stamped with
+    ``commit`` (the code version). Raises CampaignMismatch if ``out`` holds records of another
+    code version, base seed or world. ``ray``: run on Ray at this address ("auto": a running
+    cluster, or a local one of ``workers`` CPUs) instead of a local process pool."""
     out.parent.mkdir(parents=True, exist_ok=True)
-    done = {r["id"] for r in load_records(out)}
+    drop_torn_tail(out)
+    before = load_records(out)
+    stamps = {(s.base_seed, s.world) for s in specs}
+    if len(stamps) > 1:
+        raise ValueError(f"one campaign, one base seed and world; got {sorted(stamps)}")
+    if specs:
+        base_seed, world = stamps.pop()
+        check_stamps(before, dict(commit=commit, base_seed=base_seed, world=world), out)
+    done = {r["id"] for r in before}
     todo = [s for s in specs if s.id not in done]
     if todo:
         prepare_models(todo)
-    log.info(
-        "%d trials, %d already done, %d to run on %d workers",
-        len(specs),
-        len(done),
-        len(todo),
-        workers,
+    print(
+        f"{len(specs)} trials, {len(done)} already done, {len(todo)} to run on "
+        + (f"Ray ({ray})" if ray else f"{workers} workers"),
+        file=sys.stderr,
+        flush=True,
     )
     with out.open("a") as f:
-        for rec in _imap(todo, workers, desc=f"trials ({len(done)} done before)"):
-            f.write(json.dumps(rec) + "\n")
+        for rec in _imap(todo, workers, ray, desc=f"trials ({len(done)} done before)"):
+            f.write(json.dumps(dict(rec, commit=commit)) + "\n")
             f.flush()
     ids = {s.id for s in specs}
     return [r for r in load_records(out) if r["id"] in ids]
 
 
-def _imap(todo: list[TrialSpec], workers: int, desc: str) -> Iterator[dict]:
+def _imap(todo: list[TrialSpec], workers: int, ray: str | None, desc: str) -> Iterator[dict]:
     bar = tqdm(total=len(todo), desc=desc, unit="trial", dynamic_ncols=True)
     # Group by object so each worker keeps few models and worlds in memory.
     todo = sorted(todo, key=lambda s: (s.cell.object, s.cell.level, s.index))
-    if workers <= 1:
+    if ray:
+        from rrg_planner.experiment.ray_pool import ray_imap
+
+        for rec in ray_imap(run_trial, todo, address=ray, workers=workers):
+            yield rec
+            bar.update()
+    elif workers <= 1:
         for spec in todo:
             yield run_trial(spec)
             bar.update()

@@ -11,7 +11,7 @@ import numpy as np
 import trimesh
 from scipy.special import ndtr
 
-from rrg_sim.config import SENSOR_NAMES, SETTLING_KERNEL_BANDWIDTH
+from rrg_sim.config import SETTLING_KERNEL_BANDWIDTH
 from rrg_sim.objects.composites import turn_about_z
 from rrg_sim.objects.primitives import Primitive, union_bounds
 from rrg_sim.poses import wrap_angle
@@ -67,6 +67,9 @@ class Settling:
     source: str
     start: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     samples: dict[str, np.ndarray] = field(default_factory=dict)
+    #: (M,) 1 where the sample's grasp made its fingers and required contacts and held through
+    #: the lift and the hold (the judge's test but for the region); None: not measured.
+    held: np.ndarray | None = None
     bandwidth: np.ndarray = field(default_factory=lambda: np.full(3, np.inf))
 
     def inside(self, delta: np.ndarray) -> np.ndarray:
@@ -88,22 +91,39 @@ class Settling:
         if after is None or len(self.start) == 0:
             return mean, np.broadcast_to(fit.sigma, mean.shape).copy()
         residual = after - (self.start @ fit.A.T + fit.b)
-        scaled = self.start / self.bandwidth
         shift, second = np.empty_like(mean), np.empty_like(mean)
         for lo in range(0, len(delta), 2048):  # bounded memory: 2048 × M kernel weights
-            q = delta[lo : lo + 2048] / self.bandwidth
-            sq = (
-                np.sum(q * q, axis=1)[:, None]
-                - 2 * q @ scaled.T
-                + np.sum(scaled * scaled, axis=1)[None]
-            )
-            k = np.exp(-0.5 * (sq - sq.min(axis=1, keepdims=True)))
-            k /= k.sum(axis=1, keepdims=True)
+            k = self._kernel(delta, lo, lo + 2048)
             shift[lo : lo + 2048], second[lo : lo + 2048] = k @ residual, k @ (residual * residual)
         sigma = np.sqrt(np.maximum(second - shift * shift, 1e-12))
         ignored = ~np.isfinite(self.bandwidth)  # an axis nothing depends on keeps its affine map
         shift[:, ignored], sigma[:, ignored] = 0.0, fit.sigma[ignored]
         return mean + shift, sigma
+
+    def _kernel(self, delta: np.ndarray, lo: int, hi: int) -> np.ndarray:
+        """(n, M) normalized Gaussian kernel weights of the samples for starts delta[lo:hi]
+        (axes of infinite bandwidth ignored)."""
+        scaled = self.start / self.bandwidth
+        q = delta[lo:hi] / self.bandwidth
+        sq = np.sum(q * q, axis=1)[:, None] - 2 * q @ scaled.T + np.sum(scaled * scaled, axis=1)
+        k = np.exp(-0.5 * (sq - sq.min(axis=1, keepdims=True)))
+        return k / k.sum(axis=1, keepdims=True)
+
+    def hold_probability(self, delta: np.ndarray) -> np.ndarray:
+        """(N,) P(the grasp makes its contacts and holds | start Δ (N,3)): the kernel-weighted
+        share of the samples that held, with Jeffreys' half a sample each way over the weights'
+        effective count (so a few near samples never claim certainty); 1 where the study did
+        not judge its grasps."""
+        delta = np.asarray(delta, dtype=float)
+        if self.held is None or len(self.start) == 0:
+            return np.ones(len(delta))
+        out = np.empty(len(delta))
+        for lo in range(0, len(delta), 2048):  # bounded memory: 2048 × M kernel weights
+            k = self._kernel(delta, lo, lo + 2048)
+            # effective sample count of the weights: n_eff = 1 / Σ w²
+            n_eff = 1.0 / np.sum(k * k, axis=1)
+            out[lo : lo + 2048] = (k @ self.held * n_eff + 0.5) / (n_eff + 1.0)
+        return out
 
 
 def load_settling(
@@ -117,9 +137,9 @@ def load_settling(
     if name not in fits:
         return None
     f = fits[name]
-    samples = {
-        k: np.asarray(v, dtype=float).reshape(-1, 3) for k, v in f.get("samples", {}).items()
-    }
+    raw = dict(f.get("samples", {}))
+    held = np.asarray(raw.pop("held", []), dtype=float)
+    samples = {k: np.asarray(v, dtype=float).reshape(-1, 3) for k, v in raw.items()}
     start = samples.pop("start", np.zeros((0, 3)))
     return Settling(
         np.array(f["box"]),
@@ -127,6 +147,7 @@ def load_settling(
         AffineSettle.from_json(f["retreated"]),
         start=start,
         samples=samples,
+        held=held if len(held) == len(start) else None,
         bandwidth=np.full(3, np.inf) if bandwidth is None else bandwidth,
         source=f"{fits.get('_source', path.name)}: {f['arrived']} of {f['grasps']} grasps arrived",
     )
@@ -152,26 +173,49 @@ def measured_reorientation(
 
 
 @dataclass(frozen=True)
+class RequiredContact:
+    """A contact the goal grasp must make (the paper's "required contact locations"): at
+    least ``min_fingers`` of ``fingers`` (1-3) touch the object's ``parts`` (indices into
+    ObjectModel.parts) once the hand has closed."""
+
+    name: str
+    parts: tuple[int, ...]
+    fingers: tuple[int, ...] = (1, 2, 3)
+    min_fingers: int = 1
+
+    def __post_init__(self) -> None:
+        if not set(self.fingers) <= {1, 2, 3} or not 1 <= self.min_fingers <= len(self.fingers):
+            raise ValueError(f"{self.name}: fingers must be among 1-3, at least min_fingers")
+        if not self.parts:
+            raise ValueError(f"{self.name}: no parts")
+
+    def met(self, touching: dict[int, set[int]]) -> bool:
+        """Whether the contact is made, given the parts each finger touches (finger → parts)."""
+        return (
+            sum(bool(touching.get(f, set()) & set(self.parts)) for f in self.fingers)
+            >= self.min_fingers
+        )
+
+
+@dataclass(frozen=True)
 class GoalRegion:
     """Where the object must end up relative to the hand for the goal grasp to count.
 
     tol: (|dx| [m], |dy| [m], |dθ| [rad]) bounds on Δ = relative_planar(e, w), the true pose
     w in the frame of the estimate e at which the goal WRT ran (θ bound inf: θ ignored).
     min_fingers: how many of the 3 fingers must end in contact with the object.
-    required_sensors: names from config.SENSOR_NAMES that must fire.
+    required_contacts: the contacts the grasp must make (judged in physics; the goal model
+    predicts them from the settling study).
     theta_period: the object's rotational symmetry [rad] about its vertical axis through the
     origin (π for a box: turned half round it is the same object), dθ is taken modulo it.
     """
 
     tol: tuple[float, float, float]
     min_fingers: int = 3
-    required_sensors: tuple[str, ...] = ()
+    required_contacts: tuple[RequiredContact, ...] = ()
     theta_period: float = 2 * np.pi
 
     def __post_init__(self) -> None:
-        unknown = set(self.required_sensors) - set(SENSOR_NAMES)
-        if unknown:
-            raise ValueError(f"unknown sensors {sorted(unknown)}; valid: {SENSOR_NAMES}")
         if not 0 <= self.min_fingers <= 3:
             raise ValueError("min_fingers must be in 0..3")
 
@@ -241,6 +285,9 @@ class ObjectModel:
     def __post_init__(self) -> None:
         if self.symmetric != self.goal.ignores_theta:
             raise ValueError(f"{self.name}: symmetric must match a goal region that ignores θ")
+        for rc in self.goal.required_contacts:
+            if max(rc.parts) >= len(self.parts) or min(rc.parts) < 0:
+                raise ValueError(f"{self.name}: required contact {rc.name!r} names a missing part")
 
     def bounds(self) -> np.ndarray:
         """(2,3) axis-aligned bounds [m] of the parts in the object frame."""

@@ -3,11 +3,17 @@
 After a goal WRT has closed the hand, the grasp succeeds iff
 
 * the object's true pose relative to the executed goal, Δ = relative_planar(e_used, w_true)
-  taken before lifting, lies inside the object's goal region (its tolerances),
-* the observation shows at least ``goal.min_fingers`` fingers in contact and every sensor in
-  ``goal.required_sensors`` fired, and
+  taken before lifting, lies inside the object's goal region (its tolerances); where the
+  profile's calibration error puts the hand elsewhere than the robot measures, e_used is
+  first moved with the hand (PhysicsWorld.hand_pose_error), so Δ is relative to the hand,
+* the observation shows at least ``goal.min_fingers`` fingers in contact, the hand touches
+  each of ``goal.required_contacts`` (the object parts, e.g. the drill's trigger, that the
+  fingers must reach) once it has closed, and
 * the object stays in the hand while the arm lifts it PHYSICS.lift_height and holds it
   PHYSICS.hold_time: still touching the hand and risen by at least HELD_FRACTION of the lift.
+
+The strict test (``info["strict_success"]``) also asks the offset where a finger first
+touched the object, before the closing pulled it into the hand, to lie in the goal region.
 """
 
 from __future__ import annotations
@@ -16,10 +22,10 @@ import numpy as np
 
 from rrg_sim.executor.trajectory import InfeasiblePath
 
-from ..config import PHYSICS, SENSOR_NAMES
+from ..config import PHYSICS
 from ..objects import ObjectModel
 from ..observation import Observation, fingers_in_contact
-from ..poses import invert, raised, relative_planar
+from ..poses import compose_planar, invert, raised, relative_planar
 from .world import PhysicsWorld
 
 #: The object counts as lifted when it rose at least this fraction of the lift (chosen: a
@@ -28,7 +34,7 @@ HELD_FRACTION = 0.5
 
 
 def _object_in_hand_frame(world: PhysicsWorld) -> np.ndarray:
-    return invert(world.hand_pose()) @ world.object_pose()
+    return invert(world.true_hand_pose()) @ world.object_pose()
 
 
 def judge_grasp(
@@ -38,18 +44,30 @@ def judge_grasp(
     ``observation``: that WRT's observation (default: the last one the world's own executor
     made; the simulator node passes the one the executor node published).
 
-    info: delta (Δ), in_region, fingers (in contact), required_ok, held, lift_feasible,
-    lift_dz [m], slip [m] (object displacement in the hand frame during lift and hold),
-    early_contact, w_true (object pose before lifting).
+    info: delta (Δ), in_region, touch_delta (Δ where a finger first touched), touch_in_region,
+    strict_success, fingers (in contact), fingers_ok (at least the goal's), required_ok,
+    required (each required contact made), touching (finger → object parts touched before
+    the lift), held, lift_feasible, lift_dz [m], slip [m] (object displacement in the hand
+    frame during lift and hold), early_contact, w_true (object pose before lifting),
+    hand_error (the planar calibration error at the grasp, PhysicsWorld.hand_pose_error).
     """
     obs = world.last_observation if observation is None else observation
     if obs is None:
         raise RuntimeError("judge_grasp needs a WRT execution first")
     w_true = world.true_object_pose()
-    delta = relative_planar(np.asarray(e_used, dtype=float), w_true)
+    hand_error = world.hand_pose_error()
+    e_hand = compose_planar(hand_error, np.asarray(e_used, dtype=float))
+    delta = relative_planar(e_hand, w_true)
     in_region = bool(obj.goal.contains(delta))
     fingers = int(fingers_in_contact(obs.sensors))
-    required_ok = all(obs.sensors[SENSOR_NAMES.index(name)] for name in obj.goal.required_sensors)
+    touching = world.touching()
+    required = {rc.name: rc.met(touching) for rc in obj.goal.required_contacts}
+    required_ok = all(required.values())
+    touch_pose = (
+        world.true_object_pose() if world.first_touch_pose is None else world.first_touch_pose
+    )
+    touch_delta = relative_planar(e_hand, touch_pose)
+    touch_in_region = bool(obj.goal.contains(touch_delta))
     z0, grip0 = world.object_height(), _object_in_hand_frame(world)
     lift = {0: (PHYSICS.lift_speed, PHYSICS.turn_speed)}
     try:
@@ -65,17 +83,25 @@ def judge_grasp(
         lift_feasible and world.object_in_hand() and lift_dz >= HELD_FRACTION * PHYSICS.lift_height
     )
     slip = float(np.linalg.norm(_object_in_hand_frame(world)[:3, 3] - grip0[:3, 3]))
-    success = held and in_region and fingers >= obj.goal.min_fingers and required_ok
+    fingers_ok = fingers >= obj.goal.min_fingers
+    success = held and in_region and fingers_ok and required_ok
     info = dict(
         delta=delta.tolist(),
         in_region=in_region,
+        touch_delta=touch_delta.tolist(),
+        touch_in_region=touch_in_region,
+        strict_success=success and touch_in_region,
         fingers=fingers,
+        fingers_ok=fingers_ok,
         required_ok=required_ok,
+        required=required,
+        touching={str(k): sorted(v) for k, v in sorted(touching.items())},
         held=held,
         lift_feasible=lift_feasible,
         lift_dz=lift_dz,
         slip=slip,
         early_contact=obs.contact,
         w_true=w_true.tolist(),
+        hand_error=hand_error.tolist(),
     )
     return success, info

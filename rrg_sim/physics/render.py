@@ -79,7 +79,7 @@ def object_camera(
 def grasp_camera(world: PhysicsWorld, elevation: float = -25.0) -> mujoco.MjvCamera:
     """A camera on the hand and the object: across the approach direction for a grasp from
     the side, from the far side of the table (facing the robot) for a grasp from above."""
-    T = world.hand_pose()
+    T = world.true_hand_pose()
     palm = T[:3, 3] + T[:3, 2] * 0.12  # between the palm and the fingertips
     size = float(np.ptp(world.obj.bounds(), axis=0).max())
     cam = object_camera(world, 0.45 + 1.5 * size, elevation=elevation)

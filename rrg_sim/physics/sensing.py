@@ -1,11 +1,14 @@
 """The hand's sensors in MuJoCo: 7 binary touch pads and 3 Nano17 fingertip force/torque sensors.
 
-Readings carry seeded Gaussian noise (σ from ``config.SENSING`` / ``config.PHYSICS`` times a
-``noise`` scale, 0 = noiseless). The Nano17s are tared (biased) before every motion, as a real
-F/T sensor is, which removes the fingertip's own weight. A contact point on a fingertip is
-recovered from its wrench: the force's line of action (p × F = τ) enters the fingertip's
-capsule surface at the contact; the normal there points from the object into the tip
-(rrg_sim.hand_sensing, which the hardware bridge shares).
+Readings carry seeded Gaussian noise (σ from ``config.SENSING`` / ``config.PHYSICS``, or the
+world profile's, times a ``noise`` scale, 0 = noiseless). A world profile (config.WorldProfile)
+may also sample the pads slower than the control period (each sample held until the next),
+leave a touched pad silent for a whole guarded move (a miss), and fire a pad for one sample
+when nothing touches it (a false alarm). The Nano17s are tared (biased) before every motion,
+as a real F/T sensor is, which removes the fingertip's own weight. A contact point on a
+fingertip is recovered from its wrench: the force's line of action (p × F = τ) enters the
+fingertip's capsule surface at the contact; the normal there points from the object into the
+tip (rrg_sim.hand_sensing, which the hardware bridge shares).
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ import numpy as np
 
 from rrg_sim.executor.wrt_executor import Reading
 
-from ..config import PHYSICS, SENSING, SENSOR_NAMES
+from ..config import NOMINAL, PHYSICS, SENSING, SENSOR_NAMES, WorldProfile
 from ..hand_sensing import fired_sensors, tip_contacts
 from .mjcf_robot import PAD_TOUCH, PALM_BODY, TIP_BODIES, TIP_FORCE, TIP_TORQUE
 
@@ -32,6 +35,7 @@ class HandSensors:
         data: mujoco.MjData,
         rng: np.random.Generator,
         noise: float = 1.0,
+        profile: WorldProfile = NOMINAL,
     ):
         self.model, self.data, self.rng, self.noise = model, data, rng, noise
         adr = lambda name: int(model.sensor_adr[model.sensor(name).id])
@@ -40,11 +44,21 @@ class HandSensors:
         self._torque = np.array([adr(n) for n in TIP_TORQUE])[:, None] + np.arange(3)
         self._tip_body = np.array([model.body(b).id for b in TIP_BODIES])
         self._palm_body = model.body(PALM_BODY).id
+        force_sigma = (
+            SENSING.nano17_force_noise
+            if profile.nano17_force_noise is None
+            else profile.nano17_force_noise
+        )
+        torque_sigma = (
+            PHYSICS.nano17_torque_noise
+            if profile.nano17_torque_noise is None
+            else profile.nano17_torque_noise
+        )
         self._sigma = (
             np.r_[
                 np.full(7, PHYSICS.pad_force_noise),
-                np.full(9, SENSING.nano17_force_noise),
-                np.full(9, PHYSICS.nano17_torque_noise),
+                np.full(9, force_sigma),
+                np.full(9, torque_sigma),
             ]
             * noise
         )
@@ -55,13 +69,17 @@ class HandSensors:
             SENSING.pad_force_threshold - QUIET_SIGMAS * PHYSICS.pad_force_noise * noise
         )
         self._quiet_tip2 = (
-            max(
-                0.0,
-                SENSING.tip_force_threshold
-                - QUIET_SIGMAS * np.sqrt(3) * SENSING.nano17_force_noise * noise,
-            )
+            max(0.0, SENSING.tip_force_threshold - QUIET_SIGMAS * np.sqrt(3) * force_sigma * noise)
             ** 2
         )
+        # The pads as the profile samples them (nominal: every period, never missed or false).
+        self.pad_period = max(1, round(profile.pad_period / PHYSICS.timestep))  # control periods
+        self.pad_miss = profile.pad_miss
+        self.pad_false_alarm = profile.pad_false_alarm
+        self.dead = np.zeros(7, dtype=bool)  # pads that miss every touch until the next tare
+        self.false_alarm_at = np.full(7, -1)  # the control period of each pad's false alarm
+        self._pad_sample_at = -1  # the control period of the held pad sample
+        self._pad_held = np.zeros(7, dtype=bool)
 
     def _raw(self) -> np.ndarray:
         """Pads (7,), then tip forces (9,) and torques (9,), with noise."""
@@ -69,10 +87,50 @@ class HandSensors:
         return raw + self.rng.normal(0.0, 1.0, raw.shape) * self._sigma if self.noise > 0 else raw
 
     def tare(self) -> None:
-        """Bias the Nano17s at their current (unloaded) reading."""
+        """Bias the Nano17s at their current (unloaded) reading; a new guarded move starts, so
+        each pad misses its touches until the next tare with probability ``pad_miss``."""
         s = self.data.sensordata
         self.bias = np.hstack([s[self._force], s[self._torque]])
         self._bias_force = self.bias[:, :3]
+        if self.pad_miss > 0:
+            self.dead = self.rng.random(7) < self.pad_miss
+
+    def restart(self) -> None:
+        """Forget the held pad sample, misses and false alarms (the simulation was reset)."""
+        self.dead[:] = False
+        self.false_alarm_at[:] = -1
+        self._pad_sample_at = -1
+
+    def schedule_false_alarms(self, periods: int) -> None:
+        """Each pad fires falsely with probability ``pad_false_alarm`` once, for one sample, at
+        a uniformly drawn one of the next ``periods`` control periods (a guarded move's)."""
+        self.false_alarm_at[:] = -1
+        if self.pad_false_alarm > 0 and periods > 0:
+            now = self._period()
+            fires = self.rng.random(7) < self.pad_false_alarm
+            self.false_alarm_at[fires] = now + self.rng.integers(0, periods, int(fires.sum()))
+
+    def _period(self) -> int:
+        """The control period the simulation is in (since the last reset)."""
+        return int(round(self.data.time / PHYSICS.timestep))
+
+    def _pads(self, pads: np.ndarray | None) -> np.ndarray:
+        """(7,) bool: the pads as sampled (held between samples, dead ones silent, false alarms
+        added); ``pads``: the pad forces now [N], or None when all are quiet."""
+        k = self._period()
+        sample = k - k % self.pad_period
+        if sample != self._pad_sample_at:
+            self._pad_sample_at = sample
+            now = (
+                np.zeros(7, dtype=bool)
+                if pads is None
+                else np.asarray(pads) > SENSING.pad_force_threshold
+            )
+            false = (self.false_alarm_at >= sample) & (
+                self.false_alarm_at < sample + self.pad_period
+            )
+            self._pad_held = (now & ~self.dead) | false
+        return self._pad_held
 
     def read(self) -> tuple[np.ndarray, np.ndarray]:
         """(pad forces (7,) [N], tip wrenches (3,6) the object applies to each tip, site frame)."""
@@ -81,8 +139,12 @@ class HandSensors:
         return raw[:7], -(wrench - self.bias)
 
     def fired(self) -> np.ndarray:
-        """(10,) bool: sensors over their thresholds (config.SENSING), pads then tips."""
-        return fired_sensors(*self.read())
+        """(10,) bool: sensors over their thresholds (config.SENSING), pads then tips, the pads
+        as the profile samples them."""
+        pads, wrench = self.read()
+        out = fired_sensors(pads, wrench)
+        out[:7] = self._pads(pads)
+        return out
 
     def any_fired(self) -> bool:
         """Whether any sensor fires now: ``fired().any()``, skipping the noisy reading while
@@ -90,7 +152,7 @@ class HandSensors:
         s = self.data.sensordata
         f = s[self._force] - self._bias_force
         if s[self._pad].max() < self._quiet_pad and (f * f).sum(axis=1).max() < self._quiet_tip2:
-            return False
+            return bool(self._pads(None).any())
         return bool(self.fired().any())
 
     def arm_collision(self, arm_dofs: np.ndarray) -> bool:

@@ -5,11 +5,14 @@ where the grasp settles it (a handle turns into the palm, a pinch twists a cup).
 belief must know, or it drifts from the truth with every goal grasp it does not stop on.
 ``measure`` runs the goal WRT from seeded start offsets Δ = relative_planar(e, w) drawn
 uniformly in a box around the goal region, and records Δ after the closing (what the judge
-sees) and after the retreat (where the next action finds the object). ``fit`` fits the
-affine maps Δ_after = A·Δ + b to the grasps that arrived (no early contact) with least
-squares and their residual σ, and keeps those grasps' samples (Δ, Δ_closed, Δ_retreated),
-with which the goal model and the belief's settling correct the affine maps near each Δ
-(objects.Settling.outcome); the result is the object's ``objects.Settling`` model.
+sees) and after the retreat (where the next action finds the object). Each grasp is also
+judged from a copy of the closed state (physics.judge): whether it made the goal's fingers
+and required contacts and held through the lift and the hold, the rest of the success test.
+``fit`` fits the affine maps Δ_after = A·Δ + b to the grasps that arrived (no early contact)
+with least squares and their residual σ, and keeps those grasps' samples (Δ, Δ_closed,
+Δ_retreated, held), with which the goal model and the belief's settling correct the affine
+maps near each Δ and predict the hold (objects.Settling.outcome, Settling.hold_probability);
+the result is the object's ``objects.Settling`` model.
 
 ``python -m rrg_sim.physics.settle [objects…] [--grasps N] [--workers W]`` measures and
 writes ``rrg_sim/objects/settling.json`` (the committed fits the catalogue loads).
@@ -18,6 +21,7 @@ writes ``rrg_sim/objects/settling.json`` (the committed fits the catalogue loads
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import logging
 import multiprocessing as mp
@@ -25,6 +29,7 @@ import re
 import time
 from pathlib import Path
 
+import mujoco
 import numpy as np
 from tqdm import tqdm
 
@@ -35,6 +40,7 @@ from ..config import WORLD
 from ..objects import OBJECT_NAMES, get_object
 from ..observation import fingers_in_contact
 from ..poses import compose_planar, relative_planar, wrap_angle
+from .judge import judge_grasp
 from .world import PhysicsWorld
 
 log = logging.getLogger(__name__)
@@ -65,6 +71,9 @@ def measure(object_name: str, grasps: int, seed: int = 0) -> list[dict]:
         except InfeasiblePath:
             continue
         closed = relative_planar(e, world.true_object_pose())
+        state = copy.copy(world.data)
+        _, judged = judge_grasp(world, world.obj, e, obs)
+        mujoco.mj_copyData(world.data, world.model, state)  # back to the closed hand
         world.retreat()
         after = relative_planar(e, world.true_object_pose())
         records.append(
@@ -74,6 +83,11 @@ def measure(object_name: str, grasps: int, seed: int = 0) -> list[dict]:
                 retreated=after.tolist(),
                 contact=bool(obs.contact),
                 fingers=int(fingers_in_contact(obs.sensors)),
+                held=bool(
+                    judged["held"]
+                    and judged["required_ok"]
+                    and judged["fingers"] >= world.obj.goal.min_fingers
+                ),
             )
         )
     return records
@@ -118,10 +132,12 @@ def fit(object_name: str, records: list[dict]) -> dict:
         arrived=len(arrived),
         closed=fit_affine(start, closed, ignores),
         retreated=fit_affine(start, retreated, ignores),
+        held=int(sum(r["held"] for r in arrived)),
         samples=dict(
             start=np.round(start, 5).tolist(),
             closed=np.round(_unwrapped(closed, start), 5).tolist(),
             retreated=np.round(_unwrapped(retreated, start), 5).tolist(),
+            held=[int(r["held"]) for r in arrived],
         ),
     )
 
@@ -172,7 +188,8 @@ def run_study(
 def _report(name: str, f: dict, records: list[dict]) -> str:
     c = f["closed"]
     return (
-        f"{name}: {f['arrived']}/{len(records)} arrived; closed b={np.round(c['b'], 3).tolist()} "
+        f"{name}: {f['arrived']}/{len(records)} arrived, {f['held']} held; "
+        f"closed b={np.round(c['b'], 3).tolist()} "
         f"σ={np.round(c['sigma'], 3).tolist()} diag(A)={np.round(np.diag(c['A']), 2).tolist()}"
     )
 

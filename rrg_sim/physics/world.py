@@ -32,7 +32,7 @@ from rrg_sim.executor.trajectory import (
 from rrg_sim.executor.wrt_executor import Reading, WrtExecutor
 
 from .. import wam
-from ..config import HAND, PHYSICS, WORLD
+from ..config import HAND, NOMINAL, PHYSICS, WORLD, WORLD_PROFILES, WorldProfile
 from ..hand_sensing import CLOSE_START_TIME, FingerClosing
 from ..objects import ObjectModel, get_object
 from ..observation import Observation
@@ -48,6 +48,7 @@ from .mjcf_robot import (
     SPREAD_ACTUATOR,
     SPREAD_JOINT,
 )
+from .realism import ModelConditions, TrialConditions, draw_conditions, quantize
 from .scene import OBJECT_BODY, OBJECT_JOINT, build_model
 from .sensing import HandSensors
 
@@ -57,16 +58,26 @@ __all__ = ["PhysicsWorld", "InfeasiblePath"]
 class PhysicsWorld:
     """The simulated robot and one object (see the module doc).
 
-    object_name: a catalogue name (rrg_sim.objects). seed: seeds the sensor noise.
-    sensor_noise: scale of every sensor's noise σ (1 = config values, 0 = noiseless).
+    object_name: a catalogue name (rrg_sim.objects). seed: seeds the sensor noise and the
+    world profile's draws. sensor_noise: scale of every sensor's noise σ (1 = the profile's
+    values, 0 = noiseless). profile: a config.WorldProfile or its name (config.WORLD_PROFILES).
     """
 
-    def __init__(self, object_name: str, seed: int = 0, sensor_noise: float = 1.0):
+    def __init__(
+        self,
+        object_name: str,
+        seed: int = 0,
+        sensor_noise: float = 1.0,
+        profile: WorldProfile | str = NOMINAL,
+    ):
         self.obj: ObjectModel = get_object(object_name)
+        self.profile = WORLD_PROFILES[profile] if isinstance(profile, str) else profile
         self.model = build_model(object_name)
         self.data = mujoco.MjData(self.model)
         self.rng = np.random.default_rng(seed)
-        self.sensors = HandSensors(self.model, self.data, self.rng, sensor_noise)
+        self.sensors = HandSensors(
+            self.model, self.data, self.rng, sensor_noise, profile=self.profile
+        )
         m = self.model
         qadr = lambda j: int(m.jnt_qposadr[m.joint(j).id])
         vadr = lambda j: int(m.jnt_dofadr[m.joint(j).id])
@@ -86,20 +97,56 @@ class PhysicsWorld:
             m.geom_conaffinity == ROBOT_CONAFFINITY
         )
         self._obj_geom = m.geom_bodyid == self._obj_body
+        # Which finger (1-3; 0: the palm) each hand geom belongs to, and which object part each
+        # object geom is (-1: neither).
+        self._geom_finger = np.full(m.ngeom, -1)
+        self._geom_part = np.full(m.ngeom, -1)
+        for g in range(m.ngeom):
+            name = m.geom(g).name
+            if name.startswith("bh/f") and name[4:5].isdigit():
+                self._geom_finger[g] = int(name[4])
+            elif name.startswith("bh/"):
+                self._geom_finger[g] = 0
+            elif name.startswith("object/") and name[7:].isdigit():
+                self._geom_part[g] = int(name[7:])
+        #: The object's true pose when a finger first touched it in the last closing (None
+        #: before any closing).
+        self.first_touch_pose: np.ndarray | None = None
         self._placed = np.asarray(WORLD.nominal_pose, dtype=float)
+        table = np.array([m.geom("table").id, m.geom("table_slab").id])
+        self._conditions = ModelConditions(
+            m,
+            self.profile,
+            np.arange(7),
+            m.body("wam/base").id,
+            table,
+            self._obj_body,
+            np.flatnonzero(self._obj_geom),
+        )
+        self._resolution = np.asarray(self.profile.joint_resolution, dtype=float)
         self.executor = WrtExecutor(self)
+        self.conditions = TrialConditions.nominal()
+        self._draw_conditions(seed)
         self.reset()
 
     # ------------------------------------------------------------------ state
     def reseed(self, seed: int) -> None:
-        """Restart the sensor noise from ``seed`` (e.g. per trial)."""
+        """Restart the sensor noise from ``seed`` and draw the profile's trial conditions
+        from it (e.g. per trial); ``reset`` next."""
         self.rng = self.sensors.rng = np.random.default_rng(seed)
+        self._draw_conditions(seed)
+
+    def _draw_conditions(self, seed: int) -> None:
+        """This trial's conditions (realism.draw_conditions), from their own stream of seed."""
+        self.conditions = draw_conditions(self.profile, np.random.default_rng((seed, 1)))
+        self._conditions.apply(self.conditions)
 
     def reset(self, w=None) -> None:
         """Arm at home, hand open, object at w (default: where it was last placed), settled."""
         mujoco.mj_resetData(self.model, self.data)
+        self.sensors.restart()
         self.release_fingers()
-        self.data.qpos[self._arm_q] = wam.HOME_Q
+        self.data.qpos[self._arm_q] = wam.HOME_Q - self.conditions.joint_offset  # reads HOME_Q
         self.data.ctrl[:] = 0.0
         self.data.ctrl[:7] = wam.HOME_Q
         self.executor.forget()
@@ -146,7 +193,11 @@ class PhysicsWorld:
         return float(self.data.xpos[self._obj_body][2])
 
     def arm_q(self) -> np.ndarray:
-        return self.data.qpos[self._arm_q].copy()
+        """(7,) WAM joint angles as the encoders read them [rad] (the profile's zero offsets
+        and resolution)."""
+        return quantize(
+            self.data.qpos[self._arm_q] + self.conditions.joint_offset, self._resolution
+        )
 
     def finger_angles(self) -> np.ndarray:
         """(3,) proximal joint angles [rad]."""
@@ -161,8 +212,35 @@ class PhysicsWorld:
         return self.sensors.reading()
 
     def hand_pose(self) -> np.ndarray:
-        """(4,4) hand-frame pose in world (measured)."""
+        """(4,4) hand-frame pose in world as the robot measures it: forward kinematics of the
+        joint readings (off the true pose by the profile's calibration error)."""
+        return wam.fk(self.arm_q())
+
+    def true_hand_pose(self) -> np.ndarray:
+        """(4,4) hand-frame pose in world (ground truth, for evaluation only)."""
         return self._body_pose(self._palm)
+
+    def hand_pose_error(self) -> np.ndarray:
+        """(3,) the planar map (x [m], y [m], θ [rad], applied as compose_planar) that takes
+        where the robot measures its hand to where the hand truly is: identity unless the
+        profile's calibration error moves the hand (ground truth, for evaluation only)."""
+        measured, true = self.hand_pose(), self.true_hand_pose()
+        R = true[:3, :3] @ measured[:3, :3].T
+        yaw = float(np.arctan2(R[1, 0] - R[0, 1], R[0, 0] + R[1, 1]))  # R's turn about z
+        c, s = np.cos(yaw), np.sin(yaw)
+        t = true[:2, 3] - np.array([[c, -s], [s, c]]) @ measured[:2, 3]
+        return np.array([t[0], t[1], yaw])
+
+    def touching(self) -> dict[int, set[int]]:
+        """The object parts (indices into obj.parts) each finger (1-3; 0: the palm) touches
+        now (ground truth, for evaluation only)."""
+        out: dict[int, set[int]] = {}
+        for g1, g2 in self.data.contact.geom[: self.data.ncon]:
+            for hand, obj in ((g1, g2), (g2, g1)):
+                finger, part = self._geom_finger[hand], self._geom_part[obj]
+                if finger >= 0 and part >= 0:
+                    out.setdefault(int(finger), set()).add(int(part))
+        return out
 
     def object_in_hand(self) -> bool:
         """True while any hand or arm geom touches the object."""
@@ -220,6 +298,9 @@ class PhysicsWorld:
         def fired() -> bool:  # a hand sensor, or the arm's collision detection (unsensed parts)
             return self.sensors.any_fired() or self.sensors.arm_collision(self._arm_v)
 
+        if guard:
+            self.sensors.schedule_false_alarms(n)
+
         for k in range(n):
             d.ctrl[:] = ctrl[k]
             mujoco.mj_step(m, d)
@@ -234,7 +315,7 @@ class PhysicsWorld:
 
     def hold_arm(self) -> None:
         """Servo the arm to where it is now (a stop)."""
-        self.data.ctrl[:7] = self.data.qpos[self._arm_q]
+        self.data.ctrl[:7] = self.data.qpos[self._arm_q] + self.conditions.joint_offset
 
     def move_through(
         self,
@@ -291,6 +372,8 @@ class PhysicsWorld:
         of its own sensors (proximal or distal pad, Nano17) fires, so it touches the object
         without pushing it on.
         ``monitor`` is called after every period (its answer is ignored: closing completes).
+        Records the object's true pose when a finger first touches it (``first_touch_pose``;
+        at the end when none does).
 
         Returns (10,) bool: the sensors that fired at any time during the closing (a careful
         touch often eases off once the finger has stopped, so the reading after it misses it)."""
@@ -298,7 +381,10 @@ class PhysicsWorld:
         dt = PHYSICS.timestep
         target = d.ctrl[8:11].copy()
         closing = FingerClosing(guarded)
+        self.first_touch_pose = None
         for _ in range(int(round(closing.timeout / dt))):
+            if self.first_touch_pose is None and any(f > 0 for f in self.touching()):
+                self.first_touch_pose = self.true_object_pose()
             target = np.where(
                 closing.stopped,
                 target,
@@ -314,6 +400,8 @@ class PhysicsWorld:
                 target[i] = d.ctrl[8 + i]
             if closing.done:
                 break
+        if self.first_touch_pose is None:
+            self.first_touch_pose = self.true_object_pose()
         return closing.touched
 
     def brake_finger(self, finger: int) -> None:

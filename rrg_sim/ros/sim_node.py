@@ -58,7 +58,7 @@ from rrg_sim.ros_common.msg_conversions import (
 from rrg_sim.ros_common.node_main import keep_serving, run_node
 
 from .. import wam
-from ..config import SENSING
+from ..config import SENSING, WORLD_PROFILES
 from ..objects import OBJECT_NAMES
 from ..physics.mjcf_robot import TIP_BODIES
 from ..physics.sensing import HandSensors
@@ -110,6 +110,15 @@ class SimNode(Node):
             ),
         )
         self.declare_parameter(
+            "world_profile",
+            "nominal",
+            ParameterDescriptor(
+                description="World profile (rrg_sim.config.WORLD_PROFILES: "
+                f"{', '.join(WORLD_PROFILES)}); its per-trial draws come from the seed",
+                read_only=True,
+            ),
+        )
+        self.declare_parameter(
             "state_rate",
             50.0,
             ParameterDescriptor(
@@ -152,13 +161,20 @@ class SimNode(Node):
         )
 
     def _make_world(self, object_name: str) -> PhysicsWorld:
+        profile = self.get_parameter("world_profile").value
+        if profile not in WORLD_PROFILES:
+            raise ValueError(f"world_profile {profile!r} is not one of {sorted(WORLD_PROFILES)}")
         world = PhysicsWorld(
             object_name,
             seed=self.get_parameter("seed").value,
             sensor_noise=self.get_parameter("sensor_noise").value,
+            profile=profile,
         )
         m = world.model
         robot = [j for j in range(m.njnt) if m.joint(j).name.startswith(("wam/", "bh/"))]
+        self._arm_rows = np.array(
+            [k for k, j in enumerate(robot) if m.joint(j).name.startswith("wam/")]
+        )
         self._joint_names = [ros_joint_name(m.joint(j).name) for j in robot]
         self._qadr = np.array([m.jnt_qposadr[j] for j in robot])
         self._vadr = np.array([m.jnt_dofadr[j] for j in robot])
@@ -167,9 +183,11 @@ class SimNode(Node):
 
     # ------------------------------------------------------------------ state
     def joint_state(self) -> JointState:
+        position = self.world.data.qpos[self._qadr]
+        position[self._arm_rows] = self.world.arm_q()  # as the encoders read them
         msg = JointState(
             name=self._joint_names,
-            position=self.world.data.qpos[self._qadr].tolist(),
+            position=position.tolist(),
             velocity=self.world.data.qvel[self._vadr].tolist(),
         )
         msg.header.stamp = self.get_clock().now().to_msg()
