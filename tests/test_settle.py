@@ -154,7 +154,7 @@ def test_the_goal_weights_follow_the_drill_grasps_measured_turn_and_hold():
 
 def test_the_hold_probability_is_the_local_share_of_study_grasps_that_held():
     """Settling.hold_probability: where every nearby sample held it is near 1, where none
-    did near 0, and it never claims certainty from the kernel's few effective samples."""
+    did near 0, and half-way between in between."""
     from rrg_sim.objects.object_model import Settling
 
     fit = load_settling("powerdrill").closed
@@ -170,7 +170,7 @@ def test_the_hold_probability_is_the_local_share_of_study_grasps_that_held():
         bandwidth=np.array([0.002, np.inf, np.inf]),
     )
     p = s.hold_probability(np.array([[-0.015, 0.0, 0.0], [0.0, 0.0, 0.0], [0.015, 0.0, 0.0]]))
-    assert 0.9 < p[0] < 1.0 and 0.3 < p[1] < 0.7 and 0.0 < p[2] < 0.1
+    assert p[0] > 0.99 and 0.3 < p[1] < 0.7 and p[2] < 0.01
 
 
 def test_a_coarse_grid_points_goal_weight_is_the_regions_average_over_its_cell():
