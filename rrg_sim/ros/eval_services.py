@@ -151,9 +151,11 @@ class EvalServices:
             resp.message = (
                 f"{'SUCCESS' if ok else 'FAILURE'}: in goal region {info['in_region']} "
                 f"(offset {np.round(info['delta'], 4).tolist()}), {info['fingers']} fingers in "
-                f"contact, required sensors {info['required_ok']}, held {info['held']} "
+                f"contact, required contacts {info['required'] or 'none'}, "
+                f"held {info['held']} "
                 f"(lifted {info['lift_dz']:.3f} m of {PHYSICS.lift_height} m, "
-                f"slip {info['slip']:.4f} m)"
+                f"slip {info['slip']:.4f} m); strict (at first touch) "
+                f"{'in' if info['touch_in_region'] else 'out of'} the region"
             )
             self.outcome_pub.publish(
                 GraspOutcome(
