@@ -110,8 +110,20 @@ def test_wilson_interval_matches_hand_computed_values_where_wald_fails():
 def test_the_base_seed_comes_from_the_code_version():
     """A reported campaign's seed is a function of the code version: another version,
     another seed; the development seed is reserved for probes."""
+    import subprocess
+
+    from rrg_planner.experiment.provenance import CODE_PATHS, REPO_ROOT
+
     version = code_version()
     assert len(version) >= 12 and campaign_seed(version) == campaign_seed(version)
+    # the last commit that changed the code: a commit of results or docs keeps the version
+    last_code = subprocess.run(
+        ["git", "-C", str(REPO_ROOT), "log", "-1", "--format=%H", "HEAD", "--", *CODE_PATHS],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.strip()
+    assert version.split("+")[0] == last_code
     assert campaign_seed(version) != campaign_seed(version + "x")
     assert campaign_seed(version) != DEV_SEED and 0 <= campaign_seed(version) < 2**32
 

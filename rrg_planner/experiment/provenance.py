@@ -5,11 +5,11 @@ version of the code can be tuned on the trials that will judge it: changing the 
 the trials. Development probes use DEV_SEED instead (``rrg-experiment --dev``), whose trials
 are never reported.
 
-The code version is the git commit of the checkout the packages were imported from, with
-``+dirty.<hash>`` when a tracked source file differs from it (the hash is of that diff, so
-each edit is its own version), or ``src.<hash>`` of the package sources outside a git
-checkout. Only the packages and ``pyproject.toml`` count: results and docs written during a
-campaign do not change its version.
+The code version is the last git commit that changed the code (the packages and
+``pyproject.toml``) in the checkout the packages were imported from, with ``+dirty.<hash>``
+when a tracked source file differs from it (the hash is of that diff, so each edit is its own
+version), or ``src.<hash>`` of the package sources outside a git checkout. Results and docs,
+written or committed during a campaign, do not change its version, so it resumes.
 """
 
 from __future__ import annotations
@@ -61,9 +61,10 @@ def _source_hash() -> str:
 
 @functools.cache
 def code_version() -> str:
-    """'<commit>', '<commit>+dirty.<diff hash>' or 'src.<source hash>' (see the module doc)."""
+    """'<commit>', '<commit>+dirty.<diff hash>' or 'src.<source hash>' (see the module doc):
+    the commit is the last one that changed the code."""
     try:
-        commit = _git("rev-parse", "HEAD").decode().strip()
+        commit = _git("log", "-1", "--format=%H", "HEAD", "--", *CODE_PATHS).decode().strip()
         diff = _git("diff", "HEAD", "--binary", "--", *CODE_PATHS)
     except (OSError, subprocess.SubprocessError):
         return f"src.{_source_hash()}"
