@@ -150,7 +150,7 @@ def test_the_centre_of_mass_moves_by_the_drawn_offset(box_world):
         assert lo <= np.linalg.norm(off) <= hi and off[2] == 0.0
 
 
-def test_pads_miss_at_the_configured_rate_and_a_dead_pad_stays_silent(box_world):
+def test_pads_miss_at_the_configured_rate_and_a_dead_pad_stays_silent(box_world, monkeypatch):
     sensors = box_world.sensors
     dead = 0
     n = 0
@@ -171,6 +171,13 @@ def test_pads_miss_at_the_configured_rate_and_a_dead_pad_stays_silent(box_world)
     sensors.dead[0] = True
     sensors._pad_sample_at = -1
     assert not sensors._pads(pads)[0]
+    # The observation's readings see the same pads as the guard: the dead palm pad is silent.
+    monkeypatch.setattr(sensors, "read", lambda: (pads, np.zeros((3, 6))))
+    sensors._pad_sample_at = -1
+    assert not box_world.reading().fired[0] and not sensors.fired()[0]
+    sensors.dead[0] = False
+    sensors._pad_sample_at = -1
+    assert box_world.reading().fired[0]
 
 
 def test_pads_fire_falsely_at_the_configured_rate_for_one_sample(box_world):

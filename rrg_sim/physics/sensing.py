@@ -138,13 +138,16 @@ class HandSensors:
         wrench = np.hstack([raw[7:16].reshape(3, 3), raw[16:].reshape(3, 3)])
         return raw[:7], -(wrench - self.bias)
 
-    def fired(self) -> np.ndarray:
-        """(10,) bool: sensors over their thresholds (config.SENSING), pads then tips, the pads
-        as the profile samples them."""
-        pads, wrench = self.read()
+    def _fired(self, pads: np.ndarray, wrench: np.ndarray) -> np.ndarray:
+        """(10,) bool: the readings (read()) over their thresholds (config.SENSING), pads then
+        tips, the pads as the profile samples them."""
         out = fired_sensors(pads, wrench)
         out[:7] = self._pads(pads)
         return out
+
+    def fired(self) -> np.ndarray:
+        """(10,) bool: the sensors that fire now (see _fired)."""
+        return self._fired(*self.read())
 
     def any_fired(self) -> bool:
         """Whether any sensor fires now: ``fired().any()``, skipping the noisy reading while
@@ -170,7 +173,7 @@ class HandSensors:
     def reading(self) -> Reading:
         """One noisy reading of every sensor, with the Nano17 contact points and normals."""
         pads, wrench = self.read()
-        fired = fired_sensors(pads, wrench)
+        fired = self._fired(pads, wrench)
         d = self.data
         R_palm, p_palm = d.xmat[self._palm_body].reshape(3, 3), d.xpos[self._palm_body]
         tips = np.zeros((3, 4, 4))
