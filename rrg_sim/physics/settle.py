@@ -83,11 +83,7 @@ def measure(object_name: str, grasps: int, seed: int = 0) -> list[dict]:
                 retreated=after.tolist(),
                 contact=bool(obs.contact),
                 fingers=int(fingers_in_contact(obs.sensors)),
-                held=bool(
-                    judged["held"]
-                    and judged["required_ok"]
-                    and judged["fingers"] >= world.obj.goal.min_fingers
-                ),
+                held=bool(judged["held"] and judged["required_ok"] and judged["fingers_ok"]),
             )
         )
     return records

@@ -48,7 +48,7 @@ from .mjcf_robot import (
     SPREAD_ACTUATOR,
     SPREAD_JOINT,
 )
-from .realism import ModelConditions, TrialConditions, draw_conditions, quantize
+from .realism import ModelConditions, draw_conditions, quantize
 from .scene import OBJECT_BODY, OBJECT_JOINT, build_model
 from .sensing import HandSensors
 
@@ -125,7 +125,6 @@ class PhysicsWorld:
         )
         self._resolution = np.asarray(self.profile.joint_resolution, dtype=float)
         self.executor = WrtExecutor(self)
-        self.conditions = TrialConditions.nominal()
         self._draw_conditions(seed)
         self.reset()
 
@@ -137,7 +136,8 @@ class PhysicsWorld:
         self._draw_conditions(seed)
 
     def _draw_conditions(self, seed: int) -> None:
-        """This trial's conditions (realism.draw_conditions), from their own stream of seed."""
+        """Set ``conditions``, this trial's (realism.draw_conditions), from their own stream of
+        seed, and write them into the model."""
         self.conditions = draw_conditions(self.profile, np.random.default_rng((seed, 1)))
         self._conditions.apply(self.conditions)
 
