@@ -1,11 +1,12 @@
 """A rosbag2-layout MCAP bag writer that needs no rosbag2 (design §8).
 
 Layout: ``<bag>/<name>_0.mcap`` plus ``<bag>/metadata.yaml`` (rosbag2 metadata version 9),
-where ``<name>`` is the bag folder's name. The MCAP file has profile ``ros2``, ``cdr``
-messages, ``ros2msg`` schemas with their full dependency text, ``offered_qos_profiles`` and
-``topic_type_hash`` in each channel's metadata, and rosbag2's ``rosbag2`` metadata record, so
-rosbags and Foxglove read it as they read rosbag2's own bags. ROS-free: it takes already
-serialized messages.
+where ``<name>`` is the bag folder's name; a restarted recorder appends the splits
+``<name>_1.mcap``, ``<name>_2.mcap``, …, and metadata.yaml lists them all, as rosbag2 lists its
+splits. Each MCAP file has profile ``ros2``, ``cdr`` messages, ``ros2msg`` schemas with their
+full dependency text, ``offered_qos_profiles`` and ``topic_type_hash`` in each channel's
+metadata, and rosbag2's ``rosbag2`` metadata record, so rosbags and Foxglove read it as they
+read rosbag2's own bags. ROS-free: it takes already serialized messages.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from pathlib import Path
 import yaml
 from mcap.writer import CompressionType, Writer
 
+from rrg_planner.bags.bag_info import BagInfo, file_info, raw_messages, splits
 from rrg_planner.bags.bag_schema import SCHEMA_ENCODING, full_definition
 
 PROFILE = "ros2"
@@ -55,6 +57,46 @@ class BagStats:
     def duration_ns(self) -> int:
         return self.end_ns - self.start_ns if self.message_count else 0
 
+    @classmethod
+    def merged(cls, parts: list[BagStats]) -> BagStats:
+        """The stats of several files together."""
+        spans = [p for p in parts if p.message_count]
+        if not spans:
+            return cls()
+        return cls(
+            sum(p.message_count for p in spans),
+            min(p.start_ns for p in spans),
+            max(p.end_ns for p in spans),
+        )
+
+
+@dataclass
+class SplitRecord:
+    """One MCAP file of the bag, as metadata.yaml lists it."""
+
+    path: str  # relative to the bag folder
+    stats: BagStats
+    topics: list[TopicRecord]
+
+    @classmethod
+    def of(cls, info: BagInfo) -> SplitRecord:
+        """An earlier split, from what its file holds (its channels carry the QoS and hash)."""
+        return cls(
+            info.files[0].name,
+            BagStats(info.message_count, info.start_ns, info.end_ns),
+            [
+                TopicRecord(
+                    t.name,
+                    t.type,
+                    load_qos_profiles(t.metadata.get("offered_qos_profiles", "")),
+                    t.metadata.get("topic_type_hash", ""),
+                    -1,
+                    t.count,
+                )
+                for t in info.topics
+            ],
+        )
+
 
 def dump_qos_profiles(profiles: list[dict]) -> str:
     """The ``offered_qos_profiles`` YAML text of an MCAP channel (a YAML list of QoS dicts)."""
@@ -65,27 +107,57 @@ def dump_qos_profiles(profiles: list[dict]) -> str:
     )
 
 
+def load_qos_profiles(text: str) -> list[dict]:
+    """An MCAP channel's ``offered_qos_profiles`` YAML text back as QoS dicts."""
+    return (yaml.safe_load(text) or []) if text else []
+
+
+def is_latched(topic: TopicRecord) -> bool:
+    """Whether a publisher offers the topic TRANSIENT_LOCAL (a new subscriber gets its history)."""
+    return any(q.get("durability") == "transient_local" for q in topic.offered_qos_profiles)
+
+
 class Rosbag2McapWriter:
-    """Write serialized messages of any number of topics into a new bag folder.
+    """Write serialized messages of any number of topics into a new bag folder, or into the next
+    split of an existing one.
 
     Use as a context manager, or call ``close()``: it finalizes the MCAP file (summary and
-    footer) and writes metadata.yaml. The folder must not exist yet (as with rosbag2).
+    footer) and writes metadata.yaml. The folder must not exist yet (as with rosbag2), unless
+    ``append``: then the writer adds the split after the folder's last one (a restarted
+    recorder), lists every split in metadata.yaml, and skips the messages of latched topics that
+    an earlier split holds (a restarted recorder receives their history again).
     """
 
-    def __init__(self, bag_dir: str | Path) -> None:
+    def __init__(self, bag_dir: str | Path, append: bool = False) -> None:
         self.bag_dir = Path(bag_dir)
         self.topics: dict[str, TopicRecord] = {}
-        self.stats = BagStats()
-        if self.bag_dir.exists():
+        self.stats = BagStats()  # of this split
+        if self.bag_dir.exists() and not append:
             raise FileExistsError(f"bag folder already exists: {self.bag_dir}")
-        self.bag_dir.mkdir(parents=True)
-        self.mcap_path = self.bag_dir / f"{self.bag_dir.name}_0.mcap"
+        self.bag_dir.mkdir(parents=True, exist_ok=True)
+        earlier = splits(self.bag_dir)
+        self.earlier = [SplitRecord.of(file_info(path)) for path in earlier.values()]
+        self.repeats = self._latched_messages(list(earlier.values()))
+        self.repeats_skipped = 0
+        self.mcap_path = self.bag_dir / f"{self.bag_dir.name}_{max(earlier, default=-1) + 1}.mcap"
         self._file = self.mcap_path.open("wb")
         # Uncompressed chunks, as rosbag2's default: every reader decodes them without plugins.
         self._writer = Writer(self._file, compression=CompressionType.NONE)
         self._writer.start(profile=PROFILE, library=LIBRARY)
         self._schemas: dict[str, int] = {}
         self._closed = False
+
+    def _latched_messages(self, paths: list[Path]) -> dict[str, set[tuple[int, int]]]:
+        """Topic → (publish time, hash of the data) of each message of a latched topic that the
+        earlier splits hold."""
+        found: dict[str, set[tuple[int, int]]] = {}
+        for path, split in zip(paths, self.earlier):
+            latched = [t.name for t in split.topics if is_latched(t)]
+            for _, channel, message in raw_messages(path, latched) if latched else ():
+                found.setdefault(channel.topic, set()).add(
+                    (message.publish_time, hash(message.data))
+                )
+        return found
 
     def add_topic(
         self,
@@ -126,12 +198,17 @@ class Rosbag2McapWriter:
         data: bytes,
         log_time_ns: int | None = None,
         publish_time_ns: int | None = None,
-    ) -> None:
+    ) -> bool:
         """Append one CDR-serialized message of a registered topic (times: ns since the epoch;
-        log time defaults to now, publish time to the log time)."""
+        log time defaults to now, publish time to the log time). False: not written, because an
+        earlier split holds it (a latched message received again)."""
         record = self.topics[topic]
         log_time_ns = time.time_ns() if log_time_ns is None else log_time_ns
         publish_time_ns = log_time_ns if publish_time_ns is None else publish_time_ns
+        repeats = self.repeats.get(topic)
+        if repeats and (publish_time_ns, hash(data)) in repeats:
+            self.repeats_skipped += 1
+            return False
         self._writer.add_message(
             channel_id=record.channel_id,
             log_time=log_time_ns,
@@ -141,10 +218,35 @@ class Rosbag2McapWriter:
         )
         record.message_count += 1
         self.stats.add(log_time_ns)
+        return True
+
+    def flush(self) -> None:
+        """Write the messages so far to the file as a complete chunk: what a killed recorder's
+        file keeps (the MCAP writer otherwise holds up to 1 MiB of them in memory)."""
+        if not self._closed:
+            self._writer.flush()
 
     def metadata(self) -> dict:
-        """rosbag2's metadata.yaml content (version 9)."""
-        s = self.stats
+        """rosbag2's metadata.yaml content (version 9), over every split of the bag."""
+        this = SplitRecord(self.mcap_path.name, self.stats, list(self.topics.values()))
+        files = [*self.earlier, this]
+        s = BagStats.merged([f.stats for f in files])
+        topics: dict[str, dict] = {}
+        for t in (t for f in files for t in f.topics):
+            entry = topics.setdefault(
+                t.name,
+                {
+                    "topic_metadata": {
+                        "name": t.name,
+                        "type": t.type,
+                        "serialization_format": MESSAGE_ENCODING,
+                        "offered_qos_profiles": t.offered_qos_profiles,
+                        "type_description_hash": t.type_description_hash,
+                    },
+                    "message_count": 0,
+                },
+            )
+            entry["message_count"] += t.message_count
         return {
             "rosbag2_bagfile_information": {
                 "version": METADATA_VERSION,
@@ -152,29 +254,18 @@ class Rosbag2McapWriter:
                 "duration": {"nanoseconds": s.duration_ns},
                 "starting_time": {"nanoseconds_since_epoch": s.start_ns},
                 "message_count": s.message_count,
-                "topics_with_message_count": [
-                    {
-                        "topic_metadata": {
-                            "name": t.name,
-                            "type": t.type,
-                            "serialization_format": MESSAGE_ENCODING,
-                            "offered_qos_profiles": t.offered_qos_profiles,
-                            "type_description_hash": t.type_description_hash,
-                        },
-                        "message_count": t.message_count,
-                    }
-                    for t in self.topics.values()
-                ],
+                "topics_with_message_count": list(topics.values()),
                 "compression_format": "",
                 "compression_mode": "",
-                "relative_file_paths": [self.mcap_path.name],
+                "relative_file_paths": [f.path for f in files],
                 "files": [
                     {
-                        "path": self.mcap_path.name,
-                        "starting_time": {"nanoseconds_since_epoch": s.start_ns},
-                        "duration": {"nanoseconds": s.duration_ns},
-                        "message_count": s.message_count,
+                        "path": f.path,
+                        "starting_time": {"nanoseconds_since_epoch": f.stats.start_ns},
+                        "duration": {"nanoseconds": f.stats.duration_ns},
+                        "message_count": f.stats.message_count,
                     }
+                    for f in files
                 ],
                 "custom_data": None,
                 "ros_distro": ROS_DISTRO,

@@ -2,7 +2,7 @@
 
 Run as a process, e.g. as the launcher's child::
 
-    python -m rrg_planner.bags.recorder_node --output bags/NAME \
+    python -m rrg_planner.bags.recorder_node --output bags/NAME [--append] \
         [--ros-args -p discovery_period:=0.2]
 
 It polls the graph for topics, subscribes to each new one with ``raw=True`` (CDR bytes as they
@@ -11,7 +11,10 @@ are captured even when they were published before the recorder saw them. Hidden 
 name part starting with ``_``, e.g. actions' internal topics) are skipped, as ``ros2 bag record
 --all`` does. SIGINT, SIGTERM or Ctrl-C stop it: it first writes the messages it has already
 received (``BagRecorder.drain``, at most DRAIN_S; a second signal cuts that short), then
-finalizes the bag, which it always does.
+finalizes the bag, which it always does. Every ``flush_period`` it writes what it has received
+to the file as a complete chunk, so a SIGKILL loses at most that much. With ``--append`` (the
+launcher restarting a recorder that died) it writes the next split of an existing bag folder
+(design §8).
 """
 
 from __future__ import annotations
@@ -103,6 +106,16 @@ class BagRecorder(Node):
             ),
         )
         self.declare_parameter(
+            "flush_period",
+            1.0,
+            ParameterDescriptor(
+                description="Period [s] of writing the received messages to the file as a "
+                "complete chunk (at most this much is lost when the recorder is killed)",
+                floating_point_range=[FloatingPointRange(from_value=0.1, to_value=60.0)],
+                read_only=True,
+            ),
+        )
+        self.declare_parameter(
             "exclude_topics",
             [""],
             ParameterDescriptor(
@@ -119,9 +132,11 @@ class BagRecorder(Node):
         self._discovery = self.create_timer(
             self.get_parameter("discovery_period").value, self.discover
         )
+        self._flush = self.create_timer(self.get_parameter("flush_period").value, writer.flush)
         self.get_logger().info(
-            f"recording all topics to {writer.bag_dir}"
+            f"recording all topics to {writer.mcap_path}"
             + (f" except {', '.join(sorted(self._excluded))}" if self._excluded else "")
+            + (f" (after the bag's {len(writer.earlier)} earlier files)" if writer.earlier else "")
         )
 
     def discover(self) -> None:
@@ -198,7 +213,13 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         "-o",
         required=True,
         type=Path,
-        help="bag folder to create (e.g. bags/NAME); must not exist",
+        help="bag folder to create (e.g. bags/NAME); must not exist, unless --append",
+    )
+    parser.add_argument(
+        "--append",
+        action="store_true",
+        help="write the next split <NAME>_<k>.mcap of an existing bag folder (a restarted "
+        "recorder); messages of latched topics that an earlier split holds are not written again",
     )
     return parser.parse_args(remove_ros_args(argv)[1:])
 
@@ -206,7 +227,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv if argv is None else argv
     args = parse_args(argv)
-    if args.output.exists():
+    if args.output.exists() and not args.append:
         print(f"bag folder already exists: {args.output}", file=sys.stderr)
         return 1
     # rclpy's own handlers would shut the context down at the signal, and with it the
@@ -215,7 +236,7 @@ def main(argv: list[str] | None = None) -> int:
     signals: list[int] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda signum, _frame: signals.append(signum))
-    writer = Rosbag2McapWriter(args.output)
+    writer = Rosbag2McapWriter(args.output, append=args.append)
     recorder = None
     try:
         recorder = BagRecorder(writer)
@@ -235,8 +256,14 @@ def main(argv: list[str] | None = None) -> int:
             recorder.destroy_node()  # first, so the message below does not go to /rosout
         s = writer.stats
         rclpy.logging.get_logger(NODE_NAME).info(
-            f"bag closed: {writer.bag_dir} ({s.message_count} messages on "
-            f"{len(writer.topics)} topics, {s.duration_ns / 1e9:.3f} s)"
+            f"bag closed: {writer.mcap_path} ({s.message_count} messages on "
+            f"{len(writer.topics)} topics, {s.duration_ns / 1e9:.3f} s"
+            + (
+                f"; {writer.repeats_skipped} latched messages an earlier file holds not written"
+                if writer.repeats_skipped
+                else ""
+            )
+            + ")"
         )
         rclpy.try_shutdown()
     return 0
