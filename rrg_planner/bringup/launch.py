@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -55,6 +56,8 @@ from rrg_sim.poses import compose_planar
 
 ROOT = Path(__file__).resolve().parents[2]
 RECORDER = "rrg_bag_recorder"
+#: The nodes' recovery state of each run goes in STATE_ROOT/<run name>/ (removed at the end).
+STATE_ROOT = ROOT / ".cache" / "state"
 #: SIGINT, then SIGTERM after this long [s], then SIGKILL after as long again (notes: a node
 #: sometimes misses the first SIGINT).
 STOP_ESCALATE_S = 3.0
@@ -79,6 +82,9 @@ NODE_EVENTS_ACK_S = 2.0
 #: (CI on a fresh clone, once).
 OUTCOME_WAIT_S = 10.0
 OUTCOME_GRACE_S = 0.5
+#: Longest wait [s] for a restarted planner to be back (it loads its models first) before the
+#: grasp it was running is resumed.
+RESUME_WAIT_S = 300.0
 #: Module of each node process, in start order (the recorder is started first, stopped last).
 NODES = {
     "sim": "rrg_sim.ros.sim_node",
@@ -197,8 +203,11 @@ class Graph:
         interface: str = "sim",
         respawn_max: int = RESPAWN_MAX,
         respawn_delay_s: float = RESPAWN_DELAY_S,
+        state_dir: Path | None = None,
     ):
         self.env = env
+        #: where the estimator and the planner keep the state a restarted one resumes from
+        self.state_dir = state_dir
         self.respawn_max = respawn_max  # restarts per child
         self.respawn_delay_s = respawn_delay_s  # before a child's first restart
         self.interface = interface  # a key of INTERFACE
@@ -217,6 +226,7 @@ class Graph:
         self.interrupted = False  # set by Ctrl-C or SIGTERM, acted on in spin_until
         self.stopping = False  # the graph is being stopped: no more restarts
         self.node_events = None  # the publisher of NODE_EVENTS_TOPIC (connect creates it)
+        self.planner = None  # the planner's liveliness (connect creates it)
 
     # ------------------------------------------------------------------ processes
     def spawn(self, name: str, args: list[str], restart_args: list[str] | None = None) -> None:
@@ -277,12 +287,18 @@ class Graph:
         self.start_interface(
             object_name, seed, real_time_factor, sensor_noise, hw_params, world_profile
         )
+        state = {}
+        if self.state_dir is not None:  # a fresh run: no state of an earlier one
+            shutil.rmtree(self.state_dir, ignore_errors=True)
+            self.state_dir.mkdir(parents=True)
+            state = {n: {"state_file": str(self.state_dir / f"{n}.state")} for n in NODES}
         params = {
             "executor": {},
-            "estimator": {},
+            "estimator": {**state.get("estimator", {})},
             "planner": {
                 "levels": f"[{','.join(repr(lv) for lv in levels)}]",
                 "preload": f"['{object_name}']",
+                **state.get("planner", {}),
             },
         }
         for name, values in params.items():
@@ -418,6 +434,7 @@ class Graph:
         from rclpy.signals import SignalHandlerOptions
 
         from rrg_msgs.msg import NodeEvent
+        from rrg_sim.ros_common.liveliness import PeerWatch
 
         os.environ.update(
             {k: self.env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
@@ -435,6 +452,7 @@ class Graph:
                 reliability=ReliabilityPolicy.RELIABLE,
             ),
         )
+        self.planner = PeerWatch(self.node, "planner")
         self.executor = SingleThreadedExecutor(context=self._context)
         self.executor.add_node(self.node)
 
@@ -581,12 +599,35 @@ class Graph:
             )
 
         client = self.actions["/rrg/robust_grasp"]
-        self.goal_handle = self.result(
-            client.send_goal_async(goal, feedback_callback=feedback), 30.0, "robust_grasp"
-        )
-        if not self.goal_handle.accepted:
-            raise LaunchError("the planner rejected the robust_grasp goal")
-        answer = self.result(self.goal_handle.get_result_async(), 3600.0, "the robust grasp")
+        for resumes in range(self.respawn_max + 1):
+            losses = self.planner.losses
+            goal.resume = resumes > 0
+            self.goal_handle = self.result(
+                client.send_goal_async(goal, feedback_callback=feedback), 30.0, "robust_grasp"
+            )
+            if not self.goal_handle.accepted:
+                raise LaunchError("the planner rejected the robust_grasp goal")
+            future = self.goal_handle.get_result_async()
+            self.spin_until(
+                lambda f=future, n=losses: f.done() or self.planner.lost_since(n),
+                3600.0,
+                "the robust grasp",
+            )
+            if future.done():
+                break
+            print(
+                "[rrg-launch] the planner went away in the middle of the grasp: resuming it "
+                "once the planner is back",
+                flush=True,
+            )
+            self.spin_until(
+                lambda: self.planner.alive and client.server_is_ready(),
+                RESUME_WAIT_S,
+                "the restarted planner",
+            )
+        else:
+            raise LaunchError("the planner kept going away: the grasp was not completed")
+        answer = future.result()
         self.goal_handle = None
         res = answer.result
         outcome.actions, outcome.p_goal, outcome.planner_success = (
@@ -808,6 +849,7 @@ def main(argv: list[str] | None = None) -> int:
         # into a RuntimeError)
 
     interface = "sim" if args.mode == "sim" else ("fake_hw" if args.fake_hw else "hw")
+    state_dir = STATE_ROOT / f"{name}_{os.getpid()}"
     graph = Graph(
         ros_environment(args.domain_id),
         bag_dir,
@@ -815,6 +857,7 @@ def main(argv: list[str] | None = None) -> int:
         interface,
         args.respawn_max,
         args.respawn_delay,
+        state_dir,
     )
     status = 0
     outcome = None
@@ -889,6 +932,7 @@ def main(argv: list[str] | None = None) -> int:
         )  # a second Ctrl-C must not cut the shutdown short
         graph.disconnect()
         graph.stop()
+        shutil.rmtree(state_dir, ignore_errors=True)
         signal.signal(signal.SIGINT, signal.default_int_handler)
     if bag_dir is not None:
         from rrg_planner.bags.bag_info import bag_info

@@ -98,7 +98,7 @@ class GraphClient:
         time."""
         if peer.alive:
             return
-        self.log.warn(f"the {peer.name} is down: waiting for it to be back before {what}")
+        self.log.warn(f"the {peer.name} is not up: waiting for it before {what}")
         if not peer.wait_alive(self.timeouts()["restart"], self.interrupted):
             if self.interrupted():
                 raise WaitInterrupted(f"interrupted while waiting for the {peer.name}")
