@@ -45,7 +45,13 @@ from rrg_msgs.msg import Observation as ObservationMsg
 from rrg_msgs.srv import GetBelief, ResetBelief
 from rrg_sim.objects import get_object
 from rrg_sim.ros_common.liveliness import announce
-from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, observation_from_msg, planar_from_msg
+from rrg_sim.ros_common.msg_conversions import (
+    WORLD_FRAME,
+    ns_to_stamp,
+    observation_from_msg,
+    planar_from_msg,
+    stamp_to_ns,
+)
 from rrg_sim.ros_common.node_main import keep_serving, run_node
 from rrg_sim.ros_common.qos import EVENTS, LATCHED
 
@@ -135,8 +141,8 @@ class EstimatorNode(Node):
             return
         tracker.preload()
         self.tracker, self._last_event_ns = tracker, state.last_event_ns
-        self._map_load_time = _time(state.map_load_ns)
-        self.publish_belief(_time(state.last_event_ns))
+        self._map_load_time = ns_to_stamp(state.map_load_ns)
+        self.publish_belief(ns_to_stamp(state.last_event_ns))
         log.warn(
             f"restored the belief about {state.object_name} from {self.state_file}: w* = "
             f"{np.round(tracker.belief.w_star(), 3).tolist()}, grid spacing "
@@ -150,7 +156,9 @@ class EstimatorNode(Node):
         try:
             save_state(
                 self.state_file,
-                EstimatorState.of(self.tracker, self._last_event_ns, _ns(self._map_load_time)),
+                EstimatorState.of(
+                    self.tracker, self._last_event_ns, stamp_to_ns(self._map_load_time)
+                ),
             )
         except OSError as exc:
             self.get_logger().error(
@@ -161,11 +169,13 @@ class EstimatorNode(Node):
     def already_applied(self, stamp: Time, what: str) -> bool:
         """Whether the event of ``stamp`` is older than the belief (a latched event that a
         restarted estimator receives again, or one from before this estimator started)."""
-        if _ns(stamp) > self._last_event_ns and (
-            self.tracker is not None or _ns(stamp) >= self._started_ns
+        if stamp_to_ns(stamp) > self._last_event_ns and (
+            self.tracker is not None or stamp_to_ns(stamp) >= self._started_ns
         ):
             return False
-        self.get_logger().info(f"{what} of {_ns(stamp)} ns already applied or stale: skipped")
+        self.get_logger().info(
+            f"{what} of {stamp_to_ns(stamp)} ns already applied or stale: skipped"
+        )
         return True
 
     # ------------------------------------------------------------------ publishing
@@ -173,7 +183,7 @@ class EstimatorNode(Node):
         """The belief now includes the event of ``stamp``: persist the state, then publish."""
         if new_grid:
             self._map_load_time = stamp
-        self._last_event_ns = _ns(stamp)
+        self._last_event_ns = stamp_to_ns(stamp)
         self.persist()
         return self.publish_belief(stamp)
 
@@ -308,16 +318,6 @@ class EstimatorNode(Node):
             return resp
         resp.object_name, resp.belief = self.tracker.obj.name, self._belief_msg
         return resp
-
-
-def _ns(stamp: Time) -> int:
-    """A stamp in nanoseconds."""
-    return stamp.sec * 1_000_000_000 + stamp.nanosec
-
-
-def _time(stamp_ns: int) -> Time:
-    """A stamp of ``stamp_ns`` nanoseconds."""
-    return Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
 
 
 def main(argv: list[str] | None = None) -> int:

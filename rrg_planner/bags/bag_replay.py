@@ -44,7 +44,7 @@ from rrg_planner.closed_loop import decide
 from rrg_planner.config import REPLAY_TOLERANCE, SEARCH
 from rrg_planner.planning_model import PlanningModel
 from rrg_sim.objects import ObjectModel, get_object
-from rrg_sim.ros_common.msg_conversions import observation_from_msg, planar_from_msg
+from rrg_sim.ros_common.msg_conversions import observation_from_msg, planar_from_msg, stamp_to_ns
 
 RETREATED_TOPIC = "/rrg/retreated"
 PARAMETER_EVENTS_TOPIC = "/parameter_events"
@@ -207,10 +207,6 @@ def usable(schemas: dict[str, Schema | None], topic: str) -> str:
     return ""
 
 
-def _ns(stamp) -> int:
-    return stamp.sec * 1_000_000_000 + stamp.nanosec
-
-
 def grid_mismatch(replayed: Grid, recorded: Grid) -> str:
     """How two grids differ, in words ("" when they are the same grid)."""
     parts = []
@@ -253,7 +249,7 @@ class _Replayer:
 
     def on_reset(self, msg, object_name: str) -> None:
         """A recorded reset belief: the estimator starts again from it."""
-        step = BeliefStep("reset", "", _ns(msg.header.stamp))
+        step = BeliefStep("reset", "", stamp_to_ns(msg.header.stamp))
         self.tracker, self.agent = None, None
         try:
             obj = get_object(object_name)
@@ -272,7 +268,7 @@ class _Replayer:
         self.replay.beliefs.append(step)
 
     def on_observation(self, msg) -> None:
-        step = BeliefStep("observation", msg.wrt_name, _ns(msg.header.stamp))
+        step = BeliefStep("observation", msg.wrt_name, stamp_to_ns(msg.header.stamp))
         applied = False
         if self.tracker is None:
             step.note = "ignored: no belief yet"
@@ -292,7 +288,7 @@ class _Replayer:
         self.compare(step, applied)
 
     def on_retreated(self, msg) -> None:
-        step = BeliefStep("retreat", msg.wrt_name, _ns(msg.header.stamp))
+        step = BeliefStep("retreat", msg.wrt_name, stamp_to_ns(msg.header.stamp))
         if self.tracker is None:
             step.note = "ignored: no belief yet"
         else:
@@ -413,11 +409,11 @@ def replay_bag(
         raise UnusableBag(f"cannot decode {bag}: {type(exc).__name__}: {exc}") from exc
 
     event_topics = (OBSERVATION_TOPIC, RETREATED_TOPIC)
-    events = {_ns(m.msg.header.stamp) for m in messages if m.topic in event_topics}
+    events = {stamp_to_ns(m.msg.header.stamp) for m in messages if m.topic in event_topics}
     recorded: dict[int, BagMessage] = {}
     for m in messages:
         if m.topic == BELIEF_TOPIC:
-            recorded.setdefault(_ns(m.msg.header.stamp), m)
+            recorded.setdefault(stamp_to_ns(m.msg.header.stamp), m)
     # the object each message's grasp is about: that of the next message that names one
     next_object, name = [""] * len(messages), ""
     for i in reversed(range(len(messages))):
@@ -443,7 +439,7 @@ def replay_bag(
             if planner:
                 replayer.on_grasp_step(m.msg)
             continue
-        key = (m.topic, _ns(m.msg.header.stamp))
+        key = (m.topic, stamp_to_ns(m.msg.header.stamp))
         if key in seen or (m.topic == BELIEF_TOPIC and key[1] in events):
             continue  # a repeated message, or an event's belief (compared at its event)
         seen.add(key)

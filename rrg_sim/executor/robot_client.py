@@ -35,6 +35,7 @@ from rrg_sim.ros_common.msg_conversions import (
     ARM_JOINT_NAMES,
     PROXIMAL_JOINT_NAMES,
     SPREAD_JOINT_NAME,
+    stamp_to_ns,
     tip_contacts_from_msg,
 )
 
@@ -54,10 +55,6 @@ class RobotFault(MotionFailed):
 def duration(seconds: float) -> Duration:
     sec = int(np.floor(seconds))
     return Duration(sec=sec, nanosec=int(round((seconds - sec) * 1e9)) % 1_000_000_000)
-
-
-def stamp_ns(msg: JointState) -> int:
-    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
 
 class RosRobot:
@@ -97,8 +94,8 @@ class RosRobot:
 
     def on_joint_state(self, msg: JointState) -> None:
         with self._lock:
-            if stamp_ns(msg) >= self._stamp:
-                self._stamp = stamp_ns(msg)
+            if stamp_to_ns(msg.header.stamp) >= self._stamp:
+                self._stamp = stamp_to_ns(msg.header.stamp)
                 self._joints.update(zip(msg.name, msg.position))
 
     def ready(self) -> bool:
