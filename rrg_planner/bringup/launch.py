@@ -1,8 +1,9 @@
 """``rrg-launch``: start RRG's ROS 2 graph as child processes, record every topic, and optionally
-run one robust grasp (design §8).
+run one robust grasp, or many back to back (design §8).
 
     rrg-launch                                      # the simulated graph, until Ctrl-C
     rrg-launch --grasp powerdrill --level high --strategy rrg-info
+    rrg-launch --grasps 200 --seed 1                # a long run: 200 grasps in one graph (soak.py)
     rrg-launch --mode hw --fake-hw --grasp powerdrill   # the bridge on emulated drivers
     rrg-launch --mode hw --hw-param dry_run:=true       # the bridge on the real robot's drivers
 
@@ -14,7 +15,10 @@ waited for, not slept: every service and action server must answer discovery, an
 be subscribed to every topic that has a publisher. With ``--grasp`` the simulator places the object
 at its true pose (``--true-pose``, or drawn from the level's Gaussian with ``--seed``), the
 planner's robust-grasp action runs with feedback per step, and the simulator judges the final grasp
-(ground truth + lift). Ctrl-C (or SIGTERM) cancels a running grasp, sends SIGINT to the nodes,
+(ground truth + lift). With ``--grasps N`` it runs N robust grasps back to back in the same
+graph, each of an object and a true pose drawn from ``--seed``, and reports each grasp, each
+node's memory, threads and file descriptors, and the event messages the bag lost
+(rrg_planner.bringup.soak). Ctrl-C (or SIGTERM) cancels a running grasp, sends SIGINT to the nodes,
 escalates to SIGTERM and SIGKILL after a timeout, and stops the recorder last, so the bag in
 ``bags/<name>/`` is always finalized. A child that dies while the graph runs is restarted, as
 launch_ros's ``respawn`` does: up to ``--respawn-max`` times, after a backoff that starts at
@@ -85,6 +89,9 @@ OUTCOME_GRACE_S = 0.5
 #: Longest wait [s] for a restarted planner to be back (it loads its models first) before the
 #: grasp it was running is resumed.
 RESUME_WAIT_S = 300.0
+#: With --grasps: longest a grasp may run before it counts as hung [s] (chosen: a robust grasp of
+#: the drill at high uncertainty takes ~20 s unpaced; ten actions at real time stay under 5 min).
+GRASP_TIMEOUT_S = 600.0
 #: Module of each node process, in start order (the recorder is started first, stopped last).
 NODES = {
     "sim": "rrg_sim.ros.sim_node",
@@ -258,10 +265,12 @@ class Graph:
         sensor_noise: float = 1.0,
         hw_params: dict[str, str] | None = None,
         world_profile: str = "nominal",
+        preload: list[str] | None = None,
     ) -> None:
         """Start the recorder (if recording), the arm/hand interface and the executor, estimator
         and planner (the launch time counts from here). ``hw_params``: the bridge's parameters;
-        ``world_profile``: the simulator's (rrg_sim.config.WORLD_PROFILES)."""
+        ``world_profile``: the simulator's (rrg_sim.config.WORLD_PROFILES); ``preload``: the
+        objects whose planning models the planner loads first (default: ``object_name``)."""
         self.started = time.monotonic()
         if self.bag_dir is not None:
             self.spawn(
@@ -297,7 +306,7 @@ class Graph:
             "estimator": {**state.get("estimator", {})},
             "planner": {
                 "levels": f"[{','.join(repr(lv) for lv in levels)}]",
-                "preload": f"['{object_name}']",
+                "preload": f"[{','.join(repr(o) for o in preload or [object_name])}]",
                 **state.get("planner", {}),
             },
         }
@@ -559,8 +568,12 @@ class Graph:
         delta: float,
         max_actions: int,
         on_first_action: Callable[[], None] | None = None,
+        timeout_s: float = 3600.0,
+        verbose: bool = True,
     ) -> GraspOutcome:
-        """Place the object, run the robust grasp, judge it; fills and returns ``outcome``."""
+        """Place the object, run the robust grasp, judge it; fills and returns ``outcome``.
+        ``timeout_s``: longest wait for the robust grasp's result (LaunchTimeout after it);
+        ``verbose``: print a line per step."""
         from std_srvs.srv import Trigger
 
         from rrg_msgs.action import RobustGrasp
@@ -592,6 +605,8 @@ class Graph:
             fb = msg.feedback
             if fb.step == 1 and on_first_action is not None:
                 on_first_action()
+            if not verbose:
+                return
             print(
                 f"[rrg-launch] step {fb.step}: {fb.wrt_name} "
                 f"(P(goal) = {fb.p_goal:.3f}, value = {fb.value:.3f})",
@@ -610,7 +625,7 @@ class Graph:
             future = self.goal_handle.get_result_async()
             self.spin_until(
                 lambda f=future, n=losses: f.done() or self.planner.lost_since(n),
-                3600.0,
+                timeout_s,
                 "the robust grasp",
             )
             if future.done():
@@ -699,12 +714,16 @@ def warm_tables(object_name: str, levels: list[str]) -> None:
             load_or_build(obj, wrt, LEVELS[level], workers=2, progress=True)
 
 
+def draw_pose(rng: np.random.Generator, level: str) -> np.ndarray:
+    """A true pose drawn from the level's Gaussian around the nominal pose."""
+    return compose_planar(np.asarray(WORLD.nominal_pose), rng.normal(0.0, LEVELS[level].sigma))
+
+
 def true_pose(args: argparse.Namespace) -> np.ndarray:
     """--true-pose, else a draw from the level's Gaussian around the nominal pose (--seed)."""
     if args.true_pose is not None:
         return np.asarray(args.true_pose, dtype=float)
-    rng = np.random.default_rng(args.seed)
-    return compose_planar(np.asarray(WORLD.nominal_pose), rng.normal(0.0, LEVELS[args.level].sigma))
+    return draw_pose(np.random.default_rng(args.seed), args.level)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -748,6 +767,32 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="OBJECT",
         choices=OBJECT_NAMES,
         help="run one robust grasp of OBJECT, then stop",
+    )
+    p.add_argument(
+        "--grasps",
+        type=int,
+        metavar="N",
+        help="a long run: N robust grasps back to back in one graph, each of an object and a "
+        "true pose drawn from --seed; then a report of every grasp and node",
+    )
+    p.add_argument(
+        "--objects",
+        default=",".join(OBJECT_NAMES),
+        help="with --grasps: the objects grasped, comma-separated (default: all ten)",
+    )
+    p.add_argument(
+        "--grasp-timeout",
+        type=float,
+        default=GRASP_TIMEOUT_S,
+        metavar="S",
+        help=f"with --grasps: a grasp still running after S seconds ({GRASP_TIMEOUT_S:.0f}) is "
+        "hung; the run stops",
+    )
+    p.add_argument(
+        "--soak-report",
+        type=Path,
+        metavar="PATH",
+        help="with --grasps: the JSON report (default: beside the bag, <bag>_soak.json)",
     )
     p.add_argument(
         "--level", default="high", choices=sorted(LEVELS), help="initial uncertainty of the grasp"
@@ -820,7 +865,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="longest wait for the graph [s] (a first table build takes minutes)",
     )
     p.add_argument(
-        "--json", action="store_true", help="print the grasp's outcome as JSON on the last line"
+        "--json",
+        action="store_true",
+        help="print the grasp's outcome (with --grasps: the summary) as JSON on the last line",
     )
     return p
 
@@ -836,9 +883,20 @@ def main(argv: list[str] | None = None) -> int:
     if args.respawn_max < 0 or not args.respawn_delay >= 0:
         print("rrg-launch: --respawn-max and --respawn-delay must be >= 0", file=sys.stderr)
         return 2
-    object_name = args.grasp or args.object
+    soak = None
+    if args.grasps is not None:
+        from rrg_planner.bringup import soak as soaking
+
+        try:
+            soak = soaking.Soak.from_args(args)
+        except ValueError as exc:
+            print(f"rrg-launch: {exc}", file=sys.stderr)
+            return 2
+    object_name = soak.draws[0][0] if soak else args.grasp or args.object
+    objects = soak.objects if soak else [object_name]
     levels = [lv.strip() for lv in args.levels.split(",") if lv.strip()]
-    name = args.bag_name or f"rrg_{object_name}_{datetime.now():%Y%m%d_%H%M%S}"
+    label = "soak" if soak else object_name
+    name = args.bag_name or f"rrg_{label}_{datetime.now():%Y%m%d_%H%M%S}"
     bag_dir = None if args.no_bag else args.bags / name
     if bag_dir is not None and bag_dir.exists():
         print(f"rrg-launch: bag folder already exists: {bag_dir}", file=sys.stderr)
@@ -863,11 +921,12 @@ def main(argv: list[str] | None = None) -> int:
     outcome = None
     try:
         print(
-            f"[rrg-launch] observation tables of {object_name} at levels {levels} "
-            "(built once, ~1 min per level when missing)",
+            f"[rrg-launch] observation tables of {', '.join(objects)} at levels {levels} "
+            "(built once, ~1 min per object and level when missing)",
             flush=True,
         )
-        warm_tables(object_name, levels)
+        for obj in objects:
+            warm_tables(obj, levels)
         signal.signal(
             signal.SIGTERM, interrupt
         )  # after the table workers, which must not inherit it
@@ -883,8 +942,11 @@ def main(argv: list[str] | None = None) -> int:
             args.sensor_noise,
             dict(args.hw_param),
             args.world,
+            objects,
         )
         graph.connect()
+        if soak is not None:
+            soak.attach(graph)
         print(
             f"[rrg-launch] started {len(graph.children)} processes in domain {args.domain_id} ("
             + ", ".join(f"{c.name} pid {c.proc.pid}" for c in graph.children)
@@ -897,7 +959,9 @@ def main(argv: list[str] | None = None) -> int:
             + (f", recording to {bag_dir}" if bag_dir else ""),
             flush=True,
         )
-        if args.grasp:
+        if soak is not None:
+            status = soak.run(graph)
+        elif args.grasp:
             outcome = GraspOutcome(
                 args.grasp,
                 args.level,
@@ -922,7 +986,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("[rrg-launch] interrupted: stopping the graph", flush=True)
         graph.cancel_grasp()
-        status = 1 if args.grasp else 0
+        status = 1 if args.grasp or soak else 0
     except LaunchError as exc:
         print(f"[rrg-launch] error: {exc}", file=sys.stderr, flush=True)
         status = 1
@@ -950,6 +1014,13 @@ def main(argv: list[str] | None = None) -> int:
             ),
             flush=True,
         )
+    if soak is not None:
+        soaking.finish(
+            soak,
+            bag_dir,
+            args.soak_report or soaking.default_report_path(bag_dir, args.log_dir, name),
+            args.json,
+        )
     if outcome is not None:
         print(
             f"[rrg-launch] outcome: actions {outcome.actions}, "
@@ -972,4 +1043,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # main of the imported module, not of this __main__ copy: soak.py catches its exceptions
+    from rrg_planner.bringup.launch import main as launch_main
+
+    sys.exit(launch_main())
