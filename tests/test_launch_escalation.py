@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 import yaml
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from ros_testing import ROOT, RosClient, environment, ros_env, ros_settings
+from ros_testing import ROOT, RosClient, environment, foxglove_read, ros_env, ros_settings
 
 from rrg_msgs.msg import NodeEvent
 from rrg_planner.bags.bag_info import bag_info
@@ -32,7 +32,6 @@ from rrg_planner.bringup.launch import (
 )
 
 CHILD = str(Path(__file__).with_name("launch_children.py"))
-NODE_MODULES = ROOT / ".cache" / "npm" / "node_modules"
 EVENTS_QOS = QoSProfile(
     depth=100, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE
 )
@@ -258,14 +257,7 @@ def test_a_killed_recorder_is_restarted_into_a_new_split_and_the_restart_is_in_t
     counts = {t.name: t.count for t in info.topics if t.count}
     fox: dict[str, int] = {}
     for path in info.files:
-        out = subprocess.run(
-            ["node", str(ROOT / "tests" / "foxglove_bag_reader.cjs"), str(NODE_MODULES), str(path)],
-            capture_output=True,
-            text=True,
-            timeout=60,
-        )
-        assert out.returncode == 0, out.stderr
-        for topic, v in json.loads(out.stdout)["topics"].items():
+        for topic, v in foxglove_read(path)["topics"].items():
             fox[topic] = fox.get(topic, 0) + v["count"]
     assert {t: n for t, n in fox.items() if n} == counts
     from rrg_planner.bags.bag_cli import main as bag_cli

@@ -1,7 +1,7 @@
 """What a bag holds: its MCAP files (the splits ``<name>_0.mcap``, ``<name>_1.mcap``, … that a
 restarted recorder adds), topics, types, message counts and time range, read from each file's
-summary or, for a file whose recorder was killed before writing it, by scanning its complete
-records."""
+summary or, for a file without one (its recorder was killed, or the disk filled), by scanning its
+complete records."""
 
 from __future__ import annotations
 
@@ -102,12 +102,12 @@ def complete_records(path: Path) -> Iterator[object]:
 
 
 def is_finalized(path: Path) -> bool:
+    """Whether the file has its summary section (with the footer that points to it)."""
     with path.open("rb") as f:
         try:
-            make_reader(f).get_summary()
+            return make_reader(f).get_summary() is not None
         except TRUNCATED:
             return False
-    return True
 
 
 def _scanned(
@@ -214,7 +214,8 @@ def bag_info(bag: str | Path) -> BagInfo:
     return merged_info([file_info(path) for path in bag_files(Path(bag))])
 
 
-def _time(ns: int) -> str:
+def iso_time(ns: int) -> str:
+    """A time [ns since the epoch] as ISO 8601 UTC, to the millisecond."""
     return datetime.fromtimestamp(ns / 1e9, tz=UTC).isoformat(timespec="milliseconds")
 
 
@@ -229,15 +230,15 @@ def format_info(info: BagInfo) -> str:
         + (
             "yes"
             if info.finalized
-            else f"no: {', '.join(p.name for p in info.unfinalized)} (no summary/footer; "
+            else f"no: {', '.join(p.name for p in info.unfinalized)} (no summary; "
             "counted by scanning)"
         ),
         f"Duration:   {info.duration_s:.3f} s",
     ]
     if info.message_count:
         lines += [
-            f"Start:      {_time(info.start_ns)} ({info.start_ns})",
-            f"End:        {_time(info.end_ns)} ({info.end_ns})",
+            f"Start:      {iso_time(info.start_ns)} ({info.start_ns})",
+            f"End:        {iso_time(info.end_ns)} ({info.end_ns})",
         ]
     lines.append(f"Messages:   {info.message_count}")
     lines.append(f"Topics:     {len(info.topics)}")

@@ -872,6 +872,25 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def bags_writable(folder: Path, low_space_bytes: int | None = None) -> bool:
+    """Whether bags can be written into ``folder`` (created when missing); prints why not, or a
+    warning when less than ``low_space_bytes`` (default: bag_writer.LOW_SPACE_BYTES) are free."""
+    from rrg_planner.bags.bag_writer import LOW_SPACE_BYTES, probe_bag_folder
+
+    try:
+        free = probe_bag_folder(folder)
+    except OSError as exc:
+        print(f"rrg-launch: cannot write bags to {folder}: {exc.strerror or exc}", file=sys.stderr)
+        return False
+    if free < (LOW_SPACE_BYTES if low_space_bytes is None else low_space_bytes):
+        print(
+            f"rrg-launch: warning: {free / 2**20:.0f} MiB free for bags in {folder}; the "
+            "recorder stops recording if the disk fills",
+            file=sys.stderr,
+        )
+    return True
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.mode == "sim" and (args.fake_hw or args.hw_param):
@@ -900,6 +919,8 @@ def main(argv: list[str] | None = None) -> int:
     bag_dir = None if args.no_bag else args.bags / name
     if bag_dir is not None and bag_dir.exists():
         print(f"rrg-launch: bag folder already exists: {bag_dir}", file=sys.stderr)
+        return 2
+    if bag_dir is not None and not bags_writable(args.bags):
         return 2
 
     def interrupt(signum, _frame):  # Ctrl-C or SIGTERM: the graph's spin loop raises
