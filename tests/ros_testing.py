@@ -7,6 +7,7 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -187,3 +188,40 @@ def node_processes(specs: list[tuple[str, dict]], env: dict, log_dir: Path):
     finally:
         for p in procs:
             stop_process(p)
+
+
+class Launcher:
+    """``rrg-launch`` as a process in the test's domain, recording to ``tmp_path/name``, with
+    its output read line by line."""
+
+    def __init__(self, tmp_path: Path, name: str, domain_id: int, *args: str):
+        self.bag = tmp_path / name
+        self.log_dir = tmp_path / "logs"
+        self.lines: list[str] = []
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "rrg_planner.bringup.launch", *args]
+            + ["--domain-id", str(domain_id), "--bags", str(tmp_path), "--bag-name", name]
+            + ["--log-dir", str(self.log_dir)],
+            env=ros_env(domain_id),
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+
+    def read_until(self, what: str) -> str:
+        """The first line from here on that contains ``what``."""
+        for line in self.proc.stdout:
+            self.lines.append(line)
+            if what in line:
+                return line
+        raise AssertionError(f"no {what!r} in the output:\n{''.join(self.lines)}")
+
+    def pid(self, node: str) -> int:
+        """The process id of a child, as the launcher printed it at the start."""
+        return int(re.search(rf"\b{node} pid (\d+)", "".join(self.lines))[1])
+
+    def finish(self) -> str:
+        """Its whole output once it has exited."""
+        rest, _ = self.proc.communicate(timeout=300)
+        return "".join(self.lines) + rest

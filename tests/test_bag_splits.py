@@ -73,8 +73,10 @@ def test_a_restarted_recorder_writes_the_next_split_and_metadata_names_both(kill
         Rosbag2McapWriter(killed_bag)  # only a restart appends
     writer = restart(killed_bag)
     assert writer.mcap_path.name == "run_1.mcap" and writer.repeats_skipped == 1
+    # the killed split was closed after its last complete chunk before the new one began
+    assert writer.closed_earlier == {"run_0.mcap": "summary"}
     first, second = (bag_info(p) for p in bag_files(killed_bag))
-    assert not first.finalized and second.finalized
+    assert first.finalized and second.finalized
     assert 0 < first.message_count < 302  # the complete chunks of the killed file
     meta = yaml.safe_load((killed_bag / "metadata.yaml").read_text())
     info = meta["rosbag2_bagfile_information"]
@@ -98,16 +100,20 @@ def test_the_bag_tools_read_every_split(killed_bag):
     restart(killed_bag)
     info = bag_info(killed_bag)
     assert [p.name for p in info.files] == ["run_0.mcap", "run_1.mcap"]
-    assert [p.name for p in info.unfinalized] == ["run_0.mcap"]
+    assert info.unfinalized == []
     assert {t.name: t.count for t in info.topics}["/l"] == 2
     assert (info.start_ns, info.end_ns) == (1 * S, 403 * S)
     printed = format_info(info)
-    assert "run_1.mcap" in printed and "no: run_0.mcap (no summary" in printed
+    assert "run_0.mcap" in printed and "run_1.mcap" in printed
     messages = list(read_messages(killed_bag))
     assert len(messages) == info.message_count
     assert [m.log_time_ns for m in messages] == sorted(m.log_time_ns for m in messages)
     assert [m.msg.data for m in messages if m.topic == "/l"] == ["early", "late"]
     assert [m.msg.data for m in messages[-3:]] == ["after 0", "after 1", "after 2"]
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([killed_bag]) as reader:  # needs every file finalized
+        assert sum(1 for _ in reader.messages()) == info.message_count
 
 
 def test_a_recorder_killed_before_its_first_record_leaves_a_split_that_is_skipped(tmp_path):

@@ -10,15 +10,19 @@ import json
 import os
 import re
 import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 import yaml
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from ros_testing import ROOT, RosClient, environment, foxglove_read, ros_env, ros_settings
+from ros_testing import (
+    Launcher,
+    RosClient,
+    environment,
+    foxglove_read,
+    ros_settings,
+)
 
 from rrg_msgs.msg import NodeEvent
 from rrg_planner.bags.bag_info import bag_info
@@ -42,42 +46,6 @@ def wait_for(condition, timeout_s: float = 20.0) -> None:
     while not condition():
         assert time.monotonic() < deadline, "timed out"
         time.sleep(0.02)
-
-
-class Launcher:
-    """``rrg-launch`` as a process in the test's domain, recording to ``tmp_path/name``, with
-    its output read line by line."""
-
-    def __init__(self, tmp_path: Path, name: str, domain_id: int, *args: str):
-        self.bag = tmp_path / name
-        self.lines: list[str] = []
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "rrg_planner.bringup.launch", *args]
-            + ["--domain-id", str(domain_id), "--bags", str(tmp_path), "--bag-name", name]
-            + ["--log-dir", str(tmp_path / "logs")],
-            env=ros_env(domain_id),
-            cwd=ROOT,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-
-    def read_until(self, what: str) -> str:
-        """The first line from here on that contains ``what``."""
-        for line in self.proc.stdout:
-            self.lines.append(line)
-            if what in line:
-                return line
-        raise AssertionError(f"no {what!r} in the output:\n{''.join(self.lines)}")
-
-    def pid(self, node: str) -> int:
-        """The process id of a child, as the launcher printed it at the start."""
-        return int(re.search(rf"\b{node} pid (\d+)", "".join(self.lines))[1])
-
-    def finish(self) -> str:
-        """Its whole output once it has exited."""
-        rest, _ = self.proc.communicate(timeout=300)
-        return "".join(self.lines) + rest
 
 
 def log_text(tmp_path: Path, name: str) -> str:
@@ -205,10 +173,10 @@ def test_a_killed_recorder_is_restarted_into_a_new_split_and_the_restart_is_in_t
 ):
     """SIGKILL the recorder while the first WRT runs (the simulator at 0.3 × real time, so that
     the grasp outlasts the restart): the launcher restarts it, the grasp goes on, and the bag has
-    two files: the killed one, read by scanning, and the restarted recorder's, finalized, both
-    named in metadata.yaml. The restart is recorded as NodeEvents and listed by ``rrg-bag
-    summary``; ``rrg-bag info`` and Foxglove's readers read both files (rosbags' reader needs
-    every file finalized)."""
+    two files: the killed one, which the restarted recorder closed after its last complete
+    record, and the restarted recorder's, both finalized and named in metadata.yaml. The restart
+    is recorded as NodeEvents and listed by ``rrg-bag summary``; ``rrg-bag info``, Foxglove's
+    and rosbags' readers read both files, the same messages."""
     name = "respawn"
     launcher = Launcher(
         tmp_path,
@@ -241,12 +209,16 @@ def test_a_killed_recorder_is_restarted_into_a_new_split_and_the_restart_is_in_t
     meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert meta["relative_file_paths"] == [f"{name}_0.mcap", f"{name}_1.mcap"]
     info = bag_info(bag)
-    assert [p.name for p in info.unfinalized] == [f"{name}_0.mcap"]  # killed: read by scanning
+    assert info.unfinalized == []  # the killed split was closed by the restarted recorder
     assert meta["message_count"] == info.message_count
     assert [f["message_count"] for f in meta["files"]] == [
         bag_info(p).message_count for p in info.files
     ]
-    assert f"NOT finalized: {name}_0.mcap" in text
+    assert "NOT finalized" not in text
+    assert (
+        f"closed the split {name}_0.mcap its killed recorder left open (summary)"
+        in (launcher.log_dir / "recorder.log").read_text()
+    )
     events = [m.msg for m in read_messages(bag, {NODE_EVENTS_TOPIC})]
     assert [(e.node, e.event, e.signal, e.attempt) for e in events] == [
         ("recorder", NodeEvent.EVENT_EXITED, signal.SIGKILL, 1),
@@ -260,6 +232,10 @@ def test_a_killed_recorder_is_restarted_into_a_new_split_and_the_restart_is_in_t
         for topic, v in foxglove_read(path)["topics"].items():
             fox[topic] = fox.get(topic, 0) + v["count"]
     assert {t: n for t, n in fox.items() if n} == counts
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([bag]) as reader:
+        assert sum(1 for _ in reader.messages()) == info.message_count
     from rrg_planner.bags.bag_cli import main as bag_cli
 
     capsys.readouterr()

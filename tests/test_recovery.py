@@ -10,12 +10,10 @@ from __future__ import annotations
 import json
 import os
 import signal
-import subprocess
-import sys
 
 import numpy as np
 import pytest
-from ros_testing import ROOT, RosClient, ros_env
+from ros_testing import Launcher, RosClient, ros_env
 from sensor_msgs.msg import JointState
 
 from rrg_msgs.action import RobustGrasp
@@ -24,35 +22,12 @@ from rrg_planner.bags.bag_read import read_messages
 from rrg_sim import wam
 from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES
 
-LAUNCH = [sys.executable, "-m", "rrg_planner.bringup.launch"]
-#: The module each node's process runs (to find its pid among the launcher's children).
-MODULES = {
-    "estimator": "rrg_estimator.ros.estimator_node",
-    "executor": "rrg_sim.executor.executor_node",
-    "planner": "rrg_planner.ros.planner_node",
-    "sim": "rrg_sim.ros.sim_node",
-}
-
-
-def child_pid(launcher_pid: int, module: str) -> int:
-    """The pid of the launcher's child process running ``module``."""
-    out = subprocess.run(
-        ["ps", "--ppid", str(launcher_pid), "-o", "pid=,args="],
-        capture_output=True,
-        text=True,
-        check=True,
-    ).stdout
-    pids = [int(line.split()[0]) for line in out.splitlines() if module in line]
-    assert len(pids) == 1, out
-    return pids[0]
-
-
 def kill_mid_grasp(
-    tmp_path, domain_id: int, node: str, at_step: int, name: str, *extra: str
-) -> tuple[int, str, dict | None, object]:
+    tmp_path, domain_id: int, node: str, *extra: str
+) -> tuple[int, str, dict | None, Launcher]:
     """Run a robust grasp of the box (high uncertainty, the simulator at real time), SIGKILL
-    ``node`` once step ``at_step`` is under way and the arm has left home, and return
-    (exit status, the launcher's output, the JSON outcome or None, the bag folder)."""
+    ``node`` once step 2 is under way and the arm has left home, and return (exit status, the
+    launcher's output, the JSON outcome or None, the launcher)."""
     env = ros_env(domain_id)
     watcher = RosClient(env, f"kill_{node}_watcher")
     states: list[JointState] = []
@@ -65,56 +40,33 @@ def kill_mid_grasp(
         q = np.array([js.position[js.name.index(n)] for n in ARM_JOINT_NAMES])
         return np.abs(q - wam.HOME_Q).max() > 0.05
 
-    args = [
-        *LAUNCH,
-        "--grasp",
-        "box",
-        "--level",
-        "high",
-        "--seed",
-        "3",
-        "--real-time-factor",
-        "1",
-        "--domain-id",
-        str(domain_id),
-        "--bags",
-        str(tmp_path),
-        "--bag-name",
-        name,
-        "--log-dir",
-        str(tmp_path / f"{name}_logs"),
+    launcher = Launcher(
+        tmp_path,
+        node,
+        domain_id,
+        *("--grasp", "box", "--level", "high", "--seed", "3", "--real-time-factor", "1"),
         "--json",
         *extra,
-    ]
-    proc = subprocess.Popen(
-        args, env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
     )
-    lines: list[str] = []
     try:
-        for line in proc.stdout:
-            lines.append(line)
-            if f"step {at_step}:" in line:
-                break
-        assert f"step {at_step}:" in "".join(lines), "".join(lines)
+        launcher.read_until("step 2:")
         states.clear()
         assert watcher.spin_until(arm_left_home, 120.0), "the arm did not move"
-        os.kill(child_pid(proc.pid, MODULES[node]), signal.SIGKILL)
-        rest, _ = proc.communicate(timeout=600)
+        os.kill(launcher.pid(node), signal.SIGKILL)
+        text = launcher.finish()
     except BaseException:
-        proc.kill()
+        launcher.proc.kill()
         raise
     finally:
         watcher.close()
-    text = "".join(lines) + rest
     last = text.strip().splitlines()[-1]
     outcome = json.loads(last) if last.startswith("{") else None
-    return proc.returncode, text, outcome, tmp_path / name
+    return launcher.proc.returncode, text, outcome, launcher
 
 
-def assert_no_traceback(bag_dir) -> None:
+def assert_no_traceback(launcher: Launcher) -> None:
     """No node's log holds a Python traceback."""
-    logs = bag_dir.with_name(f"{bag_dir.name}_logs")
-    for log in logs.glob("*.log"):
+    for log in launcher.log_dir.glob("*.log"):
         text = log.read_text()
         assert "Traceback" not in text, f"{log.name}:\n{text[-3000:]}"
 
@@ -141,10 +93,10 @@ def restarts_in_bag(bag_dir, node: str) -> list:
 def test_a_node_killed_mid_grasp_is_respawned_and_the_grasp_completes(
     tmp_path, ros_domain, node, extra, log, evidence
 ):
-    status, text, outcome, bag = kill_mid_grasp(tmp_path, ros_domain, node, 2, node, *extra)
+    status, text, outcome, launcher = kill_mid_grasp(tmp_path, ros_domain, node, *extra)
+    bag = launcher.bag
     assert status == 0, text
-    logs = bag.with_name(f"{bag.name}_logs")
-    assert evidence in (logs / f"{log}.log").read_text()  # the recovery path ran
+    assert evidence in (launcher.log_dir / f"{log}.log").read_text()  # the recovery path ran
     assert outcome is not None and outcome["error"] == "", text
     assert outcome["judge"], text  # the simulator judged the final grasp
     assert outcome["actions"] and outcome["actions"][-1] == "goal", text
@@ -152,7 +104,7 @@ def test_a_node_killed_mid_grasp_is_respawned_and_the_grasp_completes(
     assert events, f"no restart of the {node} in the bag"
     info = bag_info(bag)
     assert info.finalized, text
-    assert_no_traceback(bag)
+    assert_no_traceback(launcher)
     # no observation was lost: the estimator published a belief of each one's stamp
     stamps: dict[str, set] = {}
     for m in read_messages(bag, topics=["/rrg/observation", "/rrg/belief"]):
@@ -162,9 +114,9 @@ def test_a_node_killed_mid_grasp_is_respawned_and_the_grasp_completes(
 
 @pytest.mark.slow  # a robust grasp of the ROS graph at real time
 def test_a_simulator_killed_mid_grasp_aborts_the_grasp_as_a_robot_fault(tmp_path, ros_domain):
-    status, text, outcome, bag = kill_mid_grasp(tmp_path, ros_domain, "sim", 2, "sim")
+    status, text, outcome, launcher = kill_mid_grasp(tmp_path, ros_domain, "sim")
     assert status == 1, text
     assert outcome is not None, text
     assert f"robust_grasp error {RobustGrasp.Result.ROBOT_FAULT}" in outcome["error"], text
-    assert bag_info(bag).finalized, text
-    assert_no_traceback(bag)
+    assert bag_info(launcher.bag).finalized, text
+    assert_no_traceback(launcher)

@@ -195,3 +195,19 @@ def finalize_in_place(file: BinaryIO, path: Path, end: int) -> str:
     except OSError:
         pass  # the readers stop at the last complete record anyway
     return CUT
+
+
+def close_unfinished(path: Path) -> str:
+    """Close the MCAP file of a writer that was killed (no summary, perhaps cut inside a record)
+    after its last complete record, as ``finalize_in_place`` does; returns how far. A file that
+    does not even hold the opening magic is left as it is (CUT): readers skip it."""
+    with path.open("rb") as file:
+        if file.read(MAGIC_SIZE) != MCAP0_MAGIC:
+            return CUT
+    end = MAGIC_SIZE
+    for offset, opcode, content in data_records(path, path.stat().st_size):
+        if opcode in (Opcode.DATA_END, Opcode.FOOTER):
+            break
+        end = offset + RECORD_PREFIX + len(content)
+    with path.open("r+b", buffering=0) as file:
+        return finalize_in_place(file, path, end)

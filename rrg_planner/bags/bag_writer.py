@@ -30,8 +30,21 @@ from typing import BinaryIO
 import yaml
 from mcap.writer import CompressionType, Writer
 
-from rrg_planner.bags.bag_finalize import FOOTER, SUMMARY, finalize_in_place, write_all
-from rrg_planner.bags.bag_info import BagInfo, file_info, iso_time, raw_messages, splits
+from rrg_planner.bags.bag_finalize import (
+    FOOTER,
+    SUMMARY,
+    close_unfinished,
+    finalize_in_place,
+    write_all,
+)
+from rrg_planner.bags.bag_info import (
+    BagInfo,
+    file_info,
+    is_finalized,
+    iso_time,
+    raw_messages,
+    splits,
+)
 from rrg_planner.bags.bag_schema import SCHEMA_ENCODING, full_definition
 
 PROFILE = "ros2"
@@ -210,8 +223,11 @@ class Rosbag2McapWriter:
     footer) and writes metadata.yaml. The folder must not exist yet (as with rosbag2), unless
     ``append``: then the writer adds the split after the folder's last one (a restarted
     recorder), lists every split in metadata.yaml, and skips the messages of latched topics that
-    an earlier split holds (a restarted recorder receives their history again). The first write
-    that fails raises RecordingStopped (``failure``); the writer then drops every message.
+    an earlier split holds (a restarted recorder receives their history again). An earlier split
+    its killed recorder left open is first closed after its last complete record
+    (bag_finalize.close_unfinished), so that every reader, rosbags' too, opens the bag. The
+    first write that fails raises RecordingStopped (``failure``); the writer then drops every
+    message.
     ``open_file`` opens the split for unbuffered writing (tests pass a file that fails).
     """
 
@@ -228,6 +244,10 @@ class Rosbag2McapWriter:
             raise FileExistsError(f"bag folder already exists: {self.bag_dir}")
         self.bag_dir.mkdir(parents=True, exist_ok=True)
         earlier = splits(self.bag_dir)
+        #: earlier splits a killed recorder left open, and how far each was closed now
+        self.closed_earlier: dict[str, str] = {
+            path.name: close_unfinished(path) for path in earlier.values() if not is_finalized(path)
+        }
         self.earlier = [SplitRecord.of(file_info(path)) for path in earlier.values()]
         self.repeats = self._latched_messages(list(earlier.values()))
         self.repeats_skipped = 0
@@ -268,9 +288,17 @@ class Rosbag2McapWriter:
         type_description_hash: str = "",
     ) -> TopicRecord:
         """Register a topic of ``msg_type`` (``pkg/msg/Type``); raises UnknownMessageType when
-        its .msg definition cannot be found."""
+        its .msg definition cannot be found. A topic that an earlier split holds keeps that
+        split's QoS profiles and hash, so that every split's channel is the one topic that
+        metadata.yaml lists (readers such as rosbags match them exactly)."""
         if name in self.topics:
             raise ValueError(f"topic already registered: {name}")
+        for split in self.earlier:
+            known = next((t for t in split.topics if t.name == name and t.type == msg_type), None)
+            if known is not None:
+                offered_qos_profiles = known.offered_qos_profiles
+                type_description_hash = known.type_description_hash
+                break
         if self.failure is not None:  # not in the file: nothing to register
             record = TopicRecord(name, msg_type, offered_qos_profiles, type_description_hash, -1)
             self.topics[name] = record

@@ -291,6 +291,10 @@ def main(argv: list[str] | None = None) -> int:
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, lambda signum, _frame: signals.append(signum))
         recorder = BagRecorder(writer)
+        for name, how in writer.closed_earlier.items():
+            recorder.get_logger().warn(
+                f"closed the split {name} its killed recorder left open ({how})"
+            )
         executor = SingleThreadedExecutor()
         executor.add_node(recorder)
         # spin_once in a loop: a node blocked in spin() sometimes misses the first SIGINT.
