@@ -136,7 +136,7 @@ class BeliefTracker:
         self.levels = tuple(levels)
         self.variable_resolution = variable_resolution
         #: the last WRT, its estimate and whether it stopped early, until the hand retreats from it
-        self._pending: tuple[WRT, np.ndarray, bool] | None = None
+        self.pending: tuple[WRT, np.ndarray, bool] | None = None
 
     @classmethod
     def gaussian(
@@ -169,26 +169,21 @@ class BeliefTracker:
         wrt = self.tables.wrt(wrt_name)
         prior = self._after_retreat()
         post = wrt_posterior(prior, self.tables.table(wrt_name, prior.grid), wrt, e, obs)
-        self.belief, self._pending = post, (wrt, np.asarray(e, dtype=float), bool(obs.contact))
+        self.belief, self.pending = post, (wrt, np.asarray(e, dtype=float), bool(obs.contact))
         return post
 
     def retreated(self) -> Belief:
         """The belief once the hand retreated from the last WRT: re-gridded finer if it has
         concentrated, then moved as a goal grasp that arrived settles the object. Nothing
         changes when no update is pending."""
-        self.belief, self._pending = self._after_retreat(), None
+        self.belief, self.pending = self._after_retreat(), None
         return self.belief
 
     def _after_retreat(self) -> Belief:
         """The pending retreat's transition applied to the belief (the belief itself if none)."""
-        if self._pending is None:
+        if self.pending is None:
             return self.belief
         belief = self.belief
         if self.variable_resolution:
             belief = maybe_refine(belief, self.levels) or belief
-        return settle_after_grasp(belief, self.obj, *self._pending)
-        belief = self.belief
-        if self.variable_resolution:
-            belief = maybe_refine(belief, self.levels) or belief
-        self.belief, self._pending = settle_after_grasp(belief, self.obj, *self._pending), None
-        return self.belief
+        return settle_after_grasp(belief, self.obj, *self.pending)

@@ -44,12 +44,18 @@ from rrg_sim.wrt import WRT, InfeasibleWRT
 log = logging.getLogger(__name__)
 
 
+class ExecutionLost(RuntimeError):
+    """The execution was lost with a node that died; the hand is back home, and the belief
+    holds whatever of it the estimator saw. The agent chooses again on the current belief."""
+
+
 class World(Protocol):
     """What executes the agent's WRTs: an in-process environment, or the executor node."""
 
     def execute(self, wrt: WRT, e: np.ndarray) -> Observation:
         """Run τ(e) with guarded moves, close the fingers, and return the observation; raise
-        InfeasibleWRT when τ(e) cannot run (nothing moved)."""
+        InfeasibleWRT when τ(e) cannot run (nothing moved), ExecutionLost when the execution
+        was lost and the hand brought home."""
 
     def retreat(self) -> None:
         """Open the hand and retrace the last WRT's path back home."""
@@ -153,8 +159,9 @@ class ClosedLoop:
     """One robust grasp: the agent decides, the world executes, the estimator updates.
 
     Hooks (each optional): ``on_decision(decision)`` before a WRT runs, ``on_infeasible(decision,
-    reason)`` when it could not run, ``on_step(step, belief)`` after its update; ``canceled()``
-    is asked before every decision and stops the run with GraspCanceled.
+    reason)`` when it could not run, ``on_lost(decision, reason)`` when its execution was lost,
+    ``on_step(step, belief)`` after its update; ``canceled()`` is asked before every decision
+    and stops the run with GraspCanceled.
     """
 
     def __init__(
@@ -166,17 +173,24 @@ class ClosedLoop:
         on_infeasible: Callable[[Decision, str], None] | None = None,
         on_step: Callable[[Step, Belief], None] | None = None,
         canceled: Callable[[], bool] | None = None,
+        on_lost: Callable[[Decision, str], None] | None = None,
     ):
         self.agent, self.world, self.estimator = agent, world, estimator
         self.on_decision, self.on_infeasible, self.on_step = on_decision, on_infeasible, on_step
+        self.on_lost = on_lost
         self.canceled = canceled or (lambda: False)
         self.steps: list[Step] = []
+        #: (action, estimate (3,)) of every execution found infeasible, as the agent blocked it
+        self.blocked: list[tuple[int, np.ndarray]] = []
         self.planning_time = 0.0  # s
         self.p_goal = float("nan")
 
-    def run(self) -> GraspRun:
-        """Step until the agent stops (a goal grasp believed to hold, or the last action)."""
-        self.agent.search.clear()
+    def run(self, resume: bool = False) -> GraspRun:
+        """Step until the agent stops (a goal grasp believed to hold, or the last action).
+        resume: go on from the steps the loop holds (rrg_planner.grasp_state) instead of
+        starting afresh."""
+        if not resume:
+            self.agent.search.clear()
         belief = self.estimator.belief
         while True:  # ends at the last action, which is always the goal grasp
             run, belief = self.step(belief)
@@ -207,11 +221,17 @@ class ClosedLoop:
             if self.on_infeasible:
                 self.on_infeasible(decision, str(exc))
             agent.search.block(decision.action, e)
+            self.blocked.append((decision.action, np.array(e, dtype=float)))
             if len(agent.search.blocked) > MAX_BLOCKED:
                 return self._end(
                     False, belief, f"{len(agent.search.blocked)} infeasible executions"
                 ), belief
             return None, belief
+        except ExecutionLost as exc:  # the hand is home again: choose again on the belief now
+            log.warning("%s at %s lost (%s): replanning", decision.wrt, np.round(e, 3), exc)
+            if self.on_lost:
+                self.on_lost(decision, str(exc))
+            return None, self.estimator.belief
         agent.executed(decision.action, e)
         posterior = self.estimator.update(decision.wrt, e, obs)
         p_exec = agent.grasp_probability(posterior, decision.action, e)

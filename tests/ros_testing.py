@@ -5,7 +5,9 @@ rclpy 7.1.6 spin_until_future_complete bug: see shared/notes/ros2-on-pip.md)."""
 from __future__ import annotations
 
 import fcntl
+import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -18,6 +20,8 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 
 ROOT = Path(__file__).resolve().parents[1]
+#: Foxglove's bag readers, which scripts/setup.sh installs with npm.
+NODE_MODULES = ROOT / ".cache" / "npm" / "node_modules"
 #: Domain ids 1-101 (ids above 101 collide with Linux's ephemeral ports; domain 0 is the default
 #: every unconfigured ROS process on the host uses).
 DOMAIN_IDS = range(1, 102)
@@ -90,16 +94,30 @@ def ros_settings(env: dict) -> dict[str, str | None]:
 
 
 def start_node(
-    module: str, env: dict, log_path: Path, params: dict | None = None
+    module: str, env: dict, log_path: Path, params: dict | None = None, options: list[str] = ()
 ) -> subprocess.Popen:
-    """``python -m module --ros-args -p k:=v ...`` with stdout and stderr in ``log_path``."""
-    args = [sys.executable, "-m", module]
+    """``python -m module OPTIONS --ros-args -p k:=v ...`` with stdout and stderr in
+    ``log_path``."""
+    args = [sys.executable, "-m", module, *options]
     if params:
         args.append("--ros-args")
         for k, v in params.items():
             args += ["-p", f"{k}:={v}"]
     with log_path.open("w") as log:  # the child writes to its own copy of the descriptor
         return subprocess.Popen(args, env=env, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT)
+
+
+def foxglove_read(mcap: Path) -> dict:
+    """What Foxglove's readers decode of one MCAP file (tests/foxglove_bag_reader.cjs prints it:
+    profile, indexed, per topic its schema and message count, each topic's last message)."""
+    out = subprocess.run(
+        ["node", str(ROOT / "tests" / "foxglove_bag_reader.cjs"), str(NODE_MODULES), str(mcap)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout)
 
 
 def stop_process(proc: subprocess.Popen, timeout_s: float = 10.0) -> int:
@@ -170,3 +188,40 @@ def node_processes(specs: list[tuple[str, dict]], env: dict, log_dir: Path):
     finally:
         for p in procs:
             stop_process(p)
+
+
+class Launcher:
+    """``rrg-launch`` as a process in the test's domain, recording to ``tmp_path/name``, with
+    its output read line by line."""
+
+    def __init__(self, tmp_path: Path, name: str, domain_id: int, *args: str):
+        self.bag = tmp_path / name
+        self.log_dir = tmp_path / "logs"
+        self.lines: list[str] = []
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "rrg_planner.bringup.launch", *args]
+            + ["--domain-id", str(domain_id), "--bags", str(tmp_path), "--bag-name", name]
+            + ["--log-dir", str(self.log_dir)],
+            env=ros_env(domain_id),
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+
+    def read_until(self, what: str) -> str:
+        """The first line from here on that contains ``what``."""
+        for line in self.proc.stdout:
+            self.lines.append(line)
+            if what in line:
+                return line
+        raise AssertionError(f"no {what!r} in the output:\n{''.join(self.lines)}")
+
+    def pid(self, node: str) -> int:
+        """The process id of a child, as the launcher printed it at the start."""
+        return int(re.search(rf"\b{node} pid (\d+)", "".join(self.lines))[1])
+
+    def finish(self) -> str:
+        """Its whole output once it has exited."""
+        rest, _ = self.proc.communicate(timeout=300)
+        return "".join(self.lines) + rest

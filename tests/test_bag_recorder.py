@@ -4,7 +4,6 @@ Also the ROS-free parts: schema text, the bag writer, and ``rrg-bag info`` on a 
 
 from __future__ import annotations
 
-import json
 import shutil
 import signal
 import subprocess
@@ -34,8 +33,6 @@ from rrg_planner.bags.bag_schema import SEPARATOR, full_definition
 from rrg_planner.bags.bag_writer import Rosbag2McapWriter
 from rrg_planner.bags.recorder_node import BagRecorder
 
-ROOT = Path(__file__).resolve().parents[1]
-NODE_MODULES = ROOT / ".cache" / "npm" / "node_modules"
 RECORDER = "rrg_bag_recorder"
 
 # topic: (type, number of messages published while recording)
@@ -245,19 +242,7 @@ def test_rosbags_decodes_every_message(recorded_bag):
 
 @pytest.mark.slow  # a recorder process
 def test_foxglove_readers_decode_every_message(recorded_bag):
-    out = subprocess.run(
-        [
-            "node",
-            str(ROOT / "tests" / "foxglove_bag_reader.cjs"),
-            str(NODE_MODULES),
-            str(recorded_bag / "recorder_test_0.mcap"),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    assert out.returncode == 0, out.stderr
-    result = json.loads(out.stdout)
+    result = ros_testing.foxglove_read(recorded_bag / "recorder_test_0.mcap")
     assert result["profile"] == "ros2"
     for name, n in VOLATILE_COUNTS.items():
         assert result["topics"][name]["count"] == n

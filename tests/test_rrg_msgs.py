@@ -31,6 +31,7 @@ MESSAGES = [
     "FingertipContact",
     "Observation",
     "WorldRelativeTrajectory",
+    "NodeEvent",
 ]
 SERVICES = ["SelectAction", "ResetBelief", "GetBelief", "ResetSim", "HandCommand"]
 ACTIONS = ["GuardedMove", "ExecuteWrt", "RobustGrasp"]

@@ -15,11 +15,20 @@ retreat (header and metadata.update_time), so a client can wait for the update o
 caused. Every retreat gets a belief of its stamp, even one with nothing to apply. An
 observation that cannot be used (no belief yet, another object, an unknown WRT, a malformed
 or impossible observation) is logged as an error and the belief is kept.
+
+Recovery: with ``state_file`` set, the estimator writes its state (rrg_estimator.persistence:
+the belief, its grid level, the pending retreat and the last event's stamp) after every reset,
+update and retreat, before it publishes. A restarted estimator restores it and publishes the
+restored belief again. The executor's ``/rrg/observation`` and ``/rrg/retreated`` are latched,
+so a restarted estimator also receives the last of each: it applies the one its state does not
+include yet (newer than its last event) and skips the other, so an event that arrived while
+it was down is not lost and none is applied twice.
 """
 
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -28,15 +37,23 @@ from rclpy.node import Node
 from visualization_msgs.msg import MarkerArray
 
 from rrg_estimator.config import LEVELS
+from rrg_estimator.persistence import EstimatorState, StateError, load_state, save_state
 from rrg_estimator.ros.belief_msgs import belief_markers, belief_to_msg
 from rrg_estimator.tracker import BeliefTracker, CachedTables
 from rrg_msgs.msg import BeliefGrid, Retreated
 from rrg_msgs.msg import Observation as ObservationMsg
 from rrg_msgs.srv import GetBelief, ResetBelief
 from rrg_sim.objects import get_object
-from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, observation_from_msg, planar_from_msg
+from rrg_sim.ros_common.liveliness import announce
+from rrg_sim.ros_common.msg_conversions import (
+    WORLD_FRAME,
+    ns_to_stamp,
+    observation_from_msg,
+    planar_from_msg,
+    stamp_to_ns,
+)
 from rrg_sim.ros_common.node_main import keep_serving, run_node
-from rrg_sim.ros_common.qos import LATCHED
+from rrg_sim.ros_common.qos import EVENTS, LATCHED
 
 NODE_NAME = "estimator"
 NAMESPACE = "rrg"
@@ -77,22 +94,101 @@ class EstimatorNode(Node):
                 description="Re-grid the belief at the low level's spacing once it has concentrated"
             ),
         )
+        self.declare_parameter(
+            "state_file",
+            "",
+            ParameterDescriptor(
+                description="File the estimator writes its state to after every event and "
+                "restores it from when it starts ('' = no persistence)",
+                read_only=True,
+            ),
+        )
         self.frame_id = self.get_parameter("frame_id").value
+        state_file = self.get_parameter("state_file").value
+        self.state_file = Path(state_file) if state_file else None
         self.tracker: BeliefTracker | None = None
         self._map_load_time = Time()
+        self._last_event_ns = 0  # stamp [ns] of the last event the belief includes
+        self._started_ns = self.get_clock().now().nanoseconds
         self._belief_msg: BeliefGrid | None = None
         self.belief_pub = self.create_publisher(BeliefGrid, "belief", LATCHED)
         self.marker_pub = self.create_publisher(MarkerArray, "belief_markers", LATCHED)
-        self.create_subscription(ObservationMsg, "observation", self.on_observation, 10)
-        self.create_subscription(Retreated, "retreated", self.on_retreated, 10)
+        self.restore()
+        self.create_subscription(ObservationMsg, "observation", self.on_observation, EVENTS)
+        self.create_subscription(Retreated, "retreated", self.on_retreated, EVENTS)
         self.create_service(ResetBelief, "reset_belief", self.on_reset_belief)
         self.create_service(GetBelief, "get_belief", self.on_get_belief)
-        self.get_logger().info("estimator ready: call reset_belief to start a belief")
+        announce(self, NODE_NAME)
+        if self.tracker is None:
+            self.get_logger().info("estimator ready: call reset_belief to start a belief")
+
+    # ------------------------------------------------------------------ persistence
+    def restore(self) -> None:
+        """Restore the state of ``state_file``, if there is one, and publish its belief."""
+        if self.state_file is None:
+            return
+        log = self.get_logger()
+        try:
+            state = load_state(self.state_file)
+            tracker = state.tracker(
+                CachedTables(get_object(state.object_name), workers=1),
+                variable_resolution=self.get_parameter("variable_resolution").value,
+            )
+        except FileNotFoundError:
+            return
+        except (StateError, KeyError) as exc:
+            log.error(f"state not restored, starting without a belief: {exc}")
+            return
+        tracker.preload()
+        self.tracker, self._last_event_ns = tracker, state.last_event_ns
+        self._map_load_time = ns_to_stamp(state.map_load_ns)
+        self.publish_belief(ns_to_stamp(state.last_event_ns))
+        log.warn(
+            f"restored the belief about {state.object_name} from {self.state_file}: w* = "
+            f"{np.round(tracker.belief.w_star(), 3).tolist()}, grid spacing "
+            f"{tracker.belief.grid.spacing}, retreat pending: {state.pending_wrt or 'none'}"
+        )
+
+    def persist(self) -> None:
+        """Write the state to ``state_file`` (if set); a failed write is logged, not fatal."""
+        if self.state_file is None or self.tracker is None:
+            return
+        try:
+            save_state(
+                self.state_file,
+                EstimatorState.of(
+                    self.tracker, self._last_event_ns, stamp_to_ns(self._map_load_time)
+                ),
+            )
+        except OSError as exc:
+            self.get_logger().error(
+                f"could not write the state to {self.state_file} ({exc}); a restart would "
+                "lose the belief"
+            )
+
+    def already_applied(self, stamp: Time, what: str) -> bool:
+        """Whether the event of ``stamp`` is older than the belief (a latched event that a
+        restarted estimator receives again, or one from before this estimator started)."""
+        if stamp_to_ns(stamp) > self._last_event_ns and (
+            self.tracker is not None or stamp_to_ns(stamp) >= self._started_ns
+        ):
+            return False
+        self.get_logger().info(
+            f"{what} of {stamp_to_ns(stamp)} ns already applied or stale: skipped"
+        )
+        return True
 
     # ------------------------------------------------------------------ publishing
-    def publish_belief(self, stamp: Time, new_grid: bool) -> BeliefGrid:
+    def commit(self, stamp: Time, new_grid: bool) -> BeliefGrid:
+        """The belief now includes the event of ``stamp``: persist the state, then publish."""
         if new_grid:
             self._map_load_time = stamp
+        self._last_event_ns = stamp_to_ns(stamp)
+        self.persist()
+        return self.publish_belief(stamp)
+
+    def publish_belief(self, stamp: Time) -> BeliefGrid:
+        """Publish the tracker's belief stamped ``stamp``, and its markers."""
         belief = self.tracker.belief
         msg = belief_to_msg(belief, stamp, self._map_load_time, self.frame_id)
         self._belief_msg = msg
@@ -117,6 +213,8 @@ class EstimatorNode(Node):
                 "(call reset_belief)"
             )
             return
+        if self.already_applied(msg.header.stamp, f"observation of {msg.wrt_name}"):
+            return
         if msg.object_name != self.tracker.obj.name:
             log.error(
                 f"observation of object {msg.object_name!r} ignored: the belief is about "
@@ -136,13 +234,15 @@ class EstimatorNode(Node):
                 f"observation of {msg.wrt_name} ignored: {type(exc).__name__}: {exc}; belief kept"
             )
             return
-        self.publish_belief(msg.header.stamp, belief.grid != old_grid)
+        self.commit(msg.header.stamp, belief.grid != old_grid)
         log.info(
             f"updated with {msg.wrt_name} (contact={msg.contact}): w* = "
             f"{np.round(belief.w_star(), 3).tolist()}, grid spacing {belief.grid.spacing}"
         )
 
     def on_retreated(self, msg: Retreated) -> None:
+        if self.already_applied(msg.header.stamp, f"retreat from {msg.wrt_name or 'nothing'}"):
+            return
         if self.tracker is None:
             self.get_logger().warn(
                 f"retreat from {msg.object_name}/{msg.wrt_name} ignored: no belief yet"
@@ -156,7 +256,7 @@ class EstimatorNode(Node):
                 f"retreat from {msg.wrt_name} not applied: {type(exc).__name__}: {exc}"
             )
             belief = self.tracker.belief
-        self.publish_belief(msg.header.stamp, belief.grid != old_grid)
+        self.commit(msg.header.stamp, belief.grid != old_grid)
         self.get_logger().info(
             f"retreated from {msg.wrt_name or 'nothing'}: w* = "
             f"{np.round(belief.w_star(), 3).tolist()}, grid spacing {belief.grid.spacing}"
@@ -199,7 +299,7 @@ class EstimatorNode(Node):
             else:
                 tracker.preload()
                 self.tracker = tracker
-                resp.belief = self.publish_belief(self.get_clock().now().to_msg(), new_grid=True)
+                resp.belief = self.commit(self.get_clock().now().to_msg(), new_grid=True)
                 self.get_logger().info(
                     f"belief reset: {req.object_name} at {np.round(mean, 3).tolist()}, "
                     f"sigma {np.round(sigma, 3).tolist()}, grid {tracker.belief.grid.spacing}"

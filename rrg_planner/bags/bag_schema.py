@@ -115,3 +115,26 @@ def message_class(type_name: str) -> type:
     """The generated Python class of ``pkg/msg/Type``."""
     package, kind, name = type_name.split("/")
     return getattr(importlib.import_module(f"{package}.{kind}"), name)
+
+
+def layout(text: str) -> list[str]:
+    """What decoding a ros2msg schema text depends on: each nested type's ``MSG:`` line and the
+    fields' types and names in order, without comments, constants and default values."""
+    out = []
+    for line in text.splitlines():
+        tokens = line.split("#", 1)[0].split()
+        if tokens[:1] == ["MSG:"]:
+            out.append(" ".join(tokens))
+        elif len(tokens) >= 2 and "=" not in tokens[1] and tokens[2:3] != ["="]:
+            out.append(f"{tokens[0]} {tokens[1]}")
+    return out
+
+
+def same_layout(type_name: str, recorded: str) -> bool:
+    """Whether a recorded schema text of ``type_name`` decodes as this version's type (the same
+    fields in the same order, in every nested type)."""
+    try:
+        current = full_definition(type_name)
+    except (UnknownMessageType, ValueError):
+        return False
+    return layout(recorded) == layout(current)

@@ -2,7 +2,8 @@
 
 From the planner's decisions (``/rrg/grasp_step``), the executor's observations
 (``/rrg/observation``) and the simulator's judgement (``/rrg/eval/grasp_outcome``, when the
-launcher asked for one).
+launcher asked for one); and the launcher's restarts of nodes that died
+(``/rrg/launch/node_events``).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from rrg_planner.bags.bag_read import (
     BELIEF_TOPIC,
     GRASP_OUTCOME_TOPIC,
     GRASP_STEP_TOPIC,
+    NODE_EVENTS_TOPIC,
     OBSERVATION_TOPIC,
     read_messages,
 )
@@ -47,15 +49,19 @@ class GraspSummary:
     replanned: list[str] = field(default_factory=list)  # WRTs found infeasible before moving
     planner_outcome: dict = field(default_factory=dict)  # the planner's "done" record
     judged_outcome: dict = field(default_factory=dict)  # the simulator's judgement
+    node_events: list[str] = field(default_factory=list)  # the launcher's, in words, in order
 
 
 def summarize(bag: str | Path) -> GraspSummary:
-    """The last robust grasp recorded in a bag."""
+    """The last robust grasp recorded in a bag, and every node exit and restart."""
     s = GraspSummary()
     for m in read_messages(
-        bag, {GRASP_STEP_TOPIC, OBSERVATION_TOPIC, GRASP_OUTCOME_TOPIC, BELIEF_TOPIC}
+        bag,
+        {GRASP_STEP_TOPIC, OBSERVATION_TOPIC, GRASP_OUTCOME_TOPIC, BELIEF_TOPIC, NODE_EVENTS_TOPIC},
     ):
-        if m.topic == BELIEF_TOPIC:
+        if m.topic == NODE_EVENTS_TOPIC:
+            s.node_events.append(m.msg.message)
+        elif m.topic == BELIEF_TOPIC:
             s.beliefs += 1
         elif m.topic == GRASP_STEP_TOPIC:
             r = m.msg
@@ -113,8 +119,11 @@ def summarize(bag: str | Path) -> GraspSummary:
 
 
 def format_summary(s: GraspSummary) -> str:
+    restarts = [  # the launcher's node events, one per line
+        f"{'Restarts:' if k == 0 else '':<11}{e}" for k, e in enumerate(s.node_events or ["none"])
+    ]
     if not s.steps:
-        return "no robust grasp recorded in this bag"
+        return "\n".join(["no robust grasp recorded in this bag", *restarts])
     lines = [
         f"Object:    {s.object_name}",
         f"Strategy:  {s.strategy}",
@@ -147,4 +156,4 @@ def format_summary(s: GraspSummary) -> str:
         lines.append("Planner:   no outcome recorded (interrupted?)")
     if s.judged_outcome:
         lines.append(f"Simulator: {s.judged_outcome['message']}")
-    return "\n".join(lines)
+    return "\n".join([*lines, *restarts])

@@ -2,7 +2,7 @@
 
 Run as a process, e.g. as the launcher's child::
 
-    python -m rrg_planner.bags.recorder_node --output bags/NAME \
+    python -m rrg_planner.bags.recorder_node --output bags/NAME [--append] \
         [--ros-args -p discovery_period:=0.2]
 
 It polls the graph for topics, subscribes to each new one with ``raw=True`` (CDR bytes as they
@@ -11,7 +11,13 @@ are captured even when they were published before the recorder saw them. Hidden 
 name part starting with ``_``, e.g. actions' internal topics) are skipped, as ``ros2 bag record
 --all`` does. SIGINT, SIGTERM or Ctrl-C stop it: it first writes the messages it has already
 received (``BagRecorder.drain``, at most DRAIN_S; a second signal cuts that short), then
-finalizes the bag, which it always does.
+finalizes the bag, which it always does. Every ``flush_period`` it writes what it has received
+to the file as a complete chunk, so a SIGKILL loses at most that much. With ``--append`` (the
+launcher restarting a recorder that died) it writes the next split of an existing bag folder
+(design §8). When a write fails (the disk is full) it logs one error, stops recording (the bag
+written so far is closed and stays readable; later messages are dropped and counted) and keeps
+running, so the launcher does not restart it. A bag it cannot create ends it with one line and
+exit status 1.
 """
 
 from __future__ import annotations
@@ -35,7 +41,7 @@ from rclpy.topic_endpoint_info import TopicEndpointInfo
 from rclpy.utilities import remove_ros_args
 
 from rrg_planner.bags.bag_schema import UnknownMessageType, message_class
-from rrg_planner.bags.bag_writer import Rosbag2McapWriter
+from rrg_planner.bags.bag_writer import RecordingStopped, Rosbag2McapWriter
 
 NODE_NAME = "rrg_bag_recorder"
 #: Longest time [s] spent writing the already received messages after a stop signal (below the
@@ -103,6 +109,16 @@ class BagRecorder(Node):
             ),
         )
         self.declare_parameter(
+            "flush_period",
+            1.0,
+            ParameterDescriptor(
+                description="Period [s] of writing the received messages to the file as a "
+                "complete chunk (at most this much is lost when the recorder is killed)",
+                floating_point_range=[FloatingPointRange(from_value=0.1, to_value=60.0)],
+                read_only=True,
+            ),
+        )
+        self.declare_parameter(
             "exclude_topics",
             [""],
             ParameterDescriptor(
@@ -115,13 +131,15 @@ class BagRecorder(Node):
         self.writer = writer
         self._recorded: dict[str, Subscription] = {}
         self._skipped: set[str] = set()
-        self.discover()
         self._discovery = self.create_timer(
             self.get_parameter("discovery_period").value, self.discover
         )
+        self._flush = self.create_timer(self.get_parameter("flush_period").value, self.flush)
+        self.discover()
         self.get_logger().info(
-            f"recording all topics to {writer.bag_dir}"
+            f"recording all topics to {writer.mcap_path}"
             + (f" except {', '.join(sorted(self._excluded))}" if self._excluded else "")
+            + (f" (after the bag's {len(writer.earlier)} earlier files)" if writer.earlier else "")
         )
 
     def discover(self) -> None:
@@ -154,6 +172,9 @@ class BagRecorder(Node):
             self.get_logger().error(f"not recording {topic} ({msg_type}): {exc}")
             self._skipped.add(topic)
             return
+        except RecordingStopped as stop:
+            self.stopped(stop)
+            return
         qos = subscription_qos(publishers, self._depth)
         self._recorded[topic] = self.create_subscription(
             cls, topic, lambda data, info, t=topic: self._on_message(t, data, info), qos, raw=True
@@ -162,7 +183,25 @@ class BagRecorder(Node):
 
     def _on_message(self, topic: str, data: bytes, info: dict) -> None:
         log_time = info.get("received_timestamp") or time.time_ns()
-        self.writer.write(topic, data, log_time, info.get("source_timestamp") or log_time)
+        try:
+            self.writer.write(topic, data, log_time, info.get("source_timestamp") or log_time)
+        except RecordingStopped as stop:
+            self.stopped(stop)
+
+    def flush(self) -> None:
+        """Write the received messages to the file as a complete chunk (the flush timer)."""
+        try:
+            self.writer.flush()
+        except RecordingStopped as stop:
+            self.stopped(stop)
+
+    def stopped(self, stop: RecordingStopped) -> None:
+        """The bag cannot be written any more: say so once, and stop discovering and flushing.
+        The subscriptions stay, so the dropped messages are counted, and the node keeps running
+        (a recorder that exited would be restarted into the same full disk)."""
+        self.get_logger().error(str(stop))
+        self._discovery.cancel()
+        self._flush.cancel()
 
     def drain(self, executor: SingleThreadedExecutor, budget_s: float, stop=lambda: False) -> int:
         """Write the messages already received, without waiting for new ones: run every ready
@@ -185,7 +224,7 @@ class BagRecorder(Node):
             idle = False
             handler()
             handler.result()  # raise what the callback raised
-        return self.writer.stats.message_count - before
+        return max(0, self.writer.stats.message_count - before)  # (0 once recording stopped)
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -198,27 +237,64 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         "-o",
         required=True,
         type=Path,
-        help="bag folder to create (e.g. bags/NAME); must not exist",
+        help="bag folder to create (e.g. bags/NAME); must not exist, unless --append",
+    )
+    parser.add_argument(
+        "--append",
+        action="store_true",
+        help="write the next split <NAME>_<k>.mcap of an existing bag folder (a restarted "
+        "recorder); messages of latched topics that an earlier split holds are not written again",
     )
     return parser.parse_args(remove_ros_args(argv)[1:])
+
+
+def closing_report(writer: Rosbag2McapWriter) -> str:
+    """The recorder's last line: what the bag file holds, and what it does not."""
+    split = writer.this_split()
+    return (
+        f"bag closed: {writer.mcap_path} ({split.stats.message_count} messages on "
+        f"{len(split.topics)} topics, {split.stats.duration_ns / 1e9:.3f} s"
+        + (
+            f"; {writer.repeats_skipped} latched messages an earlier file holds not written"
+            if writer.repeats_skipped
+            else ""
+        )
+        + (
+            f"; recording had stopped: {writer.dropped} messages not recorded"
+            if writer.failure is not None
+            else ""
+        )
+        + ")"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv if argv is None else argv
     args = parse_args(argv)
-    if args.output.exists():
+    if args.output.exists() and not args.append:
         print(f"bag folder already exists: {args.output}", file=sys.stderr)
         return 1
-    # rclpy's own handlers would shut the context down at the signal, and with it the
-    # subscriptions whose received messages are still to be written: count the signals instead
-    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        writer = Rosbag2McapWriter(args.output, append=args.append)
+    except OSError as exc:  # not writable, not a folder, the disk full, ...
+        print(
+            f"{NODE_NAME}: cannot create the bag {args.output}: {exc.strerror or exc}",
+            file=sys.stderr,
+        )
+        return 1
     signals: list[int] = []
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda signum, _frame: signals.append(signum))
-    writer = Rosbag2McapWriter(args.output)
     recorder = None
     try:
+        # rclpy's own handlers would shut the context down at the signal, and with it the
+        # subscriptions whose received messages are still to be written: count the signals
+        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda signum, _frame: signals.append(signum))
         recorder = BagRecorder(writer)
+        for name, how in writer.closed_earlier.items():
+            recorder.get_logger().warn(
+                f"closed the split {name} its killed recorder left open ({how})"
+            )
         executor = SingleThreadedExecutor()
         executor.add_node(recorder)
         # spin_once in a loop: a node blocked in spin() sometimes misses the first SIGINT.
@@ -226,18 +302,28 @@ def main(argv: list[str] | None = None) -> int:
             executor.spin_once(timeout_sec=0.1)
         if signals and rclpy.ok():
             n = recorder.drain(executor, DRAIN_S, stop=lambda: len(signals) > 1)
-            recorder.get_logger().info(f"stopping: wrote {n} messages received before the signal")
+            recorder.get_logger().info(
+                "stopping"
+                if writer.failure is not None
+                else f"stopping: wrote {n} messages received before the signal"
+            )
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        reported = writer.failure
         writer.close()  # always: the MCAP summary and footer, then metadata.yaml
         if recorder is not None:
-            recorder.destroy_node()  # first, so the message below does not go to /rosout
-        s = writer.stats
-        rclpy.logging.get_logger(NODE_NAME).info(
-            f"bag closed: {writer.bag_dir} ({s.message_count} messages on "
-            f"{len(writer.topics)} topics, {s.duration_ns / 1e9:.3f} s)"
-        )
+            recorder.destroy_node()  # first, so the messages below do not go to /rosout
+        logger = rclpy.logging.get_logger(NODE_NAME)
+        if writer.failure is not None and writer.failure is not reported:
+            logger.error(str(writer.failure))  # the disk filled while the bag was closed
+        elif writer.metadata_error is not None and writer.failure is None:
+            logger.error(
+                f"cannot write {args.output / 'metadata.yaml'} "
+                f"({writer.metadata_error.strerror or writer.metadata_error}); "
+                "the MCAP files are complete and read without it"
+            )
+        logger.info(closing_report(writer))
         rclpy.try_shutdown()
     return 0
 

@@ -211,7 +211,8 @@ class HwBench:
     benchmark's own subscriptions and clients on the graph's node."""
 
     def __init__(self, domain_id: int, log_dir: Path):
-        self.graph = Graph(ros_environment(domain_id), None, log_dir, "fake_hw")
+        # a process that dies ends the benchmark (no restarts)
+        self.graph = Graph(ros_environment(domain_id), None, log_dir, "fake_hw", respawn_max=0)
         self.obs = Observed()
         self.incidents: list[str] = []  # what went wrong outside the measurements
 
@@ -329,7 +330,7 @@ class HwBench:
                 crossing = self.obs.first("first_crossing", armed[0])
                 latency = (self.obs.first("cancel_received", armed[0]) - crossing) * 1e3
         except LaunchError as exc:  # a failed trial is recorded, the run goes on
-            self.check_children()
+            self.graph.supervise()
             problem = problem or str(exc)
         finally:
             self.set_params({"fault.extra_force": 0.0, "bench.crossing_threshold": 0.0})

@@ -1,8 +1,9 @@
 """``rrg-launch``: start RRG's ROS 2 graph as child processes, record every topic, and optionally
-run one robust grasp (design §8).
+run one robust grasp, or many back to back (design §8).
 
     rrg-launch                                      # the simulated graph, until Ctrl-C
     rrg-launch --grasp powerdrill --level high --strategy rrg-info
+    rrg-launch --grasps 200 --seed 1                # a long run: 200 grasps in one graph (soak.py)
     rrg-launch --mode hw --fake-hw --grasp powerdrill   # the bridge on emulated drivers
     rrg-launch --mode hw --hw-param dry_run:=true       # the bridge on the real robot's drivers
 
@@ -14,14 +15,22 @@ waited for, not slept: every service and action server must answer discovery, an
 be subscribed to every topic that has a publisher. With ``--grasp`` the simulator places the object
 at its true pose (``--true-pose``, or drawn from the level's Gaussian with ``--seed``), the
 planner's robust-grasp action runs with feedback per step, and the simulator judges the final grasp
-(ground truth + lift). Ctrl-C (or SIGTERM) cancels a running grasp, sends SIGINT to the nodes,
+(ground truth + lift). With ``--grasps N`` it runs N robust grasps back to back in the same
+graph, each of an object and a true pose drawn from ``--seed``, and reports each grasp, each
+node's memory, threads and file descriptors, and the event messages the bag lost
+(rrg_planner.bringup.soak). Ctrl-C (or SIGTERM) cancels a running grasp, sends SIGINT to the nodes,
 escalates to SIGTERM and SIGKILL after a timeout, and stops the recorder last, so the bag in
-``bags/<name>/`` is always finalized.
+``bags/<name>/`` is always finalized. A child that dies while the graph runs is restarted, as
+launch_ros's ``respawn`` does: up to ``--respawn-max`` times, after a backoff that starts at
+``--respawn-delay`` and doubles; a restarted recorder writes the bag's next split. Each exit and
+restart is logged and published on ``/rrg/launch/node_events`` (rrg_msgs/NodeEvent), so the bag
+records it; when a child has used up its restarts the launcher stops the graph.
 
 Exit status: 0 when the graph ran (and the grasp, if asked for, was executed and judged,
-whatever its outcome), 1 on an error, 2 on a usage error. On the real robot (``--mode hw``
-without ``--fake-hw``) nothing can place or judge the object: ``--grasp`` runs the robust grasp
-on the object as it stands and reports the planner's belief only.
+whatever its outcome), 1 on an error (a child that died more often than ``--respawn-max``
+allows, too), 2 on a usage error. On the real robot (``--mode hw`` without ``--fake-hw``)
+nothing can place or judge the object: ``--grasp`` runs the robust grasp on the object as it
+stands and reports the planner's belief only.
 """
 
 from __future__ import annotations
@@ -29,6 +38,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -50,15 +60,38 @@ from rrg_sim.poses import compose_planar
 
 ROOT = Path(__file__).resolve().parents[2]
 RECORDER = "rrg_bag_recorder"
+#: The nodes' recovery state of each run goes in STATE_ROOT/<run name>/ (removed at the end).
+STATE_ROOT = ROOT / ".cache" / "state"
 #: SIGINT, then SIGTERM after this long [s], then SIGKILL after as long again (notes: a node
 #: sometimes misses the first SIGINT).
 STOP_ESCALATE_S = 3.0
+#: Restarts per child before the launcher gives up and stops the graph (launch_ros respawns
+#: without a limit; chosen: a node that dies three times in one run has a cause to fix).
+RESPAWN_MAX = 3
+#: Wait before a child's first restart [s], doubled for each next one up to RESPAWN_DELAY_MAX_S
+#: (chosen: short beside a node's start-up of ~1 s, so the recorder loses little, while a node
+#: that dies at start does not spin in a loop).
+RESPAWN_DELAY_S = 0.5
+RESPAWN_DELAY_MAX_S = 30.0
+#: The launcher's record of its children's exits and restarts: latched with a history deep
+#: enough for every event of a run, so that a restarted recorder receives them all.
+NODE_EVENTS_TOPIC = "/rrg/launch/node_events"
+NODE_EVENTS_DEPTH = 100
+#: Longest wait [s] for the recorder to acknowledge the last node events before the launcher's
+#: node goes (with it their history).
+NODE_EVENTS_ACK_S = 2.0
 #: After the judgement the launcher waits (at most this long [s]) until its own subscription
 #: has the grasp outcome message, then OUTCOME_GRACE_S more, before it stops the graph: the
 #: recorder, busy writing beliefs on a loaded machine, lost that last message to the stop
 #: (CI on a fresh clone, once).
 OUTCOME_WAIT_S = 10.0
 OUTCOME_GRACE_S = 0.5
+#: Longest wait [s] for a restarted planner to be back (it loads its models first) before the
+#: grasp it was running is resumed.
+RESUME_WAIT_S = 300.0
+#: With --grasps: longest a grasp may run before it counts as hung [s] (chosen: a robust grasp of
+#: the drill at high uncertainty takes ~20 s unpaced; ten actions at real time stay under 5 min).
+GRASP_TIMEOUT_S = 600.0
 #: Module of each node process, in start order (the recorder is started first, stopped last).
 NODES = {
     "sim": "rrg_sim.ros.sim_node",
@@ -91,6 +124,10 @@ class LaunchError(RuntimeError):
     """The graph could not be started or a call into it failed."""
 
 
+class LaunchTimeout(LaunchError):
+    """A wait on the graph timed out."""
+
+
 @dataclass
 class GraspOutcome:
     """What ``--grasp`` prints (and, with ``--json``, prints as JSON on the last line)."""
@@ -111,9 +148,35 @@ class GraspOutcome:
 
 @dataclass
 class Child:
+    """A child process of the graph and what its restarts need."""
+
     name: str
     proc: subprocess.Popen
     log: TextIO | None
+    args: list[str]  # after the interpreter
+    restart_args: list[str]  # added when it restarts (the recorder's --append)
+    restarts: int = 0  # restarts made or scheduled
+    restart_at: float | None = None  # time.monotonic() of the scheduled restart
+
+    def restart_command(self) -> list[str]:
+        """``args`` with ``restart_args`` before the ROS arguments."""
+        i = self.args.index("--ros-args") if "--ros-args" in self.args else len(self.args)
+        return [*self.args[:i], *self.restart_args, *self.args[i:]]
+
+
+def exit_description(returncode: int) -> str:
+    """How a process ended, from Popen's returncode (negative: the signal that killed it)."""
+    if returncode < 0:
+        try:
+            return f"killed by {signal.Signals(-returncode).name}"
+        except ValueError:
+            return f"killed by signal {-returncode}"
+    return f"exited with status {returncode}"
+
+
+def respawn_delay(attempt: int, first_s: float, max_s: float = RESPAWN_DELAY_MAX_S) -> float:
+    """The wait [s] before restart ``attempt`` (1-based): ``first_s``, doubled per attempt."""
+    return min(first_s * 2.0 ** (attempt - 1), max_s)
 
 
 def ros_environment(domain_id: int) -> dict[str, str]:
@@ -145,8 +208,15 @@ class Graph:
         bag_dir: Path | None,
         log_dir: Path | None,
         interface: str = "sim",
+        respawn_max: int = RESPAWN_MAX,
+        respawn_delay_s: float = RESPAWN_DELAY_S,
+        state_dir: Path | None = None,
     ):
         self.env = env
+        #: where the estimator and the planner keep the state a restarted one resumes from
+        self.state_dir = state_dir
+        self.respawn_max = respawn_max  # restarts per child
+        self.respawn_delay_s = respawn_delay_s  # before a child's first restart
         self.interface = interface  # a key of INTERFACE
         self.simulated = interface != "hw"  # the world can be reset and judged
         self.bag_dir = bag_dir
@@ -161,16 +231,23 @@ class Graph:
         self.outcomes_seen = 0  # grasp outcome messages the launcher has received
         self.goal_handle = None  # the running robust grasp, if any
         self.interrupted = False  # set by Ctrl-C or SIGTERM, acted on in spin_until
+        self.stopping = False  # the graph is being stopped: no more restarts
+        self.node_events = None  # the publisher of NODE_EVENTS_TOPIC (connect creates it)
+        self.planner = None  # the planner's liveliness (connect creates it)
 
     # ------------------------------------------------------------------ processes
-    def spawn(self, name: str, args: list[str]) -> None:
+    def spawn(self, name: str, args: list[str], restart_args: list[str] | None = None) -> None:
+        """Start a child process, ``python ARGS``; its restarts add ``restart_args``."""
         log = None
         if self.log_dir is not None:
             self.log_dir.mkdir(parents=True, exist_ok=True)
             log = (self.log_dir / f"{name}.log").open("w")
+        self.children.append(Child(name, self.popen(args, log), log, args, restart_args or []))
+
+    def popen(self, args: list[str], log: TextIO | None) -> subprocess.Popen:
         # Own session: a terminal's Ctrl-C reaches only the launcher, which stops
         # the children in order.
-        proc = subprocess.Popen(
+        return subprocess.Popen(
             [sys.executable, *args],
             env=self.env,
             cwd=ROOT,
@@ -178,7 +255,6 @@ class Graph:
             stdout=log or sys.stderr,
             stderr=subprocess.STDOUT,
         )
-        self.children.append(Child(name, proc, log))
 
     def start(
         self,
@@ -189,10 +265,12 @@ class Graph:
         sensor_noise: float = 1.0,
         hw_params: dict[str, str] | None = None,
         world_profile: str = "nominal",
+        preload: list[str] | None = None,
     ) -> None:
         """Start the recorder (if recording), the arm/hand interface and the executor, estimator
         and planner (the launch time counts from here). ``hw_params``: the bridge's parameters;
-        ``world_profile``: the simulator's (rrg_sim.config.WORLD_PROFILES)."""
+        ``world_profile``: the simulator's (rrg_sim.config.WORLD_PROFILES); ``preload``: the
+        objects whose planning models the planner loads first (default: ``object_name``)."""
         self.started = time.monotonic()
         if self.bag_dir is not None:
             self.spawn(
@@ -213,16 +291,23 @@ class Graph:
                         }
                     ),
                 ],
+                restart_args=["--append"],  # the next split of the bag
             )
         self.start_interface(
             object_name, seed, real_time_factor, sensor_noise, hw_params, world_profile
         )
+        state = {}
+        if self.state_dir is not None:  # a fresh run: no state of an earlier one
+            shutil.rmtree(self.state_dir, ignore_errors=True)
+            self.state_dir.mkdir(parents=True)
+            state = {n: {"state_file": str(self.state_dir / f"{n}.state")} for n in NODES}
         params = {
             "executor": {},
-            "estimator": {},
+            "estimator": {**state.get("estimator", {})},
             "planner": {
                 "levels": f"[{','.join(repr(lv) for lv in levels)}]",
-                "preload": f"['{object_name}']",
+                "preload": f"[{','.join(repr(o) for o in preload or [object_name])}]",
+                **state.get("planner", {}),
             },
         }
         for name, values in params.items():
@@ -251,16 +336,86 @@ class Graph:
         for name in INTERFACE[self.interface]:
             self.spawn(name, ["-m", NODES[name], *ros_args(params[name])])
 
-    def check_children(self) -> None:
-        dead = [c for c in self.children if c.proc.poll() is not None]
-        if dead:
-            raise LaunchError(
-                "child process exited: "
-                + ", ".join(f"{c.name} (status {c.proc.returncode})" for c in dead)
+    def supervise(self) -> None:
+        """Restart the children that died, each after its backoff; LaunchError when one has died
+        more often than ``respawn_max`` allows."""
+        if self.stopping:
+            return
+        now = time.monotonic()
+        for c in self.children:
+            if c.restart_at is not None:
+                if now >= c.restart_at:
+                    self.restart(c)
+                continue
+            status = c.proc.poll()
+            if status is None:
+                continue
+            ended = f"{c.name} {exit_description(status)} (pid {c.proc.pid})"
+            if c.restarts >= self.respawn_max:
+                message = (
+                    f"{ended}; gave up after {c.restarts} restart{'s' * (c.restarts != 1)}"
+                    if self.respawn_max
+                    else f"{ended}; not restarted (--respawn-max 0)"
+                )
+                self.publish_event(c, "EVENT_GAVE_UP", message, c.restarts)
+                raise LaunchError(message)
+            c.restarts += 1
+            delay = respawn_delay(c.restarts, self.respawn_delay_s)
+            c.restart_at = now + delay
+            self.publish_event(
+                c,
+                "EVENT_EXITED",
+                f"{ended}; restarting it in {delay:.1f} s "
+                f"(attempt {c.restarts} of {self.respawn_max})",
+                c.restarts,
+                delay,
             )
 
-    def stop(self) -> None:
-        """Stop the nodes (SIGINT → SIGTERM → SIGKILL), then the recorder the same way."""
+    def restart(self, c: Child) -> None:
+        """Start a new process of a dead child (its log continues)."""
+        c.restart_at = None
+        c.proc = self.popen(c.restart_command(), c.log)
+        self.publish_event(
+            c,
+            "EVENT_RESTARTED",
+            f"{c.name} restarted (pid {c.proc.pid}, attempt {c.restarts} of {self.respawn_max})",
+            c.restarts,
+        )
+
+    def publish_event(
+        self, c: Child, event: str, message: str, attempt: int, delay: float = 0.0
+    ) -> None:
+        """Log a child's exit, restart or the end of its restarts (``event``: a NodeEvent
+        constant's name; the LaunchError that follows the end reports it), and publish it once
+        the launcher's node runs."""
+        if event != "EVENT_GAVE_UP":
+            print(f"[rrg-launch] {message}", file=sys.stderr, flush=True)
+        if c.log is not None:
+            c.log.write(f"[rrg-launch] {message}\n")
+            c.log.flush()
+        if self.node_events is None:
+            return
+        from rrg_msgs.msg import NodeEvent
+
+        status = c.proc.returncode if event != "EVENT_RESTARTED" else None
+        msg = NodeEvent(
+            node=c.name,
+            event=getattr(NodeEvent, event),
+            pid=c.proc.pid,
+            exit_code=max(status or 0, 0),
+            signal=max(-(status or 0), 0),
+            attempt=attempt,
+            max_attempts=self.respawn_max,
+            delay=delay,
+            message=message,
+        )
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        self.node_events.publish(msg)
+
+    def stop(self, escalate_s: float = STOP_ESCALATE_S) -> None:
+        """Stop the nodes (SIGINT → SIGTERM → SIGKILL, ``escalate_s`` apart), then the recorder
+        the same way."""
+        self.stopping = True
         nodes = [c for c in self.children if c.name != "recorder"]
         recorder = [c for c in self.children if c.name == "recorder"]
         for group in (nodes, recorder):
@@ -270,7 +425,7 @@ class Graph:
                     break
                 for c in running:
                     c.proc.send_signal(sig)
-                deadline = time.monotonic() + STOP_ESCALATE_S
+                deadline = time.monotonic() + escalate_s
                 for c in running:
                     try:
                         c.proc.wait(max(0.0, deadline - time.monotonic()))
@@ -284,7 +439,11 @@ class Graph:
     def connect(self) -> None:
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
         from rclpy.signals import SignalHandlerOptions
+
+        from rrg_msgs.msg import NodeEvent
+        from rrg_sim.ros_common.liveliness import PeerWatch
 
         os.environ.update(
             {k: self.env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
@@ -293,6 +452,16 @@ class Graph:
         # The launcher handles SIGINT itself (it must stop the children in order).
         rclpy.init(context=self._context, signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node("rrg_launch", context=self._context)
+        self.node_events = self.node.create_publisher(
+            NodeEvent,
+            NODE_EVENTS_TOPIC,
+            QoSProfile(
+                depth=NODE_EVENTS_DEPTH,
+                durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                reliability=ReliabilityPolicy.RELIABLE,
+            ),
+        )
+        self.planner = PeerWatch(self.node, "planner")
         self.executor = SingleThreadedExecutor(context=self._context)
         self.executor.add_node(self.node)
 
@@ -300,22 +469,28 @@ class Graph:
         import rclpy
 
         if self.node is not None:
+            from rclpy.duration import Duration
+
+            # the recorder must have the last events before their history goes with the node
+            if self.node_events is not None and self.node_events.get_subscription_count():
+                self.node_events.wait_for_all_acked(Duration(seconds=NODE_EVENTS_ACK_S))
+            self.node_events = None
             self.executor.shutdown()
             self.node.destroy_node()
             rclpy.try_shutdown(context=self._context)
             self.node = None
 
     def spin_until(self, condition: Callable[[], bool], timeout_s: float, what: str) -> None:
-        """Spin the launcher's node until ``condition()``; LaunchError on timeout or a dead
-        child."""
+        """Spin the launcher's node until ``condition()``, restarting children that die;
+        LaunchTimeout on timeout, LaunchError when a child has used up its restarts."""
         deadline = time.monotonic() + timeout_s
         while not condition():
             if self.interrupted:
                 self.interrupted = False  # once: the shutdown that follows may spin again
                 raise KeyboardInterrupt
-            self.check_children()
+            self.supervise()
             if time.monotonic() > deadline:
-                raise LaunchError(f"timed out after {timeout_s:.0f} s waiting for {what}")
+                raise LaunchTimeout(f"timed out after {timeout_s:.0f} s waiting for {what}")
             self.executor.spin_once(timeout_sec=0.05)
 
     def result(self, future, timeout_s: float, what: str):
@@ -393,8 +568,12 @@ class Graph:
         delta: float,
         max_actions: int,
         on_first_action: Callable[[], None] | None = None,
+        timeout_s: float = 3600.0,
+        verbose: bool = True,
     ) -> GraspOutcome:
-        """Place the object, run the robust grasp, judge it; fills and returns ``outcome``."""
+        """Place the object, run the robust grasp, judge it; fills and returns ``outcome``.
+        ``timeout_s``: longest wait for the robust grasp's result (LaunchTimeout after it);
+        ``verbose``: print a line per step."""
         from std_srvs.srv import Trigger
 
         from rrg_msgs.action import RobustGrasp
@@ -426,6 +605,8 @@ class Graph:
             fb = msg.feedback
             if fb.step == 1 and on_first_action is not None:
                 on_first_action()
+            if not verbose:
+                return
             print(
                 f"[rrg-launch] step {fb.step}: {fb.wrt_name} "
                 f"(P(goal) = {fb.p_goal:.3f}, value = {fb.value:.3f})",
@@ -433,12 +614,35 @@ class Graph:
             )
 
         client = self.actions["/rrg/robust_grasp"]
-        self.goal_handle = self.result(
-            client.send_goal_async(goal, feedback_callback=feedback), 30.0, "robust_grasp"
-        )
-        if not self.goal_handle.accepted:
-            raise LaunchError("the planner rejected the robust_grasp goal")
-        answer = self.result(self.goal_handle.get_result_async(), 3600.0, "the robust grasp")
+        for resumes in range(self.respawn_max + 1):
+            losses = self.planner.losses
+            goal.resume = resumes > 0
+            self.goal_handle = self.result(
+                client.send_goal_async(goal, feedback_callback=feedback), 30.0, "robust_grasp"
+            )
+            if not self.goal_handle.accepted:
+                raise LaunchError("the planner rejected the robust_grasp goal")
+            future = self.goal_handle.get_result_async()
+            self.spin_until(
+                lambda f=future, n=losses: f.done() or self.planner.lost_since(n),
+                timeout_s,
+                "the robust grasp",
+            )
+            if future.done():
+                break
+            print(
+                "[rrg-launch] the planner went away in the middle of the grasp: resuming it "
+                "once the planner is back",
+                flush=True,
+            )
+            self.spin_until(
+                lambda: self.planner.alive and client.server_is_ready(),
+                RESUME_WAIT_S,
+                "the restarted planner",
+            )
+        else:
+            raise LaunchError("the planner kept going away: the grasp was not completed")
+        answer = future.result()
         self.goal_handle = None
         res = answer.result
         outcome.actions, outcome.p_goal, outcome.planner_success = (
@@ -465,7 +669,7 @@ class Graph:
             )
             grace = time.monotonic() + OUTCOME_GRACE_S
             self.spin_until(lambda: time.monotonic() > grace, OUTCOME_GRACE_S + 1.0, "the recorder")
-        except LaunchError as exc:
+        except LaunchTimeout as exc:
             print(f"[rrg-launch] warning: {exc}", file=sys.stderr, flush=True)
         return outcome
 
@@ -474,6 +678,7 @@ class Graph:
 
     def cancel_grasp(self) -> None:
         """Cancel a running robust grasp (best effort, before the nodes are stopped)."""
+        self.stopping = True
         handle = self.goal_handle
         if handle is not None and self.node is not None:
             try:
@@ -509,12 +714,16 @@ def warm_tables(object_name: str, levels: list[str]) -> None:
             load_or_build(obj, wrt, LEVELS[level], workers=2, progress=True)
 
 
+def draw_pose(rng: np.random.Generator, level: str) -> np.ndarray:
+    """A true pose drawn from the level's Gaussian around the nominal pose."""
+    return compose_planar(np.asarray(WORLD.nominal_pose), rng.normal(0.0, LEVELS[level].sigma))
+
+
 def true_pose(args: argparse.Namespace) -> np.ndarray:
     """--true-pose, else a draw from the level's Gaussian around the nominal pose (--seed)."""
     if args.true_pose is not None:
         return np.asarray(args.true_pose, dtype=float)
-    rng = np.random.default_rng(args.seed)
-    return compose_planar(np.asarray(WORLD.nominal_pose), rng.normal(0.0, LEVELS[args.level].sigma))
+    return draw_pose(np.random.default_rng(args.seed), args.level)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -558,6 +767,32 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="OBJECT",
         choices=OBJECT_NAMES,
         help="run one robust grasp of OBJECT, then stop",
+    )
+    p.add_argument(
+        "--grasps",
+        type=int,
+        metavar="N",
+        help="a long run: N robust grasps back to back in one graph, each of an object and a "
+        "true pose drawn from --seed; then a report of every grasp and node",
+    )
+    p.add_argument(
+        "--objects",
+        default=",".join(OBJECT_NAMES),
+        help="with --grasps: the objects grasped, comma-separated (default: all ten)",
+    )
+    p.add_argument(
+        "--grasp-timeout",
+        type=float,
+        default=GRASP_TIMEOUT_S,
+        metavar="S",
+        help=f"with --grasps: a grasp still running after S seconds ({GRASP_TIMEOUT_S:.0f}) is "
+        "hung; the run stops",
+    )
+    p.add_argument(
+        "--soak-report",
+        type=Path,
+        metavar="PATH",
+        help="with --grasps: the JSON report (default: beside the bag, <bag>_soak.json)",
     )
     p.add_argument(
         "--level", default="high", choices=sorted(LEVELS), help="initial uncertainty of the grasp"
@@ -608,15 +843,52 @@ def build_parser() -> argparse.ArgumentParser:
         help="write each child's output to LOG_DIR/<node>.log (default: stderr)",
     )
     p.add_argument(
+        "--respawn-max",
+        type=int,
+        default=RESPAWN_MAX,
+        metavar="N",
+        help="restarts of a node that dies, per node, before the launcher stops the graph "
+        "(0: none)",
+    )
+    p.add_argument(
+        "--respawn-delay",
+        type=float,
+        default=RESPAWN_DELAY_S,
+        metavar="S",
+        help=f"wait before a node's first restart [s], doubled for each next one "
+        f"(at most {RESPAWN_DELAY_MAX_S:.0f} s)",
+    )
+    p.add_argument(
         "--ready-timeout",
         type=float,
         default=600.0,
         help="longest wait for the graph [s] (a first table build takes minutes)",
     )
     p.add_argument(
-        "--json", action="store_true", help="print the grasp's outcome as JSON on the last line"
+        "--json",
+        action="store_true",
+        help="print the grasp's outcome (with --grasps: the summary) as JSON on the last line",
     )
     return p
+
+
+def bags_writable(folder: Path, low_space_bytes: int | None = None) -> bool:
+    """Whether bags can be written into ``folder`` (created when missing); prints why not, or a
+    warning when less than ``low_space_bytes`` (default: bag_writer.LOW_SPACE_BYTES) are free."""
+    from rrg_planner.bags.bag_writer import LOW_SPACE_BYTES, probe_bag_folder
+
+    try:
+        free = probe_bag_folder(folder)
+    except OSError as exc:
+        print(f"rrg-launch: cannot write bags to {folder}: {exc.strerror or exc}", file=sys.stderr)
+        return False
+    if free < (LOW_SPACE_BYTES if low_space_bytes is None else low_space_bytes):
+        print(
+            f"rrg-launch: warning: {free / 2**20:.0f} MiB free for bags in {folder}; the "
+            "recorder stops recording if the disk fills",
+            file=sys.stderr,
+        )
+    return True
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -627,12 +899,28 @@ def main(argv: list[str] | None = None) -> int:
     if not 0 <= args.domain_id <= 101:
         print(f"rrg-launch: --domain-id must be 0-101, got {args.domain_id}", file=sys.stderr)
         return 2
-    object_name = args.grasp or args.object
+    if args.respawn_max < 0 or not args.respawn_delay >= 0:
+        print("rrg-launch: --respawn-max and --respawn-delay must be >= 0", file=sys.stderr)
+        return 2
+    soak = None
+    if args.grasps is not None:
+        from rrg_planner.bringup import soak as soaking
+
+        try:
+            soak = soaking.Soak.from_args(args)
+        except ValueError as exc:
+            print(f"rrg-launch: {exc}", file=sys.stderr)
+            return 2
+    object_name = soak.draws[0][0] if soak else args.grasp or args.object
+    objects = soak.objects if soak else [object_name]
     levels = [lv.strip() for lv in args.levels.split(",") if lv.strip()]
-    name = args.bag_name or f"rrg_{object_name}_{datetime.now():%Y%m%d_%H%M%S}"
+    label = "soak" if soak else object_name
+    name = args.bag_name or f"rrg_{label}_{datetime.now():%Y%m%d_%H%M%S}"
     bag_dir = None if args.no_bag else args.bags / name
     if bag_dir is not None and bag_dir.exists():
         print(f"rrg-launch: bag folder already exists: {bag_dir}", file=sys.stderr)
+        return 2
+    if bag_dir is not None and not bags_writable(args.bags):
         return 2
 
     def interrupt(signum, _frame):  # Ctrl-C or SIGTERM: the graph's spin loop raises
@@ -640,16 +928,26 @@ def main(argv: list[str] | None = None) -> int:
         # into a RuntimeError)
 
     interface = "sim" if args.mode == "sim" else ("fake_hw" if args.fake_hw else "hw")
-    graph = Graph(ros_environment(args.domain_id), bag_dir, args.log_dir, interface)
+    state_dir = STATE_ROOT / f"{name}_{os.getpid()}"
+    graph = Graph(
+        ros_environment(args.domain_id),
+        bag_dir,
+        args.log_dir,
+        interface,
+        args.respawn_max,
+        args.respawn_delay,
+        state_dir,
+    )
     status = 0
     outcome = None
     try:
         print(
-            f"[rrg-launch] observation tables of {object_name} at levels {levels} "
-            "(built once, ~1 min per level when missing)",
+            f"[rrg-launch] observation tables of {', '.join(objects)} at levels {levels} "
+            "(built once, ~1 min per object and level when missing)",
             flush=True,
         )
-        warm_tables(object_name, levels)
+        for obj in objects:
+            warm_tables(obj, levels)
         signal.signal(
             signal.SIGTERM, interrupt
         )  # after the table workers, which must not inherit it
@@ -665,11 +963,15 @@ def main(argv: list[str] | None = None) -> int:
             args.sensor_noise,
             dict(args.hw_param),
             args.world,
+            objects,
         )
         graph.connect()
+        if soak is not None:
+            soak.attach(graph)
         print(
-            f"[rrg-launch] started {len(graph.children)} processes in domain {args.domain_id}; "
-            "waiting for the graph (the planner loads its models first)",
+            f"[rrg-launch] started {len(graph.children)} processes in domain {args.domain_id} ("
+            + ", ".join(f"{c.name} pid {c.proc.pid}" for c in graph.children)
+            + "); waiting for the graph (the planner loads its models first)",
             flush=True,
         )
         ready_s = graph.wait_ready(args.ready_timeout)
@@ -678,7 +980,9 @@ def main(argv: list[str] | None = None) -> int:
             + (f", recording to {bag_dir}" if bag_dir else ""),
             flush=True,
         )
-        if args.grasp:
+        if soak is not None:
+            status = soak.run(graph)
+        elif args.grasp:
             outcome = GraspOutcome(
                 args.grasp,
                 args.level,
@@ -703,7 +1007,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("[rrg-launch] interrupted: stopping the graph", flush=True)
         graph.cancel_grasp()
-        status = 1 if args.grasp else 0
+        status = 1 if args.grasp or soak else 0
     except LaunchError as exc:
         print(f"[rrg-launch] error: {exc}", file=sys.stderr, flush=True)
         status = 1
@@ -713,15 +1017,30 @@ def main(argv: list[str] | None = None) -> int:
         )  # a second Ctrl-C must not cut the shutdown short
         graph.disconnect()
         graph.stop()
+        shutil.rmtree(state_dir, ignore_errors=True)
         signal.signal(signal.SIGINT, signal.default_int_handler)
     if bag_dir is not None:
-        from rrg_planner.bags.bag_cli import bag_info
+        from rrg_planner.bags.bag_info import bag_info
 
         info = bag_info(bag_dir)
         print(
             f"[rrg-launch] bag {bag_dir}: {info.message_count} messages on "
-            f"{len(info.topics)} topics, {'finalized' if info.finalized else 'NOT finalized'}",
+            f"{len(info.topics)} topics in {len(info.files)} "
+            f"{'file' if len(info.files) == 1 else 'files'}, "
+            + (
+                "finalized"
+                if info.finalized
+                else f"NOT finalized: {', '.join(p.name for p in info.unfinalized)} "
+                "(read by scanning)"
+            ),
             flush=True,
+        )
+    if soak is not None:
+        soaking.finish(
+            soak,
+            bag_dir,
+            args.soak_report or soaking.default_report_path(bag_dir, args.log_dir, name),
+            args.json,
         )
     if outcome is not None:
         print(
@@ -745,4 +1064,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # main of the imported module, not of this __main__ copy: soak.py catches its exceptions
+    from rrg_planner.bringup.launch import main as launch_main
+
+    sys.exit(launch_main())

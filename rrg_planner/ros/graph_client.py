@@ -9,6 +9,15 @@ the retreat. The planner never computes a belief itself: the estimator node owns
 
 Every wait polls ``interrupted`` (a cancel request or shutdown) and has a timeout; failures
 raise GraphError with the robust-grasp result code that names them.
+
+Restarted nodes (design §8): the executor and the estimator announce themselves
+(rrg_sim.ros_common.liveliness), so a wait on one that dies ends at once. A lost execution is
+recovered: once the executor is back, the hand is retreated home (a restarted executor that
+has no path to retrace backs out and rises) and ``execute`` raises ExecutionLost, so the agent
+chooses again on the belief as it now is. A lost retreat or belief reset is made again. A
+restarted estimator restores its belief by itself, so a wait for a belief just goes on. When
+the arm/hand interface dies, the executor reports a robot fault and the grasp aborts with
+ROBOT_FAULT.
 """
 
 from __future__ import annotations
@@ -27,6 +36,7 @@ from rrg_estimator.ros.belief_msgs import belief_from_msg
 from rrg_msgs.action import ExecuteWrt, RobustGrasp
 from rrg_msgs.msg import BeliefGrid
 from rrg_msgs.srv import ResetBelief, Retreat
+from rrg_planner.closed_loop import ExecutionLost
 from rrg_sim.observation import Observation
 from rrg_sim.ros_common.futures import (
     ThreadSafeActionClient,
@@ -34,12 +44,16 @@ from rrg_sim.ros_common.futures import (
     WaitTimeout,
     wait_for,
 )
+from rrg_sim.ros_common.liveliness import PeerLost, PeerWatch
 from rrg_sim.ros_common.msg_conversions import observation_from_msg, planar_to_msg
 from rrg_sim.ros_common.qos import LATCHED
 from rrg_sim.wrt import WRT, InfeasibleWRT
 
 RG = RobustGrasp.Result
 SERVER_WAIT_S = 10.0  # longest wait for a service or action server to appear
+#: Calls made again after their server died and came back, at most (a node that keeps dying is
+#: the launcher's to give up on).
+RETRIES = 3
 
 
 class GraphError(RuntimeError):
@@ -54,7 +68,8 @@ class GraphClient:
     """World (executor node) and Estimator (estimator node) of one node's robust grasps.
 
     Timeouts [s]: ``reset`` for the estimator's reset (it may load tables), ``execute`` for one
-    WRT execution or retreat, ``belief`` for the estimator's belief after an event.
+    WRT execution or retreat, ``belief`` for the estimator's belief after an event, ``restart``
+    for a node that died to be back.
     """
 
     def __init__(self, node: Node, group: CallbackGroup, timeouts: Callable[[], dict[str, float]]):
@@ -72,8 +87,25 @@ class GraphClient:
         self.execute_client = ThreadSafeActionClient(
             node, ExecuteWrt, "execute_wrt", callback_group=group
         )
+        self.executor = PeerWatch(node, "executor", group)
+        self.estimator = PeerWatch(node, "estimator", group)
         self._observation_stamp: Time | None = None
         self._retreat_stamp: Time | None = None
+        self.log = node.get_logger()
+
+    def _back(self, peer: PeerWatch, what: str, code: int) -> None:
+        """Wait until ``peer`` is up (it may be restarting); GraphError(code) if it is not in
+        time."""
+        if peer.alive:
+            return
+        self.log.warn(f"the {peer.name} is not up: waiting for it before {what}")
+        if not peer.wait_alive(self.timeouts()["restart"], self.interrupted):
+            if self.interrupted():
+                raise WaitInterrupted(f"interrupted while waiting for the {peer.name}")
+            raise GraphError(
+                code,
+                f"the {peer.name} did not come back within {self.timeouts()['restart']:.0f} s",
+            )
 
     # ------------------------------------------------------------------ the estimator's belief
     def _on_belief(self, msg: BeliefGrid) -> None:
@@ -113,8 +145,6 @@ class GraphClient:
     ) -> Belief:
         """Start a robust grasp: the estimator's belief N(mean, σ²) on the level's grid."""
         self.object_name, self.interrupted = object_name, interrupted
-        if not self.reset_client.wait_for_service(timeout_sec=SERVER_WAIT_S):
-            raise GraphError(RG.ESTIMATION_FAILED, "the estimator's reset_belief is not available")
         req = ResetBelief.Request(
             object_name=object_name,
             mean=planar_to_msg(mean),
@@ -123,33 +153,74 @@ class GraphClient:
             sigma_y=float(sigma[1]),
             sigma_theta=float(sigma[2]),
         )
-        try:
-            resp = wait_for(
-                self.reset_client.call_async(req), self.timeouts()["reset"], interrupted
-            )
-        except WaitTimeout as exc:
-            raise GraphError(RG.ESTIMATION_FAILED, f"reset_belief: {exc}") from exc
+        for attempt in range(RETRIES + 1):
+            self._back(self.estimator, "resetting the belief", RG.ESTIMATION_FAILED)
+            if not self.reset_client.wait_for_service(timeout_sec=SERVER_WAIT_S):
+                raise GraphError(
+                    RG.ESTIMATION_FAILED, "the estimator's reset_belief is not available"
+                )
+            try:
+                resp = wait_for(
+                    self.reset_client.call_async(req),
+                    self.timeouts()["reset"],
+                    interrupted,
+                    self.estimator,
+                )
+                break
+            except WaitTimeout as exc:
+                raise GraphError(RG.ESTIMATION_FAILED, f"reset_belief: {exc}") from exc
+            except PeerLost as exc:
+                if attempt == RETRIES:
+                    raise GraphError(RG.ESTIMATION_FAILED, f"reset_belief: {exc}") from exc
+                self.log.warn(f"reset_belief: {exc}; resetting again once it is back")
         if resp.error_code != ResetBelief.Response.NONE:
             raise GraphError(RG.ESTIMATION_FAILED, f"reset_belief failed: {resp.error_msg}")
         with self._belief_cv:
             self.belief_msg = resp.belief
         return belief_from_msg(resp.belief)
 
+    def resume(self, object_name: str, interrupted: Callable[[], bool]) -> Belief:
+        """Go on with a grasp a restarted planner had begun: wait for the estimator's belief,
+        then bring the hand home (retreat) and return the belief after it."""
+        self.object_name, self.interrupted = object_name, interrupted
+        self._back(self.estimator, "resuming", RG.ESTIMATION_FAILED)
+        deadline = time.monotonic() + self.timeouts()["belief"]
+        with self._belief_cv:
+            while self.belief_msg is None:
+                if interrupted():
+                    raise WaitInterrupted("interrupted while waiting for the belief")
+                if time.monotonic() > deadline:
+                    raise GraphError(RG.ESTIMATION_FAILED, "no belief from the estimator")
+                self._belief_cv.wait(0.05)
+        self.retreat()
+        return self.retreated()
+
     # ------------------------------------------------------------------ World
     def execute(self, wrt: WRT, e: np.ndarray) -> Observation:
         """Run ExecuteWrt and return its observation; a cancel request cancels the execution.
         Raises InfeasibleWRT when the executor found τ(e) infeasible before moving."""
+        self._back(self.executor, f"executing {wrt.name}", RG.EXECUTION_FAILED)
         if not self.execute_client.wait_for_server(timeout_sec=SERVER_WAIT_S):
             raise GraphError(RG.EXECUTION_FAILED, "the executor's execute_wrt is not available")
         goal = ExecuteWrt.Goal(
             object_name=self.object_name, wrt_name=wrt.name, estimate=planar_to_msg(e)
         )
-        handle = wait_for(self.execute_client.send_goal_async(goal), SERVER_WAIT_S)
+        try:
+            handle = wait_for(
+                self.execute_client.send_goal_async(goal), SERVER_WAIT_S, peer=self.executor
+            )
+        except WaitTimeout as exc:
+            raise GraphError(RG.EXECUTION_FAILED, f"execute_wrt {wrt.name}: {exc}") from exc
+        except PeerLost as exc:
+            raise self._lost(wrt, exc) from exc
         if not handle.accepted:
             raise GraphError(RG.EXECUTION_FAILED, f"execute_wrt rejected {wrt.name}")
         try:
             answer = wait_for(
-                handle.get_result_async(), self.timeouts()["execute"], self.interrupted
+                handle.get_result_async(),
+                self.timeouts()["execute"],
+                self.interrupted,
+                self.executor,
             )
         except WaitInterrupted:
             wait_for(handle.cancel_goal_async(), SERVER_WAIT_S)
@@ -157,9 +228,13 @@ class GraphClient:
         except WaitTimeout as exc:
             handle.cancel_goal_async()
             raise GraphError(RG.EXECUTION_FAILED, f"execute_wrt {wrt.name}: {exc}") from exc
+        except PeerLost as exc:
+            raise self._lost(wrt, exc) from exc
         result = answer.result
         if result.error_code == ExecuteWrt.Result.INFEASIBLE:
             raise InfeasibleWRT(result.error_msg)
+        if result.error_code == ExecuteWrt.Result.ROBOT_FAULT:
+            raise GraphError(RG.ROBOT_FAULT, f"execute_wrt {wrt.name}: {result.error_msg}")
         if result.error_code != ExecuteWrt.Result.NONE:
             raise GraphError(
                 RG.EXECUTION_FAILED, f"execute_wrt {wrt.name} failed: {result.error_msg}"
@@ -167,15 +242,36 @@ class GraphClient:
         self._observation_stamp = result.observation.header.stamp
         return observation_from_msg(result.observation)
 
+    def _lost(self, wrt: WRT, exc: PeerLost) -> ExecutionLost:
+        """Bring the hand home after the executor died running ``wrt``, and the error to
+        raise."""
+        self.log.warn(f"execute_wrt {wrt.name}: {exc}; bringing the hand home")
+        self.retreat()
+        self.retreated()
+        return ExecutionLost(f"the executor went away while running {wrt.name}")
+
     def retreat(self) -> None:
         """Retreat home through the executor; the estimator hears of it on /rrg/retreated."""
-        if not self.retreat_client.wait_for_service(timeout_sec=SERVER_WAIT_S):
-            raise GraphError(RG.EXECUTION_FAILED, "the executor's retreat is not available")
-        resp = wait_for(
-            self.retreat_client.call_async(Retreat.Request()),
-            self.timeouts()["execute"],
-            self.interrupted,
-        )
+        for attempt in range(RETRIES + 1):
+            self._back(self.executor, "retreating", RG.EXECUTION_FAILED)
+            if not self.retreat_client.wait_for_service(timeout_sec=SERVER_WAIT_S):
+                raise GraphError(RG.EXECUTION_FAILED, "the executor's retreat is not available")
+            try:
+                resp = wait_for(
+                    self.retreat_client.call_async(Retreat.Request()),
+                    self.timeouts()["execute"],
+                    self.interrupted,
+                    self.executor,
+                )
+                break
+            except WaitTimeout as exc:
+                raise GraphError(RG.EXECUTION_FAILED, f"retreat: {exc}") from exc
+            except PeerLost as exc:
+                if attempt == RETRIES:
+                    raise GraphError(RG.EXECUTION_FAILED, f"retreat: {exc}") from exc
+                self.log.warn(f"retreat: {exc}; retreating again once it is back")
+        if resp.error_code == Retreat.Response.ROBOT_FAULT:
+            raise GraphError(RG.ROBOT_FAULT, f"retreat failed: {resp.error_msg}")
         if resp.error_code != Retreat.Response.NONE:
             raise GraphError(RG.EXECUTION_FAILED, f"retreat failed: {resp.error_msg}")
         self._retreat_stamp = resp.header.stamp

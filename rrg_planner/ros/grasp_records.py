@@ -55,6 +55,20 @@ def infeasible_record(goal: RobustGrasp.Goal, d: Decision, reason: str, stamp: T
     return msg
 
 
+def interrupted_record(goal: RobustGrasp.Goal, d: Decision, reason: str, stamp: Time) -> GraspStep:
+    """The chosen WRT's execution was lost with a node that died; the hand is home again."""
+    msg = _with_decision(_record(goal, GraspStep.EVENT_INTERRUPTED, stamp), d)
+    msg.reason = reason
+    return msg
+
+
+def resumed_record(goal: RobustGrasp.Goal, actions: int, reason: str, stamp: Time) -> GraspStep:
+    """A restarted planner goes on with the grasp after ``actions`` actions."""
+    msg = _record(goal, GraspStep.EVENT_RESUMED, stamp)
+    msg.step, msg.reason = actions, reason
+    return msg
+
+
 def done_record(goal: RobustGrasp.Goal, result: RobustGrasp.Result, stamp: Time) -> GraspStep:
     """The robust grasp ended, as its action result says."""
     msg = _record(goal, GraspStep.EVENT_DONE, stamp)

@@ -18,6 +18,13 @@ Services and actions:
 
 The decisions are the core's (rrg_planner.agent.RobustGraspAgent) and the belief is the estimator
 node's: this node only moves messages.
+
+Recovery (design §8): with ``state_file`` set, the node writes a running grasp's progress
+(rrg_planner.grasp_state) after every step. A restarted planner that receives the same robust
+grasp again with ``resume`` set goes on with it: it brings the hand home through the executor,
+then decides on the estimator's current belief with the steps it had taken. Lost executions
+and restarted executor or estimator nodes are the graph client's to recover
+(rrg_planner.ros.graph_client).
 """
 
 from __future__ import annotations
@@ -25,6 +32,7 @@ from __future__ import annotations
 import sys
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
@@ -43,12 +51,25 @@ from rrg_msgs.srv import GetBelief, SelectAction
 from rrg_planner import requests
 from rrg_planner.agent import RobustGraspAgent
 from rrg_planner.closed_loop import ClosedLoop, Decision, GraspCanceled, decide
+from rrg_planner.grasp_state import (
+    GraspState,
+    GraspStateError,
+    load_grasp_state,
+    save_grasp_state,
+)
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.requests import InvalidRequest
 from rrg_planner.ros.graph_client import GraphClient, GraphError
-from rrg_planner.ros.grasp_records import decision_record, done_record, infeasible_record
+from rrg_planner.ros.grasp_records import (
+    decision_record,
+    done_record,
+    infeasible_record,
+    interrupted_record,
+    resumed_record,
+)
 from rrg_sim.config import WORLD
 from rrg_sim.ros_common.futures import WaitInterrupted, wait_for
+from rrg_sim.ros_common.liveliness import announce
 from rrg_sim.ros_common.msg_conversions import planar_to_msg
 from rrg_sim.ros_common.node_main import run_node
 
@@ -121,6 +142,26 @@ class PlannerNode(Node):
                 floating_point_range=[FloatingPointRange(from_value=0.1, to_value=3600.0)],
             ),
         )
+        self.declare_parameter(
+            "restart_timeout",
+            60.0,
+            ParameterDescriptor(
+                description="Longest wait [s] for a node that died (the executor or the "
+                "estimator) to be back before the grasp fails",
+                floating_point_range=[FloatingPointRange(from_value=1.0, to_value=3600.0)],
+            ),
+        )
+        self.declare_parameter(
+            "state_file",
+            "",
+            ParameterDescriptor(
+                description="File the running grasp's progress is written to after every step, "
+                "for a restarted planner to resume it ('' = none)",
+                read_only=True,
+            ),
+        )
+        state_file = self.get_parameter("state_file").value
+        self.state_file = Path(state_file) if state_file else None
         self.levels = tuple(self.get_parameter("levels").value)
         unknown = [lv for lv in self.levels if lv not in LEVELS]
         if unknown:
@@ -147,6 +188,7 @@ class PlannerNode(Node):
             cancel_callback=lambda _: CancelResponse.ACCEPT,
             callback_group=group,
         )
+        announce(self, NODE_NAME)
         self.get_logger().info(
             f"planner ready (levels {list(self.levels)}, models loaded: {sorted(self._models)})"
         )
@@ -155,7 +197,7 @@ class PlannerNode(Node):
         """The graph client's timeouts [s], read from the parameters at each use."""
         return {
             name: self.get_parameter(f"{name}_timeout").value
-            for name in ("reset", "execute", "belief")
+            for name in ("reset", "execute", "belief", "restart")
         }
 
     # ------------------------------------------------------------------ models
@@ -309,8 +351,20 @@ class PlannerNode(Node):
         mean, sigma, max_actions = self.validate_grasp(goal)
         model = self.model(goal.object_name)
         interrupted = lambda: handle.is_cancel_requested or not self.context.ok()
-        self.graph.reset(goal.object_name, goal.level, mean, sigma, interrupted)
         agent = RobustGraspAgent(model, goal.strategy, goal.horizon, goal.delta, max_actions)
+        request = grasp_request(goal)
+        resumed = self.resumable(goal, request)
+
+        def save(loop: ClosedLoop, active: bool = True) -> None:
+            if self.state_file is None:
+                return
+            try:
+                save_grasp_state(self.state_file, GraspState.of(request, loop, active))
+            except OSError as exc:
+                self.get_logger().error(
+                    f"could not write the grasp state to {self.state_file} ({exc}); a "
+                    "restarted planner could not resume this grasp"
+                )
 
         def on_decision(d: Decision) -> None:
             handle.publish_feedback(
@@ -333,10 +387,16 @@ class PlannerNode(Node):
                 f"{d.wrt} infeasible at {np.round(d.estimate, 3).tolist()} ({reason}): replanning"
             )
             self.step_pub.publish(infeasible_record(goal, d, reason, self.now()))
+            save(loop)
+
+        def on_lost(d: Decision, reason: str) -> None:
+            self.get_logger().warn(f"{d.wrt} lost ({reason}): replanning on the current belief")
+            self.step_pub.publish(interrupted_record(goal, d, reason, self.now()))
 
         def on_step(step, belief) -> None:
             result.actions_taken.append(step.wrt)
             result.final_p_goal = step.p_goal
+            save(loop)
 
         loop = ClosedLoop(
             agent,
@@ -346,15 +406,64 @@ class PlannerNode(Node):
             on_infeasible=on_infeasible,
             on_step=on_step,
             canceled=interrupted,
+            on_lost=on_lost,
         )
-        run = loop.run()
+        if resumed is None:
+            self.graph.reset(goal.object_name, goal.level, mean, sigma, interrupted)
+            save(loop)
+        else:
+            resumed.restore(loop)
+            result.actions_taken.extend(s.wrt for s in resumed.steps)
+            reason = f"resumed after {len(resumed.steps)} actions: bringing the hand home first"
+            self.get_logger().warn(f"robust grasp of {goal.object_name} {reason}")
+            self.step_pub.publish(resumed_record(goal, len(resumed.steps), reason, self.now()))
+            self.graph.resume(goal.object_name, interrupted)
+        try:
+            run = loop.run(resume=resumed is not None)
+        finally:
+            save(loop, active=False)
         if run.error:
             raise RequestError(RG.PLANNING_FAILED, run.error)
         result.final_p_goal, result.success = run.p_goal, run.declared
 
+    def resumable(self, goal: RobustGrasp.Goal, request: dict) -> GraspState | None:
+        """The stored grasp a ``resume`` goal goes on with: a running one of the same request."""
+        if not goal.resume or self.state_file is None:
+            return None
+        try:
+            state = load_grasp_state(self.state_file)
+        except FileNotFoundError:
+            state = None
+        except GraspStateError as exc:
+            self.get_logger().error(f"no grasp to resume: {exc}")
+            return None
+        if state is None or not state.active or state.request != request:
+            self.get_logger().warn(
+                f"resume asked for {goal.object_name}, but no running grasp of that request "
+                "is stored: starting afresh"
+            )
+            return None
+        return state
+
     def now(self):
         """The node clock's time as a message stamp."""
         return self.get_clock().now().to_msg()
+
+
+def grasp_request(goal: RobustGrasp.Goal) -> dict:
+    """The fields of a robust-grasp goal that define the grasp (all but ``resume``)."""
+    return {
+        "object_name": goal.object_name,
+        "level": goal.level,
+        "sigma": [goal.sigma_x, goal.sigma_y, goal.sigma_theta],
+        "initial_mean": [goal.initial_mean.x, goal.initial_mean.y, goal.initial_mean.theta]
+        if goal.use_initial_mean
+        else None,
+        "strategy": goal.strategy,
+        "horizon": int(goal.horizon),
+        "delta": float(goal.delta),
+        "max_actions": int(goal.max_actions),
+    }
 
 
 def main(argv: list[str] | None = None) -> int:

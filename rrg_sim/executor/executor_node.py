@@ -9,7 +9,8 @@ via-points sent as guarded moves to ``/rrg/guarded_move``, closing through
 hand is left where the WRT stopped (a goal grasp closed on the object, so that it can be judged
 or lifted): ``/rrg/retreat`` (rrg_msgs/Retreat), or the next execution, retreats from it. Every
 retreat is published on ``/rrg/retreated`` (rrg_msgs/Retreated), so the estimator applies its
-transition. The sequence is the ROS-free ``rrg_sim.executor.wrt_executor.WrtExecutor`` (the
+transition. Both topics are latched (qos.EVENTS): a restarted estimator receives the last of
+each. The sequence is the ROS-free ``rrg_sim.executor.wrt_executor.WrtExecutor`` (the
 physics world runs the same one in-process); this node drives it through ``RosRobot``, so it
 runs unchanged against a hardware bridge.
 
@@ -34,12 +35,14 @@ from rrg_msgs.action import ExecuteWrt
 from rrg_msgs.msg import Observation as ObservationMsg
 from rrg_msgs.msg import Retreated
 from rrg_msgs.srv import Retreat
-from rrg_sim.executor.robot_client import MotionCanceled, MotionFailed, RosRobot
+from rrg_sim.executor.robot_client import MotionCanceled, MotionFailed, RobotFault, RosRobot
 from rrg_sim.executor.trajectory import InfeasiblePath
 from rrg_sim.executor.wrt_executor import WrtExecutor
 from rrg_sim.objects import OBJECT_NAMES, get_object
+from rrg_sim.ros_common.liveliness import announce
 from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, observation_to_msg, planar_from_msg
 from rrg_sim.ros_common.node_main import keep_serving, run_node
+from rrg_sim.ros_common.qos import EVENTS
 
 NODE_NAME = "executor"
 NAMESPACE = "rrg"
@@ -72,8 +75,8 @@ class ExecutorNode(Node):
         self.robot = RosRobot(self, group, self.get_parameter("motion_timeout").value)
         self.core = WrtExecutor(self.robot)
         self._busy = threading.Lock()
-        self.obs_pub = self.create_publisher(ObservationMsg, "observation", 10)
-        self.retreated_pub = self.create_publisher(Retreated, "retreated", 10)
+        self.obs_pub = self.create_publisher(ObservationMsg, "observation", EVENTS)
+        self.retreated_pub = self.create_publisher(Retreated, "retreated", EVENTS)
         self._last_observation: ObservationMsg | None = None  # of the WRT a retreat would leave
         ActionServer(
             self,
@@ -85,6 +88,7 @@ class ExecutorNode(Node):
             callback_group=group,
         )
         self.create_service(Retreat, "retreat", self.on_retreat, callback_group=group)
+        announce(self, NODE_NAME)
         self.get_logger().info("executor ready")
 
     def on_goal(self, goal: ExecuteWrt.Goal) -> GoalResponse:
@@ -163,6 +167,8 @@ class ExecutorNode(Node):
             )
         except MotionCanceled as exc:
             result.error_code, result.error_msg = R.CANCELED, str(exc)
+        except RobotFault as exc:
+            result.error_code, result.error_msg = R.ROBOT_FAULT, str(exc)
         except MotionFailed as exc:
             result.error_code, result.error_msg = R.MOTION_FAILED, str(exc)
         except Exception as exc:
@@ -196,6 +202,8 @@ class ExecutorNode(Node):
         with self._busy:
             try:
                 resp.header = self.retreat()
+            except RobotFault as exc:
+                resp.error_code, resp.error_msg = Retreat.Response.ROBOT_FAULT, str(exc)
             except (MotionFailed, MotionCanceled, InfeasiblePath) as exc:
                 resp.error_code, resp.error_msg = (
                     Retreat.Response.MOTION_FAILED,

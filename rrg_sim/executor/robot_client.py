@@ -23,16 +23,19 @@ from rrg_msgs.srv import HandCommand
 from rrg_sim import wam
 from rrg_sim.config import HAND, N_SENSORS
 from rrg_sim.executor.wrt_executor import Reading
+from rrg_sim.ros_common.arm_hand_interface import INTERFACE_PEER
 from rrg_sim.ros_common.futures import (
     ThreadSafeActionClient,
     WaitInterrupted,
     WaitTimeout,
     wait_for,
 )
+from rrg_sim.ros_common.liveliness import PeerLost, PeerWatch
 from rrg_sim.ros_common.msg_conversions import (
     ARM_JOINT_NAMES,
     PROXIMAL_JOINT_NAMES,
     SPREAD_JOINT_NAME,
+    stamp_to_ns,
     tip_contacts_from_msg,
 )
 
@@ -45,13 +48,13 @@ class MotionCanceled(RuntimeError):
     """The motion was interrupted (the caller's cancel request, or shutdown)."""
 
 
+class RobotFault(MotionFailed):
+    """The arm/hand interface went away (its process died): nothing moves until it is back."""
+
+
 def duration(seconds: float) -> Duration:
     sec = int(np.floor(seconds))
     return Duration(sec=sec, nanosec=int(round((seconds - sec) * 1e9)) % 1_000_000_000)
-
-
-def stamp_ns(msg: JointState) -> int:
-    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
 
 class RosRobot:
@@ -70,6 +73,8 @@ class RosRobot:
         node.create_subscription(
             JointState, "joint_states", self.on_joint_state, 10, callback_group=callback_group
         )
+        #: the interface's liveliness: a wait for it ends with RobotFault as soon as it dies
+        self.interface = PeerWatch(node, INTERFACE_PEER, callback_group, self._on_interface)
         self.interrupted: Callable[[], bool] = lambda: False
         self._lock = threading.Lock()
         self._joints: dict[str, float] = {}
@@ -79,17 +84,26 @@ class RosRobot:
         )
 
     # ------------------------------------------------------------------ state
+    def _on_interface(self, alive: bool) -> None:
+        if alive:
+            self.node.get_logger().info("the arm/hand interface is up")
+        else:
+            self.node.get_logger().error(
+                "robot fault: the arm/hand interface went away; nothing moves until it is back"
+            )
+
     def on_joint_state(self, msg: JointState) -> None:
         with self._lock:
-            if stamp_ns(msg) >= self._stamp:
-                self._stamp = stamp_ns(msg)
+            if stamp_to_ns(msg.header.stamp) >= self._stamp:
+                self._stamp = stamp_to_ns(msg.header.stamp)
                 self._joints.update(zip(msg.name, msg.position))
 
     def ready(self) -> bool:
         """Whether the joint states of every joint the executor needs have arrived."""
         names = (*ARM_JOINT_NAMES, SPREAD_JOINT_NAME, *PROXIMAL_JOINT_NAMES)
         return (
-            all(n in self._joints for n in names)
+            self.interface.alive
+            and all(n in self._joints for n in names)
             and self.move_client.server_is_ready()
             and self.hand_client.service_is_ready()
         )
@@ -120,9 +134,11 @@ class RosRobot:
 
     def _wait(self, future, what: str):
         try:
-            return wait_for(future, self.timeout_s, self.interrupted)
+            return wait_for(future, self.timeout_s, self.interrupted, self.interface)
         except WaitTimeout as exc:
             raise MotionFailed(f"{what}: {exc}") from exc
+        except PeerLost as exc:
+            raise RobotFault(f"{what}: the arm/hand interface went away") from exc
 
     # ------------------------------------------------------------------ commands
     def follow(self, q: np.ndarray, t: np.ndarray, guard: bool) -> float | None:

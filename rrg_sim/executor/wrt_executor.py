@@ -352,13 +352,32 @@ class WrtExecutor:
         self._open(wrt.preclose)
         self.last.moved, self.last.q_end = G, self.robot.arm_q()
 
+    def recover(self, progress: Callable[[str, float], None] | None = None) -> None:
+        """Bring the arm home with no record of how it got where it is (an executor restarted
+        in the middle of a WRT): open the hand, back out along its approach axis, rise above
+        the objects, then move home in joint space. Nothing moves when the arm is home."""
+        if np.abs(self.robot.arm_q() - wam.HOME_Q).max() <= RETREAT_TOLERANCE:
+            return
+        log.warning(
+            "the arm is away from home with no WRT to retrace: opening the hand, backing out "
+            "along its approach axis and rising, then moving home"
+        )
+        if progress is not None:
+            progress("retreat", PHASES["retreat"])
+        self._open(0.0)
+        self._back_out()
+        self._rise()
+        self._follow(joint_path(self.robot.arm_q(), wam.HOME_Q), speeds={0: FREE_SPEEDS})
+
     def retreat(self, progress: Callable[[str, float], None] | None = None) -> None:
         """Open the hand and retrace the executed path back to home. After a reorientation the
         WRT's part of the path is retraced turned with the object (where that is out of reach,
         the open hand backs out along its approach axis and rises instead), then the arm moves
         home in joint space. If the arm is no longer where the WRT left it (e.g. the simulator was
-        reset), the retreat is dropped."""
+        reset), the retreat is dropped. With no WRT to retreat from (this executor was restarted
+        while the arm was out), the arm is brought home by ``recover``."""
         if self.last is None:
+            self.recover(progress)
             return
         last, self.last = self.last, None
         if np.abs(self.robot.arm_q() - last.q_end).max() > RETREAT_TOLERANCE:

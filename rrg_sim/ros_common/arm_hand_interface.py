@@ -20,8 +20,11 @@ from rrg_msgs.srv import HandCommand
 from rrg_sim import wam
 from rrg_sim.config import HAND
 from rrg_sim.executor.trajectory import DensePath, sample_times
+from rrg_sim.ros_common.liveliness import announce
 from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES
 
+#: The name the arm/hand interface (the simulator, or the bridge) announces itself under.
+INTERFACE_PEER = "arm_hand_interface"
 #: Largest distance [rad] between the arm and a trajectory's first via-point at time 0.
 START_TOLERANCE = 0.05
 
@@ -116,8 +119,10 @@ def serve_arm_hand_interface(
     group,
 ) -> ActionServer:
     """The ``guarded_move`` action (goals filtered by ``accept_move``, cancellable) and the
-    ``hand_command`` service."""
+    ``hand_command`` service, announced as the peer INTERFACE_PEER (ros_common.liveliness), so
+    that the executor notices at once when the interface dies."""
     node.create_service(HandCommand, "hand_command", hand_command, callback_group=group)
+    announce(node, INTERFACE_PEER)
     return ActionServer(
         node,
         GuardedMove,

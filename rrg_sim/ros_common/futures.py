@@ -15,6 +15,8 @@ from collections.abc import Callable
 from rclpy.action import ActionClient
 from rclpy.task import Future
 
+from rrg_sim.ros_common.liveliness import PeerLost, PeerWatch
+
 POLL_S = 0.05
 
 
@@ -26,15 +28,24 @@ class WaitInterrupted(RuntimeError):
     """The wait was interrupted (cancel requested, or the node is shutting down)."""
 
 
-def wait_for(future: Future, timeout_s: float, interrupted: Callable[[], bool] | None = None):
-    """The future's result, waiting at most ``timeout_s``; raises WaitTimeout, or WaitInterrupted
-    as soon as ``interrupted()`` turns true."""
+def wait_for(
+    future: Future,
+    timeout_s: float,
+    interrupted: Callable[[], bool] | None = None,
+    peer: PeerWatch | None = None,
+):
+    """The future's result, waiting at most ``timeout_s``; raises WaitTimeout, WaitInterrupted
+    as soon as ``interrupted()`` turns true, or PeerLost as soon as ``peer`` (the node that
+    answers) is down or goes away."""
     done = threading.Event()
     future.add_done_callback(lambda _: done.set())
     deadline = time.monotonic() + timeout_s
+    losses = peer.losses if peer is not None else 0
     while not done.wait(POLL_S):
         if interrupted is not None and interrupted():
             raise WaitInterrupted("interrupted while waiting")
+        if peer is not None and peer.lost_since(losses):
+            raise PeerLost(f"the {peer.name} went away")
         if time.monotonic() > deadline:
             raise WaitTimeout(f"no answer within {timeout_s:.0f} s")
     return future.result()

@@ -23,6 +23,17 @@ SPREAD_JOINT_NAME = "bh_f1_spread"
 PROXIMAL_JOINT_NAMES = tuple(f"bh_f{i}_prox" for i in (1, 2, 3))
 
 
+def stamp_to_ns(stamp: Time) -> int:
+    """A message stamp in nanoseconds."""
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def ns_to_stamp(stamp_ns: int) -> Time:
+    """The message stamp of ``stamp_ns`` nanoseconds."""
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    return Time(sec=sec, nanosec=nanosec)
+
+
 def planar_to_msg(w) -> PlanarPose:
     """(x [m], y [m], θ [rad]) → rrg_msgs/PlanarPose."""
     x, y, theta = (float(v) for v in np.asarray(w, dtype=float).reshape(3))

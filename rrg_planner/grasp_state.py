@@ -1,0 +1,111 @@
+"""A robust grasp's progress on disk, so that a restarted planner can go on with it (design §8).
+
+The planner writes the grasp's request, the steps it has taken and the executions it found
+infeasible after each of them; a restarted planner reads them back into a ClosedLoop whose
+agent has spent and blocked the same (action, estimate) pairs. The belief is not here: the
+estimator owns it and restores its own. The file is JSON, written to a temporary file and
+renamed over the old one, so it is always one whole state.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from rrg_planner.closed_loop import ClosedLoop, Step
+
+#: Bumped when the stored fields change; a state of another format is refused.
+STATE_FORMAT = 1
+
+
+class GraspStateError(ValueError):
+    """A stored grasp state that cannot be read (another format, a torn or foreign file)."""
+
+
+@dataclass
+class GraspState:
+    """A robust grasp's progress: its request (the RobustGrasp goal's fields), the steps taken,
+    the (action, estimate) pairs found infeasible, and whether it is still running."""
+
+    request: dict
+    steps: list[Step] = field(default_factory=list)
+    blocked: list[tuple[int, list[float]]] = field(default_factory=list)
+    planning_time: float = 0.0  # s
+    p_goal: float = float("nan")
+    active: bool = True
+
+    @classmethod
+    def of(cls, request: dict, loop: ClosedLoop, active: bool = True) -> GraspState:
+        """The state of a running (or ended) loop."""
+        blocked = [(int(a), [float(v) for v in e]) for a, e in loop.blocked]
+        return cls(request, list(loop.steps), blocked, loop.planning_time, loop.p_goal, active)
+
+    def restore(self, loop: ClosedLoop) -> None:
+        """Put a fresh loop where this state left off: its steps, planning time and P(goal),
+        and its agent's spent and blocked (action, estimate) pairs."""
+        agent = loop.agent
+        agent.search.clear()
+        for step in self.steps:
+            action = agent.model.names.index(step.wrt)
+            agent.executed(action, step.estimate)
+        for action, e in self.blocked:
+            agent.search.block(action, np.asarray(e, dtype=float))
+        loop.steps = list(self.steps)
+        loop.blocked = [(a, np.asarray(e, dtype=float)) for a, e in self.blocked]
+        loop.planning_time, loop.p_goal = self.planning_time, self.p_goal
+
+
+def save_grasp_state(path: Path | str, state: GraspState) -> None:
+    """Write ``state`` to ``path`` atomically; OSError if it cannot be written."""
+    path = Path(path)
+    data = {
+        "format": STATE_FORMAT,
+        **asdict(state),
+        "steps": [
+            {**asdict(s), "estimate": np.asarray(s.estimate, dtype=float).tolist()}
+            for s in state.steps
+        ],
+    }
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        with open(tmp, "w") as f:
+            json.dump(data, f, allow_nan=True)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def load_grasp_state(path: Path | str) -> GraspState:
+    """The state stored at ``path``; FileNotFoundError when there is none, GraspStateError when
+    it is not a whole state of this format."""
+    try:
+        data = json.loads(Path(path).read_text())
+        if data.get("format") != STATE_FORMAT:
+            raise GraspStateError(
+                f"{path}: grasp state format {data.get('format')}, this planner reads "
+                f"{STATE_FORMAT}"
+            )
+        steps = [Step(**{**s, "estimate": np.asarray(s["estimate"])}) for s in data["steps"]]
+        return GraspState(
+            dict(data["request"]),
+            steps,
+            [(int(a), list(e)) for a, e in data["blocked"]],
+            float(data["planning_time"]),
+            float(data["p_goal"]),
+            bool(data["active"]),
+        )
+    except FileNotFoundError:
+        raise
+    except GraspStateError:
+        raise
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise GraspStateError(
+            f"{path}: not a whole grasp state ({type(exc).__name__}: {exc})"
+        ) from exc
