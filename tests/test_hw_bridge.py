@@ -34,7 +34,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from rrg_hw_bridge.fake.fake_hw_node import FAULTS
 from rrg_msgs.action import GuardedMove
 from rrg_msgs.srv import HandCommand, ResetSim
-from rrg_planner.bringup.launch import rdt_addresses
+from rrg_planner.bringup.graph import rdt_addresses
 from rrg_sim import wam
 from rrg_sim.config import HAND, SENSING
 from rrg_sim.ros_common.msg_conversions import (

@@ -27,7 +27,7 @@ from ros_testing import (
 from rrg_msgs.msg import NodeEvent
 from rrg_planner.bags.bag_info import bag_info
 from rrg_planner.bags.bag_read import NODE_EVENTS_TOPIC, read_messages
-from rrg_planner.bringup.launch import (
+from rrg_planner.bringup.graph import (
     Graph,
     LaunchError,
     exit_description,

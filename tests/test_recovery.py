@@ -22,6 +22,7 @@ from rrg_planner.bags.bag_read import read_messages
 from rrg_sim import wam
 from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES
 
+
 def kill_mid_grasp(
     tmp_path, domain_id: int, node: str, *extra: str
 ) -> tuple[int, str, dict | None, Launcher]:

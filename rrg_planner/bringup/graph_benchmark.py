@@ -106,7 +106,7 @@ def first_action(graph, object_name: str, level: str, horizon: int) -> float:
 
 
 def bench_ros(argv: list[str]) -> int:
-    from rrg_planner.bringup.launch import Graph, ros_environment, warm_tables
+    from rrg_planner.bringup.graph import Graph, ros_environment, warm_tables
 
     ap = argparse.ArgumentParser(
         prog="rrg-bench ros",

@@ -69,7 +69,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from rrg_hw_bridge.config import BRIDGE as BRIDGE_DEFAULTS
 from rrg_msgs.action import GuardedMove
 from rrg_msgs.srv import ResetSim
-from rrg_planner.bringup.launch import Graph, LaunchError, ros_environment
+from rrg_planner.bringup.graph import Graph, LaunchError, ros_environment
 from rrg_sim.config import SENSING, SENSOR_NAMES, WORLD
 from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES, planar_to_msg
 

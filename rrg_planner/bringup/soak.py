@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from rrg_planner.bringup.launch import (
+from rrg_planner.bringup.graph import (
     GRASP_TIMEOUT_S,
     Graph,
     GraspOutcome,
