@@ -97,10 +97,17 @@ def save_state(path: Path | str, state: EstimatorState) -> None:
         last_event_ns=np.int64(state.last_event_ns),
         map_load_ns=np.int64(state.map_load_ns),
     )
+    write_atomically(path, buffer.getvalue())
+
+
+def write_atomically(path: Path, data: bytes) -> None:
+    """Write ``data`` to a temporary file beside ``path``, flush it to the disk and rename it over
+    ``path``: the file is the old one or the new one, whenever the process dies. OSError (the
+    old file kept, no temporary left) when it cannot be written."""
     tmp = path.with_name(f".{path.name}.tmp")
     try:
         with open(tmp, "wb") as f:
-            f.write(buffer.getbuffer())
+            f.write(data)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)

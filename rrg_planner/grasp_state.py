@@ -4,18 +4,18 @@ The planner writes the grasp's request, the steps it has taken and the execution
 infeasible after each of them; a restarted planner reads them back into a ClosedLoop whose
 agent has spent and blocked the same (action, estimate) pairs. The belief is not here: the
 estimator owns it and restores its own. The file is JSON, written to a temporary file and
-renamed over the old one, so it is always one whole state.
+renamed over the old one (persistence.write_atomically), so it is always one whole state.
 """
 
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from rrg_estimator.persistence import write_atomically
 from rrg_planner.closed_loop import ClosedLoop, Step
 
 #: Bumped when the stored fields change; a state of another format is refused.
@@ -70,16 +70,7 @@ def save_grasp_state(path: Path | str, state: GraspState) -> None:
             for s in state.steps
         ],
     }
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        with open(tmp, "w") as f:
-            json.dump(data, f, allow_nan=True)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except OSError:
-        tmp.unlink(missing_ok=True)
-        raise
+    write_atomically(path, json.dumps(data, allow_nan=True).encode())
 
 
 def load_grasp_state(path: Path | str) -> GraspState:

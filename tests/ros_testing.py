@@ -225,3 +225,27 @@ class Launcher:
         """Its whole output once it has exited."""
         rest, _ = self.proc.communicate(timeout=300)
         return "".join(self.lines) + rest
+
+
+class ArmWatch:
+    """The arm's joint states on ``/rrg/joint_states``, as a client node receives them."""
+
+    def __init__(self, client: RosClient, tolerance_rad: float = 0.05):
+        from sensor_msgs.msg import JointState
+
+        self.tolerance_rad = tolerance_rad
+        self.states: list = []
+        client.node.create_subscription(JointState, "/rrg/joint_states", self.states.append, 10)
+
+    def left_home(self) -> bool:
+        """Whether the last state has a joint more than ``tolerance_rad`` from home."""
+        import numpy as np
+
+        from rrg_sim import wam
+        from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES
+
+        if not self.states:
+            return False
+        js = self.states[-1]
+        q = np.array([js.position[js.name.index(n)] for n in ARM_JOINT_NAMES])
+        return bool(np.abs(q - wam.HOME_Q).max() > self.tolerance_rad)

@@ -11,16 +11,12 @@ import json
 import os
 import signal
 
-import numpy as np
 import pytest
-from ros_testing import Launcher, RosClient, ros_env
-from sensor_msgs.msg import JointState
+from ros_testing import ArmWatch, Launcher, RosClient, ros_env
 
 from rrg_msgs.action import RobustGrasp
 from rrg_planner.bags.bag_info import bag_info
 from rrg_planner.bags.bag_read import read_messages
-from rrg_sim import wam
-from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES
 
 
 def kill_mid_grasp(
@@ -31,15 +27,7 @@ def kill_mid_grasp(
     launcher's output, the JSON outcome or None, the launcher)."""
     env = ros_env(domain_id)
     watcher = RosClient(env, f"kill_{node}_watcher")
-    states: list[JointState] = []
-    watcher.node.create_subscription(JointState, "/rrg/joint_states", states.append, 10)
-
-    def arm_left_home() -> bool:
-        if not states:
-            return False
-        js = states[-1]
-        q = np.array([js.position[js.name.index(n)] for n in ARM_JOINT_NAMES])
-        return np.abs(q - wam.HOME_Q).max() > 0.05
+    arm = ArmWatch(watcher)
 
     launcher = Launcher(
         tmp_path,
@@ -51,8 +39,8 @@ def kill_mid_grasp(
     )
     try:
         launcher.read_until("step 2:")
-        states.clear()
-        assert watcher.spin_until(arm_left_home, 120.0), "the arm did not move"
+        arm.states.clear()
+        assert watcher.spin_until(arm.left_home, 120.0), "the arm did not move"
         os.kill(launcher.pid(node), signal.SIGKILL)
         text = launcher.finish()
     except BaseException:

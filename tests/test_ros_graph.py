@@ -13,9 +13,8 @@ import sys
 import numpy as np
 import pytest
 import yaml
-from ros_testing import ROOT, RosClient, ros_env
+from ros_testing import ROOT, ArmWatch, RosClient, ros_env
 from rosbags.highlevel import AnyReader
-from sensor_msgs.msg import JointState
 
 from rrg_planner.bags.bag_cli import bag_info
 from rrg_planner.bags.bag_cli import main as bag_cli
@@ -159,15 +158,7 @@ def test_ctrl_c_mid_grasp_leaves_a_finalized_bag(tmp_path, ros_domain):
     last): the launcher cancels the grasp, stops the nodes and the recorder in order."""
     env = ros_env(ros_domain)
     watcher = RosClient(env, "ctrl_c_watcher")
-    states: list[JointState] = []
-    watcher.node.create_subscription(JointState, "/rrg/joint_states", states.append, 10)
-
-    def arm_left_home() -> bool:
-        if not states:
-            return False
-        js = states[-1]
-        q = np.array([js.position[js.name.index(n)] for n in ARM_JOINT_NAMES])
-        return np.abs(q - wam.HOME_Q).max() > 0.05
+    arm_left_home = ArmWatch(watcher).left_home
 
     proc = subprocess.Popen(
         launch_args(tmp_path, "interrupted", ros_domain, "--real-time-factor", "1"),
@@ -256,7 +247,6 @@ def test_without_sensor_noise_the_graph_takes_the_in_process_agents_actions(tmp_
     in-process (MuJoCo environment and BeliefTracker) it decides, executes, updates and retreats
     alike, so a noiseless grasp of several actions, retreats and a settling takes the same
     actions to the same P(goal)."""
-    import numpy as np
 
     from rrg_planner.agent import RobustGraspAgent
     from rrg_planner.closed_loop import run_in_process

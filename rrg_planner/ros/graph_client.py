@@ -129,6 +129,25 @@ class GraphClient:
                 self._belief_cv.wait(0.05)
             return belief_from_msg(self.belief_msg)
 
+    def _call(self, client, request, peer: PeerWatch, timeout: str, what: str, code: int):
+        """Call the service ``client`` of node ``peer`` (timeout: a key of ``timeouts()``), again
+        when the node dies during the call and comes back (at most RETRIES times); GraphError
+        with ``code`` when it fails."""
+        for attempt in range(RETRIES + 1):
+            self._back(peer, f"calling {what}", code)
+            if not client.wait_for_service(timeout_sec=SERVER_WAIT_S):
+                raise GraphError(code, f"the {peer.name}'s {what} is not available")
+            try:
+                return wait_for(
+                    client.call_async(request), self.timeouts()[timeout], self.interrupted, peer
+                )
+            except WaitTimeout as exc:
+                raise GraphError(code, f"{what}: {exc}") from exc
+            except PeerLost as exc:
+                if attempt == RETRIES:
+                    raise GraphError(code, f"{what}: {exc}") from exc
+                self.log.warn(f"{what}: {exc}; calling it again once it is back")
+
     @property
     def belief(self) -> Belief:
         if self.belief_msg is None:
@@ -153,26 +172,9 @@ class GraphClient:
             sigma_y=float(sigma[1]),
             sigma_theta=float(sigma[2]),
         )
-        for attempt in range(RETRIES + 1):
-            self._back(self.estimator, "resetting the belief", RG.ESTIMATION_FAILED)
-            if not self.reset_client.wait_for_service(timeout_sec=SERVER_WAIT_S):
-                raise GraphError(
-                    RG.ESTIMATION_FAILED, "the estimator's reset_belief is not available"
-                )
-            try:
-                resp = wait_for(
-                    self.reset_client.call_async(req),
-                    self.timeouts()["reset"],
-                    interrupted,
-                    self.estimator,
-                )
-                break
-            except WaitTimeout as exc:
-                raise GraphError(RG.ESTIMATION_FAILED, f"reset_belief: {exc}") from exc
-            except PeerLost as exc:
-                if attempt == RETRIES:
-                    raise GraphError(RG.ESTIMATION_FAILED, f"reset_belief: {exc}") from exc
-                self.log.warn(f"reset_belief: {exc}; resetting again once it is back")
+        resp = self._call(
+            self.reset_client, req, self.estimator, "reset", "reset_belief", RG.ESTIMATION_FAILED
+        )
         if resp.error_code != ResetBelief.Response.NONE:
             raise GraphError(RG.ESTIMATION_FAILED, f"reset_belief failed: {resp.error_msg}")
         with self._belief_cv:
@@ -252,24 +254,14 @@ class GraphClient:
 
     def retreat(self) -> None:
         """Retreat home through the executor; the estimator hears of it on /rrg/retreated."""
-        for attempt in range(RETRIES + 1):
-            self._back(self.executor, "retreating", RG.EXECUTION_FAILED)
-            if not self.retreat_client.wait_for_service(timeout_sec=SERVER_WAIT_S):
-                raise GraphError(RG.EXECUTION_FAILED, "the executor's retreat is not available")
-            try:
-                resp = wait_for(
-                    self.retreat_client.call_async(Retreat.Request()),
-                    self.timeouts()["execute"],
-                    self.interrupted,
-                    self.executor,
-                )
-                break
-            except WaitTimeout as exc:
-                raise GraphError(RG.EXECUTION_FAILED, f"retreat: {exc}") from exc
-            except PeerLost as exc:
-                if attempt == RETRIES:
-                    raise GraphError(RG.EXECUTION_FAILED, f"retreat: {exc}") from exc
-                self.log.warn(f"retreat: {exc}; retreating again once it is back")
+        resp = self._call(
+            self.retreat_client,
+            Retreat.Request(),
+            self.executor,
+            "execute",
+            "retreat",
+            RG.EXECUTION_FAILED,
+        )
         if resp.error_code == Retreat.Response.ROBOT_FAULT:
             raise GraphError(RG.ROBOT_FAULT, f"retreat failed: {resp.error_msg}")
         if resp.error_code != Retreat.Response.NONE:
