@@ -310,7 +310,8 @@ def test_reset_belief_rejects_bad_input_and_keeps_serving(graph, case):
 
 def observation_msg(wrt: str, stamp_sec: int, **changes) -> ObservationMsg:
     """The observation of the box's WRT ``wrt`` run at the nominal pose with the box 1 cm off in
-    x (geometric simulator), stamped stamp_sec; ``changes``: message fields to overwrite."""
+    x (geometric simulator), stamped stamp_sec (after the belief's last event: the estimator
+    skips older events as applied); ``changes``: message fields to overwrite."""
     obj = get_object(OBJECT)
     true = compose_planar(NOMINAL, (0.01, 0.0, 0.0))
     obs = GeometricSimulator(obj, obj.wrt(wrt)).simulate(true, NOMINAL)
@@ -326,24 +327,24 @@ def _no_motion(msg: ObservationMsg) -> ObservationMsg:
     return msg
 
 
-#: name: (observation, what the estimator's error log says)
+#: name: (observation stamped some seconds after t [s], what the estimator's error log says)
 BAD_OBSERVATIONS = {
     "NaN closures": (
-        lambda: observation_msg("info1", 101, closure=np.full(3, math.nan)),
+        lambda t: observation_msg("info1", t + 101, closure=np.full(3, math.nan)),
         "non-finite closure",
     ),
     "infinite closure": (
-        lambda: observation_msg("info1", 106, closure=np.array([0.5, math.inf, 0.5])),
+        lambda t: observation_msg("info1", t + 106, closure=np.array([0.5, math.inf, 0.5])),
         "non-finite closure",
     ),
-    "another object": (lambda: observation_msg("info1", 102, object_name="can"), "'can'"),
+    "another object": (lambda t: observation_msg("info1", t + 102, object_name="can"), "'can'"),
     "unknown WRT": (
-        lambda: observation_msg("info1", 103, wrt_name="no_such_wrt"),
+        lambda t: observation_msg("info1", t + 103, wrt_name="no_such_wrt"),
         "unknown WRT",
     ),
     # a contact with no direction of the hand's motion: no push to model
     "contact without a motion": (
-        lambda: _no_motion(observation_msg("info1", 104)),
+        lambda t: _no_motion(observation_msg("info1", t + 104)),
         "motion direction",
     ),
 }
@@ -367,9 +368,10 @@ def test_bad_observations_are_logged_and_the_belief_is_kept(graph):
         )
         assert client.spin_until(lambda: pub.get_subscription_count() > 0, 20.0)
         n_published = len(published)
+        t = reset.belief.header.stamp.sec  # the reset is the belief's last event
         for case, (make, words) in BAD_OBSERVATIONS.items():
             seen = len(log.read_text())
-            pub.publish(make())
+            pub.publish(make(t))
 
             def refused(words=words, seen=seen) -> bool:
                 new = log.read_text()[seen:]
@@ -383,7 +385,7 @@ def test_bad_observations_are_logged_and_the_belief_is_kept(graph):
             np.testing.assert_array_equal(
                 np.asarray(kept.belief.weights), np.asarray(reset.belief.weights), err_msg=case
             )
-        good = observation_msg("info1", 105)
+        good = observation_msg("info1", t + 105)
         pub.publish(good)
         assert client.spin_until(lambda: len(published) > n_published, 20.0), log.read_text()
         # the first belief published since the reset's is the valid observation's: none of
