@@ -24,6 +24,7 @@ import numpy as np
 from rrg_estimator.belief import Belief
 from rrg_estimator.grid import Grid
 from rrg_estimator.tracker import BeliefTracker, WrtTables
+from rrg_sim.objects import get_object
 
 #: Bumped when the stored fields change; a state of another format is refused.
 STATE_FORMAT = 1
@@ -66,8 +67,6 @@ class EstimatorState:
     def tracker(self, tables: WrtTables | None = None, **kwargs) -> BeliefTracker:
         """A BeliefTracker in this state (kwargs: BeliefTracker's levels, variable_resolution).
         Raises KeyError for an object or WRT that is not installed."""
-        from rrg_sim.objects import get_object
-
         tracker = BeliefTracker(get_object(self.object_name), self.belief, tables, **kwargs)
         if self.pending_wrt:
             tracker.pending = (

@@ -113,12 +113,15 @@ class GraphClient:
             self.belief_msg = msg
             self._belief_cv.notify_all()
 
-    def _wait_for_belief(self, stamp: Time) -> Belief:
-        """The estimator's belief stamped ``stamp`` (its update for the event of that stamp)."""
+    def _wait_for_belief(self, stamp: Time | None) -> Belief:
+        """The estimator's belief stamped ``stamp`` (its update for the event of that stamp), or
+        with ``stamp`` None whatever belief it has."""
         timeout_s = self.timeouts()["belief"]
         deadline = time.monotonic() + timeout_s
         with self._belief_cv:
-            while self.belief_msg is None or self.belief_msg.header.stamp != stamp:
+            while self.belief_msg is None or (
+                stamp is not None and self.belief_msg.header.stamp != stamp
+            ):
                 if self.interrupted():
                     raise WaitInterrupted("interrupted while waiting for the belief")
                 if time.monotonic() > deadline:
@@ -186,14 +189,7 @@ class GraphClient:
         then bring the hand home (retreat) and return the belief after it."""
         self.object_name, self.interrupted = object_name, interrupted
         self._back(self.estimator, "resuming", RG.ESTIMATION_FAILED)
-        deadline = time.monotonic() + self.timeouts()["belief"]
-        with self._belief_cv:
-            while self.belief_msg is None:
-                if interrupted():
-                    raise WaitInterrupted("interrupted while waiting for the belief")
-                if time.monotonic() > deadline:
-                    raise GraphError(RG.ESTIMATION_FAILED, "no belief from the estimator")
-                self._belief_cv.wait(0.05)
+        self._wait_for_belief(None)
         self.retreat()
         return self.retreated()
 

@@ -226,6 +226,13 @@ class WrtExecutor:
             lambda d: here @ _translation_z(-d), PHYSICS.back_out_distance
         )
 
+    def _withdraw(self) -> None:
+        """Open the hand fully, back out along its approach axis and rise clear of the objects:
+        the way out when the WRT's path cannot be retraced."""
+        self._open(0.0)
+        self._back_out()
+        self._rise()
+
     def _move_as_far_as_feasible(
         self, pose_at: Callable[[float], np.ndarray], distance: float
     ) -> None:
@@ -364,9 +371,7 @@ class WrtExecutor:
         )
         if progress is not None:
             progress("retreat", PHASES["retreat"])
-        self._open(0.0)
-        self._back_out()
-        self._rise()
+        self._withdraw()
         self._follow(joint_path(self.robot.arm_q(), wam.HOME_Q), speeds={0: FREE_SPEEDS})
 
     def retreat(self, progress: Callable[[str, float], None] | None = None) -> None:
@@ -410,8 +415,6 @@ class WrtExecutor:
                         last.wrt.name,
                         exc,
                     )
-                    self._open(0.0)
-                    self._back_out()
-                    self._rise()
+                    self._withdraw()
             self._follow(joint_path(self.robot.arm_q(), last.path.q[0]), speeds={0: FREE_SPEEDS})
         self._open(0.0)
