@@ -33,7 +33,7 @@ from rrg_sim.geometric_sim import GeometricSimulator
 from rrg_sim.objects import get_object
 from rrg_sim.poses import compose_planar
 from rrg_sim.ros_common.msg_conversions import observation_to_msg, planar_to_msg
-from rrg_sim.ros_common.qos import EVENTS, LATCHED
+from rrg_sim.ros_common.qos import LATCHED, STREAM
 
 pytestmark = pytest.mark.slow  # node processes
 
@@ -358,8 +358,8 @@ def test_bad_observations_are_logged_and_the_belief_is_kept(graph):
     assert reset.error_code == RB.NONE, reset.error_msg
     published: list[BeliefGrid] = []
     sub = client.node.create_subscription(BeliefGrid, "/rrg/belief", published.append, LATCHED)
-    # latched, as the executor publishes it: the estimator asks for TRANSIENT_LOCAL (qos.EVENTS)
-    pub = client.node.create_publisher(ObservationMsg, "/rrg/observation", EVENTS)
+    # latched, as the executor publishes it: the estimator asks for TRANSIENT_LOCAL (qos.STREAM)
+    pub = client.node.create_publisher(ObservationMsg, "/rrg/observation", STREAM)
     log = logs / "estimator_node.log"
     try:
         # the latched belief is the reset's

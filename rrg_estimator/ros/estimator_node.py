@@ -19,8 +19,8 @@ or impossible observation) is logged as an error and the belief is kept.
 Recovery: with ``state_file`` set, the estimator writes its state (rrg_estimator.persistence:
 the belief, its grid level, the pending retreat and the last event's stamp) after every reset,
 update and retreat, before it publishes. A restarted estimator restores it and publishes the
-restored belief again. The executor's ``/rrg/observation`` and ``/rrg/retreated`` are latched,
-so a restarted estimator also receives the last of each: it applies the one its state does not
+restored belief again. The executor's ``/rrg/observation`` and ``/rrg/retreated`` are latched
+streams, so a restarted estimator also receives the latest of each: it applies the one its state does not
 include yet (newer than its last event) and skips the other, so an event that arrived while
 it was down is not lost and none is applied twice.
 """
@@ -53,7 +53,7 @@ from rrg_sim.ros_common.msg_conversions import (
     stamp_to_ns,
 )
 from rrg_sim.ros_common.node_main import keep_serving, run_node
-from rrg_sim.ros_common.qos import EVENTS, LATCHED
+from rrg_sim.ros_common.qos import LATCHED, STREAM
 
 NODE_NAME = "estimator"
 NAMESPACE = "rrg"
@@ -111,11 +111,11 @@ class EstimatorNode(Node):
         self._last_event_ns = 0  # stamp [ns] of the last event the belief includes
         self._started_ns = self.get_clock().now().nanoseconds
         self._belief_msg: BeliefGrid | None = None
-        self.belief_pub = self.create_publisher(BeliefGrid, "belief", LATCHED)
+        self.belief_pub = self.create_publisher(BeliefGrid, "belief", STREAM)
         self.marker_pub = self.create_publisher(MarkerArray, "belief_markers", LATCHED)
         self.restore()
-        self.create_subscription(ObservationMsg, "observation", self.on_observation, EVENTS)
-        self.create_subscription(Retreated, "retreated", self.on_retreated, EVENTS)
+        self.create_subscription(ObservationMsg, "observation", self.on_observation, STREAM)
+        self.create_subscription(Retreated, "retreated", self.on_retreated, STREAM)
         self.create_service(ResetBelief, "reset_belief", self.on_reset_belief)
         self.create_service(GetBelief, "get_belief", self.on_get_belief)
         announce(self, NODE_NAME)

@@ -9,8 +9,8 @@ via-points sent as guarded moves to ``/rrg/guarded_move``, closing through
 hand is left where the WRT stopped (a goal grasp closed on the object, so that it can be judged
 or lifted): ``/rrg/retreat`` (rrg_msgs/Retreat), or the next execution, retreats from it. Every
 retreat is published on ``/rrg/retreated`` (rrg_msgs/Retreated), so the estimator applies its
-transition. Both topics are latched (qos.EVENTS): a restarted estimator receives the last of
-each. The sequence is the ROS-free ``rrg_sim.executor.wrt_executor.WrtExecutor`` (the
+transition. Both topics are latched streams (qos.STREAM): a restarted estimator receives the
+latest of each. The sequence is the ROS-free ``rrg_sim.executor.wrt_executor.WrtExecutor`` (the
 physics world runs the same one in-process); this node drives it through ``RosRobot``, so it
 runs unchanged against a hardware bridge.
 
@@ -42,7 +42,7 @@ from rrg_sim.objects import OBJECT_NAMES, get_object
 from rrg_sim.ros_common.liveliness import announce
 from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, observation_to_msg, planar_from_msg
 from rrg_sim.ros_common.node_main import keep_serving, run_node
-from rrg_sim.ros_common.qos import EVENTS
+from rrg_sim.ros_common.qos import STREAM
 
 NODE_NAME = "executor"
 NAMESPACE = "rrg"
@@ -75,8 +75,8 @@ class ExecutorNode(Node):
         self.robot = RosRobot(self, group, self.get_parameter("motion_timeout").value)
         self.core = WrtExecutor(self.robot)
         self._busy = threading.Lock()
-        self.obs_pub = self.create_publisher(ObservationMsg, "observation", EVENTS)
-        self.retreated_pub = self.create_publisher(Retreated, "retreated", EVENTS)
+        self.obs_pub = self.create_publisher(ObservationMsg, "observation", STREAM)
+        self.retreated_pub = self.create_publisher(Retreated, "retreated", STREAM)
         self._last_observation: ObservationMsg | None = None  # of the WRT a retreat would leave
         ActionServer(
             self,
