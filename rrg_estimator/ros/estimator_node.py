@@ -20,9 +20,9 @@ Recovery: with ``state_file`` set, the estimator writes its state (rrg_estimator
 the belief, its grid level, the pending retreat and the last event's stamp) after every reset,
 update and retreat, before it publishes. A restarted estimator restores it and publishes the
 restored belief again. The executor's ``/rrg/observation`` and ``/rrg/retreated`` are latched
-streams, so a restarted estimator also receives the latest of each: it applies the one its state does not
-include yet (newer than its last event) and skips the other, so an event that arrived while
-it was down is not lost and none is applied twice.
+streams, so a restarted estimator also receives their latest messages: it applies the one its
+state does not include yet (newer than its last event) and skips the others, so an event that
+arrived while it was down is not lost and none is applied twice.
 """
 
 from __future__ import annotations
