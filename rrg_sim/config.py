@@ -407,9 +407,10 @@ class WorldProfile:
 NOMINAL = WorldProfile()
 
 #: WAM drive ratios, motor turns per joint turn (libbarrett config/wam7w.conf, j2mp; J2/J3 and
-#: J5/J6 are differentials, their diagonal terms used) and motor encoder counts per turn
-#: (Barrett WAM User's Manual D1001, FAQ: CTS 40960 for the optical encoders).
-WAM_DRIVE_RATIOS = (42.0, 28.25, 28.25, 18.0, 9.7, 9.7, 14.93)
+#: J5/J6 are differentials, the magnitudes of their diagonal terms used: motor 3 turns 16.8155
+#: times per turn of J3) and motor encoder counts per turn (Barrett WAM User's Manual D1001,
+#: FAQ: CTS 40960 for the optical encoders).
+WAM_DRIVE_RATIOS = (42.0, 28.25, 16.8155, 18.0, 9.7, 9.7, 14.93)
 WAM_ENCODER_COUNTS = 40960
 
 #: The realistic world: a real WAM, BarrettHand and Nano17s as their makers and the literature
@@ -420,13 +421,19 @@ WAM_ENCODER_COUNTS = 40960
 #: is below one control period).
 REALISTIC = WorldProfile(
     name="realistic",
-    # The WAM is zeroed by eye against scribe marks (Barrett, "WAM Arm Calibration" wiki;
-    # libbarrett config/calibration.conf) and no published study gives its residual. Sized to
-    # the nearest published figure: a 6-DOF arm's 9 mm mean position error before kinematic
-    # calibration (Joubair, Zhao, Bigras, Bonev, "Use of a Force-Torque Sensor for
-    # Self-Calibration of a 6-DOF Medical Robot", Sensors 16(6) 798, 2016). On the WAM, 1 mrad
-    # on every joint moves the palm 0.88 mm on average over home and the ten goal grasps
-    # (forward kinematics, 2000 draws each), so 9 mm needs 10 mrad.
+    # A WAM's offsets are a fixed bias of its zero calibration, not a per-start error: its
+    # quasi-absolute motor encoders restore the calibrated zero at every start-up within half
+    # a motor turn (Barrett, "WAM Calibration" wiki; libbarrett low_level_wam-inl.h), and the
+    # zero itself is set by eye against scribe marks (libbarrett config/calibration.conf,
+    # programs/zerocal.cpp). A trial's draw stands for one calibrated robot. No study gives
+    # the residual; it is sized to the nearest published figure, a 6-DOF arm's 9 mm mean
+    # position error before kinematic calibration (Joubair, Zhao, Bigras, Bonev, "Use of a
+    # Force-Torque Sensor for Self-Calibration of a 6-DOF Medical Robot", Sensors 16(6) 798,
+    # 2016), below the "nearly six centimeters" at the hand reported for DARPA ARM-S's cable-
+    # driven Barrett arms with cable stretch and gravity included (M. Klingensmith's account of
+    # the ARM-S arms, matthewklingensmith.com/?p=87; an informal source).
+    # On the WAM, 1 mrad on every joint moves the palm 0.88 mm on average over home and the ten
+    # goal grasps (forward kinematics, 2000 draws each), so 9 mm needs 10 mrad.
     joint_offset_sigma=0.010,
     joint_resolution=tuple(2 * math.pi / (WAM_ENCODER_COUNTS * n) for n in WAM_DRIVE_RATIOS),
     # libbarrett config/wam7w.conf: control_signal_limit of the joint position PID.

@@ -29,6 +29,7 @@ from rrg_planner.experiment.trials import (
     drop_torn_tail,
     load_records,
     outcome,
+    schedule,
 )
 from rrg_sim.config import WORLD
 from rrg_sim.poses import relative_planar
@@ -280,6 +281,30 @@ def test_a_cell_key_names_its_cell_and_nothing_else():
     ):
         with pytest.raises(ValueError):
             Cell.from_key(bad)
+
+
+def test_schedule_runs_the_longest_cells_first_and_keeps_each_cell_together():
+    """Planning cells before open-loop, high before low, deeper searches first; a cell's trials
+    run together in index order; no trial is lost or repeated."""
+    from rrg_planner.experiment.experiment_cli import campaign_specs
+
+    specs = campaign_specs(
+        ["powerdrill", "cup"], ["low", "high"], ["open-loop", "rrg-goal", "rrg-info"], 3, 2, 0
+    )
+    order = schedule(specs[::-1])
+    assert sorted(s.id for s in order) == sorted(s.id for s in specs)
+    cells = [s.cell for s in order]
+    first = [cells.index(c) for c in dict.fromkeys(cells)]
+    runs = [cells[i:j] for i, j in zip(first, first[1:] + [len(cells)], strict=True)]
+    assert all(len(set(run)) == 1 for run in runs)  # each cell's trials are contiguous
+    for c in dict.fromkeys(cells):
+        assert [s.index for s in order if s.cell == c] == sorted(
+            s.index for s in specs if s.cell == c
+        )
+    assert cells[0].horizon == max(c.horizon for c in cells) and cells[0].level == "high"
+    open_loop = [i for i, c in enumerate(cells) if c.strategy == "open-loop"]
+    assert min(open_loop) > max(i for i, c in enumerate(cells) if c.strategy != "open-loop")
+    assert cells[-1].level == "low"
 
 
 @pytest.mark.parametrize(

@@ -203,3 +203,20 @@ def test_object_scene_smoke(name):
 
 def test_robot_file_is_included_by_scene():
     assert f'<include file="{ROBOT_FILE}" />' in asset_files()["scene.xml"]
+
+
+def test_worlds_by_object_makes_each_world_once_and_keeps_its_noise_going():
+    """A switch back to an object returns its world (no new MuJoCo model or data), placed anew
+    by reset, and the world's noise continues rather than restarting from the seed."""
+    from rrg_sim.physics.world import WorldsByObject
+
+    worlds = WorldsByObject(seed=3, sensor_noise=1.0)
+    box = worlds("box")
+    first = box.rng.random()
+    can = worlds("can")
+    assert can is not box and can.obj.name == "can" and box.obj.name == "box"
+    again = worlds("box")
+    assert again is box and again.model is box.model and again.data is box.data
+    assert again.rng.random() != first  # the stream went on
+    again.reset(np.array([0.6, 0.02, 0.1]))
+    assert np.allclose(again.true_object_pose(), [0.6, 0.02, 0.1], atol=0.01)

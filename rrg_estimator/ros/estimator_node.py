@@ -52,7 +52,7 @@ from rrg_sim.ros_common.msg_conversions import (
     planar_from_msg,
     stamp_to_ns,
 )
-from rrg_sim.ros_common.node_main import keep_serving, run_node
+from rrg_sim.ros_common.node_main import keep_serving, release_free_memory, run_node
 from rrg_sim.ros_common.qos import LATCHED, STREAM
 
 NODE_NAME = "estimator"
@@ -282,13 +282,15 @@ class EstimatorNode(Node):
         else:
             try:
                 obj = get_object(req.object_name)
-                # workers=1: no fork from a process running DDS threads (tables are normally cached)
+                same_object = self.tracker is not None and self.tracker.obj.name == obj.name
                 tracker = BeliefTracker.gaussian(
                     obj,
                     mean,
                     sigma,
                     LEVELS.get(req.level),
-                    tables=CachedTables(obj, workers=1),
+                    # the object's tables again, or another's (workers=1: no fork from a
+                    # process running DDS threads; tables are normally cached on disk)
+                    tables=self.tracker.tables if same_object else CachedTables(obj, workers=1),
                     variable_resolution=self.get_parameter("variable_resolution").value,
                 )
             except KeyError as exc:
@@ -299,6 +301,8 @@ class EstimatorNode(Node):
             else:
                 tracker.preload()
                 self.tracker = tracker
+                if not same_object:
+                    release_free_memory()  # the last object's tables
                 resp.belief = self.commit(self.get_clock().now().to_msg(), new_grid=True)
                 self.get_logger().info(
                     f"belief reset: {req.object_name} at {np.round(mean, 3).tolist()}, "

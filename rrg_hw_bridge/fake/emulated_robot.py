@@ -39,7 +39,7 @@ from rrg_sim.config import HAND, PHYSICS
 from rrg_sim.executor.trajectory import servo_targets
 from rrg_sim.physics.mjcf_robot import ARM_JOINTS, TIP_FORCE, TIP_TORQUE
 from rrg_sim.physics.sensing import HandSensors
-from rrg_sim.physics.world import PhysicsWorld
+from rrg_sim.physics.world import PhysicsWorld, WorldsByObject
 
 #: Most control periods the stepping thread runs back to back after a late wake-up (chosen: 5
 #: periods = 10 ms); periods missed beyond that are dropped and counted as overruns.
@@ -168,6 +168,7 @@ class EmulatedRobot:
 
     def __init__(self, object_name: str = "powerdrill", seed: int = 0, sensor_noise: float = 1.0):
         self.seed, self.sensor_noise = seed, sensor_noise
+        self._worlds = WorldsByObject(seed=seed, sensor_noise=sensor_noise)
         self._lock = threading.RLock()
         self._rng = np.random.default_rng(seed)
         self._goal: _Goal | None = None
@@ -184,11 +185,11 @@ class EmulatedRobot:
         self._stop = threading.Event()
         self._rebase = False
         self.timing = Timing()
-        self._make_world(object_name)
+        self._select_world(object_name)
 
     # ------------------------------------------------------------------ world
-    def _make_world(self, object_name: str) -> None:
-        self.world = PhysicsWorld(object_name, seed=self.seed, sensor_noise=self.sensor_noise)
+    def _select_world(self, object_name: str) -> None:
+        self.world = self._worlds(object_name)
         m = self.world.model
         qadr = lambda names: np.array([m.jnt_qposadr[m.joint(n).id] for n in names])
         vadr = lambda names: np.array([m.jnt_dofadr[m.joint(n).id] for n in names])
@@ -240,7 +241,7 @@ class EmulatedRobot:
         with self._lock:
             self._abort("reset")
             if object_name is not None and object_name != self.world.obj.name:
-                self._make_world(object_name)
+                self._select_world(object_name)
             self.world.reset(pose)
             self._sync_controllers()
             self._rebase = True

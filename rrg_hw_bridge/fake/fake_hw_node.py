@@ -72,6 +72,7 @@ from rrg_sim.objects import OBJECT_NAMES
 from rrg_sim.ros.eval_services import EvalNames, EvalServices
 from rrg_sim.ros_common.arm_hand_interface import START_TOLERANCE
 from rrg_sim.ros_common.node_main import keep_serving, run_node
+from rrg_sim.ros_common.qos import RESULT_TIMEOUT_S
 
 from ..fake_netft import FakeNetFtBox
 from ..rdt import Calibration
@@ -205,6 +206,7 @@ class FakeHwNode(Node):
                 handle_accepted_callback=self._on_accepted,
                 cancel_callback=self._on_cancel,
                 callback_group=group,
+                result_timeout=RESULT_TIMEOUT_S,
             )
         self._wam = None
         if self.arm_interface != "follow_joint_trajectory":

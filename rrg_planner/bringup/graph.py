@@ -500,6 +500,11 @@ class Graph:
             self.spin_until(
                 ready, deadline - time.monotonic(), f"{name} (planning models load first)"
             )
+        # The planner's liveliness too: a grasp that starts before it is seen would take the
+        # planner for lost at once, and resend the goal.
+        self.spin_until(
+            lambda: self.planner.alive, deadline - time.monotonic(), "the planner's liveliness"
+        )
         if self.bag_dir is not None:
             self.spin_until(
                 self.recorder_caught_up, deadline - time.monotonic(), "the recorder's subscriptions"

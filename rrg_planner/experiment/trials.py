@@ -307,10 +307,27 @@ def run_campaign(
     return [r for r in load_records(out) if r["id"] in ids]
 
 
+def schedule(todo: list[TrialSpec]) -> list[TrialSpec]:
+    """The trials in the order to run them: the likely longest cells first (planning before
+    open-loop, high uncertainty before low, deeper searches first, RRG-Info before RRG-Goal),
+    each cell's trials together, so the last to run are short and the workers finish together.
+    The order changes no record: each trial depends on its spec only."""
+
+    def cell_order(c: Cell) -> tuple:
+        return (
+            c.strategy == "open-loop",
+            c.level != "high",
+            -c.horizon,
+            c.strategy != "rrg-info",
+            c.key,
+        )
+
+    return sorted(todo, key=lambda s: (cell_order(s.cell), s.index))
+
+
 def _imap(todo: list[TrialSpec], workers: int, ray: str | None, desc: str) -> Iterator[dict]:
     bar = tqdm(total=len(todo), desc=desc, unit="trial", dynamic_ncols=True)
-    # Group by object so each worker keeps few models and worlds in memory.
-    todo = sorted(todo, key=lambda s: (s.cell.object, s.cell.level, s.index))
+    todo = schedule(todo)
     if ray:
         from rrg_planner.experiment.ray_pool import ray_imap
 

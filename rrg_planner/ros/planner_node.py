@@ -72,6 +72,7 @@ from rrg_sim.ros_common.futures import WaitInterrupted, wait_for
 from rrg_sim.ros_common.liveliness import announce
 from rrg_sim.ros_common.msg_conversions import planar_to_msg
 from rrg_sim.ros_common.node_main import run_node
+from rrg_sim.ros_common.qos import RESULT_TIMEOUT_S
 
 NODE_NAME = "planner"
 NAMESPACE = "rrg"
@@ -187,6 +188,7 @@ class PlannerNode(Node):
             goal_callback=self.on_grasp_goal,
             cancel_callback=lambda _: CancelResponse.ACCEPT,
             callback_group=group,
+            result_timeout=RESULT_TIMEOUT_S,
         )
         announce(self, NODE_NAME)
         self.get_logger().info(

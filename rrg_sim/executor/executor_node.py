@@ -42,7 +42,7 @@ from rrg_sim.objects import OBJECT_NAMES, get_object
 from rrg_sim.ros_common.liveliness import announce
 from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, observation_to_msg, planar_from_msg
 from rrg_sim.ros_common.node_main import keep_serving, run_node
-from rrg_sim.ros_common.qos import STREAM
+from rrg_sim.ros_common.qos import RESULT_TIMEOUT_S, STREAM
 
 NODE_NAME = "executor"
 NAMESPACE = "rrg"
@@ -86,6 +86,7 @@ class ExecutorNode(Node):
             goal_callback=self.on_goal,
             cancel_callback=lambda _: CancelResponse.ACCEPT,
             callback_group=group,
+            result_timeout=RESULT_TIMEOUT_S,
         )
         self.create_service(Retreat, "retreat", self.on_retreat, callback_group=group)
         announce(self, NODE_NAME)

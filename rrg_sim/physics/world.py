@@ -52,7 +52,7 @@ from .realism import ModelConditions, draw_conditions, quantize
 from .scene import OBJECT_BODY, OBJECT_JOINT, build_model
 from .sensing import HandSensors
 
-__all__ = ["PhysicsWorld", "InfeasiblePath"]
+__all__ = ["PhysicsWorld", "InfeasiblePath", "WorldsByObject"]
 
 
 class PhysicsWorld:
@@ -487,3 +487,23 @@ class PhysicsWorld:
     def last_observation(self) -> Observation | None:
         last = self.executor.last
         return None if last is None else last.observation
+
+
+class WorldsByObject:
+    """One PhysicsWorld per object, made the first time it is asked for and kept, for a
+    process that switches objects again and again (the simulator node, the emulated drivers).
+
+    A world is about 20 MB of MuJoCo model and data. Making a new one at every switch left the
+    freed ones resident: over hundreds of grasps the simulator's RSS grew by about 1 MB a grasp
+    while malloc's bytes in use stayed flat. A kept world's noise goes on from one grasp to the
+    next. ``world_args``: PhysicsWorld's keyword arguments, the same for every object.
+    """
+
+    def __init__(self, **world_args):
+        self.world_args = world_args
+        self._worlds: dict[str, PhysicsWorld] = {}
+
+    def __call__(self, object_name: str) -> PhysicsWorld:
+        if object_name not in self._worlds:
+            self._worlds[object_name] = PhysicsWorld(object_name, **self.world_args)
+        return self._worlds[object_name]

@@ -62,7 +62,7 @@ from ..config import SENSING, WORLD_PROFILES
 from ..objects import OBJECT_NAMES
 from ..physics.mjcf_robot import TIP_BODIES
 from ..physics.sensing import HandSensors
-from ..physics.world import PhysicsWorld
+from ..physics.world import PhysicsWorld, WorldsByObject
 from .eval_services import EvalServices
 
 NODE_NAME = "sim"
@@ -138,7 +138,15 @@ class SimNode(Node):
         )
         self._lock = threading.Lock()
         self._move_active = False
-        self.world = self._make_world(self.get_parameter("object_name").value)
+        profile = self.get_parameter("world_profile").value
+        if profile not in WORLD_PROFILES:
+            raise ValueError(f"world_profile {profile!r} is not one of {sorted(WORLD_PROFILES)}")
+        self._worlds = WorldsByObject(
+            seed=self.get_parameter("seed").value,
+            sensor_noise=self.get_parameter("sensor_noise").value,
+            profile=profile,
+        )
+        self.world = self._world_of(self.get_parameter("object_name").value)
         group = ReentrantCallbackGroup()
         self.state_pubs = StatePublishers.create(self)
         self.eval = EvalServices(
@@ -160,16 +168,9 @@ class SimNode(Node):
             f"{np.round(self.world.true_object_pose(), 3).tolist()}"
         )
 
-    def _make_world(self, object_name: str) -> PhysicsWorld:
-        profile = self.get_parameter("world_profile").value
-        if profile not in WORLD_PROFILES:
-            raise ValueError(f"world_profile {profile!r} is not one of {sorted(WORLD_PROFILES)}")
-        world = PhysicsWorld(
-            object_name,
-            seed=self.get_parameter("seed").value,
-            sensor_noise=self.get_parameter("sensor_noise").value,
-            profile=profile,
-        )
+    def _world_of(self, object_name: str) -> PhysicsWorld:
+        """The (kept) world of ``object_name``, with this node's joint indices into it."""
+        world = self._worlds(object_name)
         m = world.model
         robot = [j for j in range(m.njnt) if m.joint(j).name.startswith(("wam/", "bh/"))]
         self._arm_rows = np.array(
@@ -373,7 +374,7 @@ class SimNode(Node):
         """Place ``object_name`` (a new world for another object) at the planar pose, arm home
         (call under the lock)."""
         if object_name != self.world.obj.name:
-            self.world = self._make_world(object_name)
+            self.world = self._world_of(object_name)
         self.world.reset(pose)
 
 

@@ -22,6 +22,7 @@ from rrg_sim.config import HAND
 from rrg_sim.executor.trajectory import DensePath, sample_times
 from rrg_sim.ros_common.liveliness import announce
 from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES
+from rrg_sim.ros_common.qos import RESULT_TIMEOUT_S
 
 #: The name the arm/hand interface (the simulator, or the bridge) announces itself under.
 INTERFACE_PEER = "arm_hand_interface"
@@ -131,4 +132,5 @@ def serve_arm_hand_interface(
         goal_callback=accept_move,
         cancel_callback=lambda _: CancelResponse.ACCEPT,
         callback_group=group,
+        result_timeout=RESULT_TIMEOUT_S,
     )

@@ -1,0 +1,79 @@
+"""The nodes' executor (rrg_sim.ros_common.node_main.SubmitOnceExecutor): with its thread pool
+busy, rclpy's MultiThreadedExecutor hands a queued task over again on every turn; this one
+hands each task over once, and still raises a callback's exception from the spin."""
+
+from __future__ import annotations
+
+import collections
+import threading
+import time
+
+import pytest
+import rclpy
+from rclpy.executors import MultiThreadedExecutor
+
+from rrg_sim.ros_common.node_main import SubmitOnceExecutor
+
+
+def hand_overs(executor_class, ros_domain: int, seconds: float = 1.0) -> collections.Counter:
+    """Spin a node whose timer callback blocks for 50 ms every 5 ms, and another that fires
+    every 1 ms, on a pool of one thread; count how often each task was handed to the pool."""
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=ros_domain)
+    try:
+        node = rclpy.create_node("submit_once_test", context=context)
+        node.create_timer(0.005, lambda: time.sleep(0.05))
+        node.create_timer(0.001, lambda: None)  # the wait set is always ready, as with 50 Hz topics
+        executor = executor_class(num_threads=1, context=context)
+        executor.add_node(node)
+        counts: collections.Counter = collections.Counter()
+        kept = []  # every task stays alive, so no two share an id
+        submit = executor._executor.submit
+
+        def counting_submit(task, *args):
+            kept.append(task)
+            counts[id(task)] += 1
+            return submit(task, *args)
+
+        executor._executor.submit = counting_submit
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.1)
+        executor.shutdown(timeout_sec=1.0)
+        node.destroy_node()
+        return counts
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+def test_a_queued_task_is_handed_to_the_pool_once(ros_domain):
+    counts = hand_overs(SubmitOnceExecutor, ros_domain)
+    assert len(counts) >= 5  # the timer's callbacks ran
+    assert max(counts.values()) == 1
+    # rclpy's own executor hands a queued task over again (2 or 3 times each, measured)
+    assert max(hand_overs(MultiThreadedExecutor, ros_domain).values()) > 1
+
+
+def test_a_callbacks_exception_is_raised_from_the_spin(ros_domain):
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=ros_domain)
+    try:
+        node = rclpy.create_node("submit_once_error", context=context)
+        fired = threading.Event()
+
+        def fail() -> None:
+            fired.set()
+            raise ValueError("from the callback")
+
+        node.create_timer(0.01, fail)
+        executor = SubmitOnceExecutor(num_threads=2, context=context)
+        executor.add_node(node)
+        with pytest.raises(ValueError, match="from the callback"):
+            deadline = time.monotonic() + 5.0
+            while time.monotonic() < deadline:
+                executor.spin_once(timeout_sec=0.1)
+        assert fired.is_set()
+        executor.shutdown(timeout_sec=1.0)
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
