@@ -371,8 +371,8 @@ class SimNode(Node):
         return resp
 
     def reset_world(self, object_name: str, pose: np.ndarray) -> None:
-        """Place ``object_name`` (a new world for another object) at the planar pose, arm home
-        (call under the lock)."""
+        """Place ``object_name`` (its own kept world when the object changes) at the planar
+        pose, arm home (call under the lock)."""
         if object_name != self.world.obj.name:
             self.world = self._world_of(object_name)
         self.world.reset(pose)
