@@ -93,7 +93,7 @@ class TransitionParams:
     #: rad, spread of the turn actually made about the commanded one (MuJoCo, 0.6 rad
     #: reorientations of the giant teacup from 8 seeded starts each: 0.8-1.06 of the angle,
     #: σ ≈ 0.04 rad; the drill: σ ≈ 0.015 rad; the larger is used). A full turn of a WRT with a
-    #: measured outcome (objects/reorientation.json, WRT.reorient_outcome) adds that one's σ.
+    #: measured outcome (its object's reorientation.json, WRT.reorient_outcome) adds that one's σ.
     reorient_sigma_theta: float = 0.04
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from rrg_estimator.config import LEVELS
-from rrg_sim.objects import OBJECT_NAMES
+from rrg_sim.objects import object_names, unknown_object_message
 
 from .config import SEARCH
 
@@ -44,11 +44,9 @@ def check_search(horizon: int, delta: float) -> None:
 
 
 def check_object(object_name: str) -> None:
-    """An object of the catalogue."""
-    if object_name not in OBJECT_NAMES:
-        raise InvalidRequest(
-            "UNKNOWN_OBJECT", f"unknown object {object_name!r}; valid: {list(OBJECT_NAMES)}"
-        )
+    """An installed object (UNKNOWN_OBJECT lists what is installed)."""
+    if object_name not in object_names():
+        raise InvalidRequest("UNKNOWN_OBJECT", unknown_object_message(object_name))
 
 
 def check_level(level: str, loaded: tuple[str, ...] = tuple(LEVELS)) -> None:

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from rrg_sim import hand, wam
 from rrg_sim.config import WORLD
 from rrg_sim.geometric_sim import GeometricSimulator
-from rrg_sim.objects import OBJECT_NAMES, GoalRegion, Primitive, get_object, signed_distance
+from rrg_sim.objects import PAPER_OBJECTS, GoalRegion, Primitive, get_object, signed_distance
 from rrg_sim.objects.clearance import hand_points, scene, transform_points
 from rrg_sim.objects.composites import box, cylinder, turn_about_z
 from rrg_sim.objects.object_model import RequiredContact
@@ -61,15 +61,15 @@ def finger_closing_contacts(obj, pose: np.ndarray, spread: float, preclose: floa
     return outcome
 
 
-@pytest.fixture(scope="module", params=OBJECT_NAMES)
+@pytest.fixture(scope="module", params=PAPER_OBJECTS)
 def obj(request):
     return get_object(request.param)
 
 
 def test_catalogue_names_and_unknown_name():
-    assert len(OBJECT_NAMES) == 10 and len(set(OBJECT_NAMES)) == 10
-    assert all(get_object(n).name == n for n in OBJECT_NAMES)
-    with pytest.raises(KeyError, match="valid names: powerdrill"):
+    assert len(PAPER_OBJECTS) == 10 and len(set(PAPER_OBJECTS)) == 10
+    assert all(get_object(n).name == n for n in PAPER_OBJECTS)
+    with pytest.raises(KeyError, match="installed: powerdrill"):
         get_object("hammer")
 
 
@@ -259,7 +259,7 @@ def test_goal_region_contains():
     )
     np.testing.assert_array_equal(region.contains(delta), [True, True, False, False, False, True])
     assert region.contains(np.zeros((4, 5, 3))).shape == (4, 5)
-    for name in OBJECT_NAMES:
+    for name in PAPER_OBJECTS:
         o = get_object(name)
         assert o.goal.contains(np.zeros(3)) and o.symmetric == (
             name in ("can", "cup", "wooden_bowl", "taperoll")

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 
 from rrg_sim import wam
-from rrg_sim.objects import OBJECT_NAMES
+from rrg_sim.objects import PAPER_OBJECTS
 from rrg_sim.physics.runner import run_wrt
 from rrg_sim.physics.world import PhysicsWorld
 from rrg_sim.poses import compose_planar, wrap_angle
 
 
-@pytest.fixture(scope="module", params=OBJECT_NAMES)
+@pytest.fixture(scope="module", params=PAPER_OBJECTS)
 def world(request):
     return PhysicsWorld(request.param, seed=7)
 

@@ -11,7 +11,7 @@ from rrg_sim import wam
 from rrg_sim.config import HAND, PHYSICS, WAM_LINKS
 from rrg_sim.hand import body_poses
 from rrg_sim.hand_sensing import TIP_RADIUS, TIP_Z0, TIP_Z1, contact_from_wrench
-from rrg_sim.objects import OBJECT_NAMES
+from rrg_sim.objects import PAPER_OBJECTS
 from rrg_sim.physics.mjcf_robot import (
     ARM_JOINTS,
     PAD_TOUCH,
@@ -193,7 +193,7 @@ def test_robot_alone_smoke():
     _smoke(mujoco.MjModel.from_xml_string(robot_xml()), seed=0)
 
 
-@pytest.mark.parametrize("name", OBJECT_NAMES)
+@pytest.mark.parametrize("name", PAPER_OBJECTS)
 def test_object_scene_smoke(name):
     model = build_model(name)
     assert model.opt.timestep == PHYSICS.timestep

@@ -12,8 +12,8 @@ from rrg_estimator.belief import Belief
 from rrg_estimator.config import LOW
 from rrg_estimator.grid import Grid
 from rrg_estimator.tracker import settle_after_grasp
-from rrg_sim.objects import OBJECT_NAMES, get_object
-from rrg_sim.objects.object_model import load_settling
+from rrg_sim.objects import PAPER_OBJECTS, get_object
+from rrg_sim.objects.object_model import SETTLING_FILE, load_settling
 from rrg_sim.physics.settle import fit_affine
 from rrg_sim.poses import relative_planar
 
@@ -33,9 +33,9 @@ def test_fit_affine_recovers_a_known_map_with_its_noise():
     assert sym["A"][2] == [0.0, 0.0, 1.0] and sym["b"][2] == 0.0 and sym["sigma"][2] == 0.0
 
 
-@pytest.mark.parametrize("name", OBJECT_NAMES)
+@pytest.mark.parametrize("name", PAPER_OBJECTS)
 def test_every_object_has_a_committed_settling_fit(name):
-    s = load_settling(name)
+    s = load_settling(get_object(name).folder / SETTLING_FILE)
     assert s is not None and "arrived" in s.source
     assert np.all(s.box > 0) and np.all(s.retreated.sigma >= 0)
     assert (get_object(name).settling is None) == (not get_object(name).track_settling)
@@ -157,7 +157,7 @@ def test_the_hold_probability_is_the_local_share_of_study_grasps_that_held():
     did near 0, and half-way between in between."""
     from rrg_sim.objects.object_model import Settling
 
-    fit = load_settling("powerdrill").closed
+    fit = load_settling(get_object("powerdrill").folder / SETTLING_FILE).closed
     start = np.array([[x, 0.0, 0.0] for x in np.linspace(-0.02, 0.02, 41)])
     held = (start[:, 0] < 0.0).astype(float)  # held left of centre only
     s = Settling(

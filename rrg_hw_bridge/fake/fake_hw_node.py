@@ -68,7 +68,6 @@ from wam_srvs.srv import JointMove
 
 from rrg_msgs.msg import ContactPads
 from rrg_sim.config import HAND, PHYSICS, SENSING
-from rrg_sim.objects import OBJECT_NAMES
 from rrg_sim.ros.eval_services import EvalNames, EvalServices
 from rrg_sim.ros_common.arm_hand_interface import START_TOLERANCE
 from rrg_sim.ros_common.node_main import keep_serving, run_node
@@ -277,7 +276,7 @@ class FakeHwNode(Node):
             "object_name",
             "powerdrill",
             ParameterDescriptor(
-                description=f"Object at start ({', '.join(OBJECT_NAMES)}); reset_sim may change it",
+                description="Installed object at start (rrg-object list); reset_sim may change it",
                 **ro,
             ),
         )

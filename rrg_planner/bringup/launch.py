@@ -66,7 +66,7 @@ from rrg_planner.bringup.graph import (
 from rrg_planner.config import SEARCH
 from rrg_planner.requests import STRATEGIES
 from rrg_sim.config import WORLD_PROFILES
-from rrg_sim.objects import OBJECT_NAMES
+from rrg_sim.objects import PAPER_OBJECTS, object_names
 
 
 def hw_param(text: str) -> tuple[str, str]:
@@ -117,13 +117,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--object",
         default="powerdrill",
-        choices=OBJECT_NAMES,
+        choices=object_names(),
         help="object the simulator starts with (--grasp overrides it)",
     )
     p.add_argument(
         "--grasp",
         metavar="OBJECT",
-        choices=OBJECT_NAMES,
+        choices=object_names(),
         help="run one robust grasp of OBJECT, then stop",
     )
     p.add_argument(
@@ -135,8 +135,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--objects",
-        default=",".join(OBJECT_NAMES),
-        help="with --grasps: the objects grasped, comma-separated (default: all ten)",
+        default=",".join(PAPER_OBJECTS),
+        help="with --grasps: the objects grasped, comma-separated (default: the paper's ten)",
     )
     p.add_argument(
         "--grasp-timeout",

@@ -52,7 +52,7 @@ from rrg_planner.bringup.graph import (
     LaunchTimeout,
     draw_pose,
 )
-from rrg_sim.objects import OBJECT_NAMES
+from rrg_sim.objects import object_names
 
 #: The grasp whose sample is the baseline of the memory growth in a long run.
 BASELINE_GRASP = 20
@@ -73,9 +73,10 @@ COUNTED = (OBSERVATION, BELIEF)
 def parse_objects(text: str) -> list[str]:
     """'a,b,c' → the object names; ValueError for an unknown one."""
     names = [n.strip() for n in text.split(",") if n.strip()]
-    unknown = [n for n in names if n not in OBJECT_NAMES]
+    installed = object_names()
+    unknown = [n for n in names if n not in installed]
     if unknown or not names:
-        raise ValueError(f"--objects: unknown {unknown}; valid: {', '.join(OBJECT_NAMES)}")
+        raise ValueError(f"--objects: unknown {unknown}; installed: {', '.join(installed)}")
     return names
 
 

@@ -34,7 +34,7 @@ from rrg_planner.experiment.trials import (
 )
 from rrg_planner.requests import STRATEGIES
 from rrg_sim.config import WORLD_PROFILES
-from rrg_sim.objects import OBJECT_NAMES
+from rrg_sim.objects import PAPER_OBJECTS, object_names
 
 QUICK = dict(objects=["box"], levels=["low", "high"], trials=2, fig9_trials=0)
 FIG9_DELTAS = (0.5, 0.3, 0.1, 0.03)
@@ -43,7 +43,7 @@ FIG9_DELTAS = (0.5, 0.3, 0.1, 0.03)
 def unknown_names(objects, levels, strategies) -> list[str]:
     """The objects, levels and strategies that the runner does not know."""
     return (
-        [o for o in objects if o not in OBJECT_NAMES]
+        [o for o in objects if o not in object_names()]
         + [lv for lv in levels if lv not in LEVELS]
         + [s for s in strategies if s not in STRATEGIES]
     )
@@ -89,7 +89,9 @@ def main(argv: list[str] | None = None) -> int:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     ap.add_argument("--quick", action="store_true", help=f"small preset for tests: {QUICK}")
-    ap.add_argument("--objects", default=",".join(OBJECT_NAMES))
+    ap.add_argument(
+        "--objects", default=",".join(PAPER_OBJECTS), help="installed objects (rrg-object list)"
+    )
     ap.add_argument("--levels", default="low,high")
     ap.add_argument("--strategies", default=",".join(STRATEGIES))
     ap.add_argument("--trials", type=int, default=100, help="trials per cell")

@@ -38,7 +38,7 @@ from rrg_msgs.srv import Retreat
 from rrg_sim.executor.robot_client import MotionCanceled, MotionFailed, RobotFault, RosRobot
 from rrg_sim.executor.trajectory import InfeasiblePath
 from rrg_sim.executor.wrt_executor import WrtExecutor
-from rrg_sim.objects import OBJECT_NAMES, get_object
+from rrg_sim.objects import get_object, object_names, unknown_object_message
 from rrg_sim.ros_common.liveliness import announce
 from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, observation_to_msg, planar_from_msg
 from rrg_sim.ros_common.node_main import keep_serving, run_node
@@ -113,10 +113,10 @@ class ExecutorNode(Node):
     def execute_wrt(self, handle: ServerGoalHandle) -> ExecuteWrt.Result:
         goal, result = handle.request, ExecuteWrt.Result()
         e = planar_from_msg(goal.estimate)
-        if goal.object_name not in OBJECT_NAMES:
+        if goal.object_name not in object_names():
             result.error_code, result.error_msg = (
                 R.UNKNOWN_OBJECT,
-                f"unknown object {goal.object_name!r}",
+                unknown_object_message(goal.object_name),
             )
         elif goal.wrt_name not in [w.name for w in get_object(goal.object_name).wrts()]:
             result.error_code = R.UNKNOWN_WRT

@@ -19,10 +19,10 @@ from rrg_sim.wrt import WRT, ReorientOutcome
 
 from .wrt_generation import info_wrts, sweep_wrt
 
-#: The measured grasp-settling fits (rrg_sim.physics.settle writes it; committed).
-SETTLING_FILE = Path(__file__).with_name("settling.json")
-#: The measured reorientation outcomes (rrg_sim.physics.reorient_study writes it; committed).
-REORIENTATION_FILE = Path(__file__).with_name("reorientation.json")
+#: An object folder's measured grasp-settling fit (rrg_sim.physics.settle writes it).
+SETTLING_FILE = "settling.json"
+#: An object folder's measured reorientation outcomes (rrg_sim.physics.reorient_study).
+REORIENTATION_FILE = "reorientation.json"
 #: Half-width [rad] of the θ range of start offsets the settling study samples, at most
 #: (chosen: the low level's 3σ of 9° and then some).
 SETTLING_THETA_BOX = 0.25
@@ -124,17 +124,12 @@ class Settling:
         return out
 
 
-def load_settling(
-    name: str, path: Path = SETTLING_FILE, bandwidth: np.ndarray | None = None
-) -> Settling | None:
-    """The object's measured Settling from the committed fits, or None if not measured
+def load_settling(path: Path, bandwidth: np.ndarray | None = None) -> Settling | None:
+    """The Settling measured in the fit file ``path``, or None if there is none
     (``bandwidth``: see Settling; default inf, the affine maps alone)."""
     if not path.exists():
         return None
-    fits = json.loads(path.read_text())
-    if name not in fits:
-        return None
-    f = fits[name]
+    f = json.loads(path.read_text())
     raw = dict(f.get("samples", {}))
     held = np.asarray(raw.pop("held", []), dtype=float)
     samples = {k: np.asarray(v, dtype=float).reshape(-1, 3) for k, v in raw.items()}
@@ -147,16 +142,14 @@ def load_settling(
         samples=samples,
         held=held if len(held) == len(start) else None,
         bandwidth=np.full(3, np.inf) if bandwidth is None else bandwidth,
-        source=f"{fits.get('_source', path.name)}: {f['arrived']} of {f['grasps']} grasps arrived",
+        source=f"{f.get('source', path.name)}: {f['arrived']} of {f['grasps']} grasps arrived",
     )
 
 
-def measured_reorientation(
-    name: str, wrts: tuple[WRT, ...], path: Path = REORIENTATION_FILE
-) -> tuple[WRT, ...]:
-    """The object's reorientation WRTs with the outcomes the study measured for them
+def measured_reorientation(wrts: tuple[WRT, ...], path: Path | None) -> tuple[WRT, ...]:
+    """The reorientation WRTs with the outcomes measured in ``path`` for them
     (WRT.reorient_outcome); unmeasured ones unchanged."""
-    fits = json.loads(path.read_text()).get(name, {}) if path.exists() else {}
+    fits = json.loads(path.read_text()) if path is not None and path.exists() else {}
     return tuple(
         replace(
             w,
@@ -262,6 +255,8 @@ class ObjectModel:
     placement_yaw: the parts are the object built in its canonical frame (where the
     documented sizes are the bounding box) turned by this yaw [rad] about z, so that its goal
     grasp is reachable at the nominal pose.
+    folder: the object's folder (rrg_sim.objects.object_file), where its measured studies
+    live (SETTLING_FILE, REORIENTATION_FILE); None: an object built in code, never measured.
     """
 
     name: str
@@ -279,6 +274,7 @@ class ObjectModel:
     #: whether the belief applies the measured settling of the goal grasp (see ``settling``)
     track_settling: bool = True
     description: str = field(default="", repr=False)
+    folder: Path | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         if self.symmetric != self.goal.ignores_theta:
@@ -314,7 +310,7 @@ class ObjectModel:
         wrts = (
             (self.goal_wrt,)
             + self.info_wrts
-            + measured_reorientation(self.name, self.reorient_wrts)
+            + measured_reorientation(self.reorient_wrts, self._artefact(REORIENTATION_FILE))
         )
         names = [w.name for w in wrts]
         if len(set(names)) != len(names):
@@ -324,9 +320,16 @@ class ObjectModel:
     @cached_property
     def grasp_settling(self) -> Settling | None:
         """How the firm goal grasp moves the object (measured), or None if not measured."""
+        path = self._artefact(SETTLING_FILE)
+        if path is None:
+            return None
         return load_settling(
-            self.name, bandwidth=SETTLING_KERNEL_BANDWIDTH * np.asarray(self.goal.tol, dtype=float)
+            path, bandwidth=SETTLING_KERNEL_BANDWIDTH * np.asarray(self.goal.tol, dtype=float)
         )
+
+    def _artefact(self, filename: str) -> Path | None:
+        """Where the object's measured ``filename`` lives (None: the object has no folder)."""
+        return None if self.folder is None else self.folder / filename
 
     @property
     def settling(self) -> Settling | None:

@@ -45,9 +45,12 @@ class Primitive:
                 f"{self.kind} needs {SIZE_LENGTHS[self.kind]} non-negative sizes, got {size}"
             )
         quat = np.asarray(self.quat, dtype=float)
+        norm = float(np.linalg.norm(quat))
+        if abs(norm - 1.0) > 1e-12:  # a unit quaternion is kept bit for bit (renormalizing
+            quat = quat / norm  # one can change its last digit: object files store them)
         object.__setattr__(self, "size", size)
         object.__setattr__(self, "pos", tuple(float(p) for p in self.pos))
-        object.__setattr__(self, "quat", tuple(float(q) for q in quat / np.linalg.norm(quat)))
+        object.__setattr__(self, "quat", tuple(float(q) for q in quat))
 
     @cached_property
     def rotation(self) -> np.ndarray:

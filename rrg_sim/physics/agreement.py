@@ -21,7 +21,7 @@ from rrg_sim.executor.trajectory import InfeasiblePath
 
 from ..config import HAND, WORLD
 from ..geometric_sim import GeometricSimulator
-from ..objects import OBJECT_NAMES, get_object
+from ..objects import PAPER_OBJECTS, get_object
 from ..observation import Observation
 from ..poses import compose_planar
 from ..wrt import WRT
@@ -121,7 +121,7 @@ def agreement_stats(diffs: list[ObservationDiff]) -> dict:
 
 
 def measure(
-    names=OBJECT_NAMES,
+    names=PAPER_OBJECTS,
     kinds=("goal", "info"),
     offsets: int = 3,
     sigma=(0.015, 0.015, 0.1),

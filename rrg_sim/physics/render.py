@@ -19,7 +19,7 @@ import mujoco
 import numpy as np
 from matplotlib import image as mpimg
 
-from ..objects import OBJECT_NAMES
+from ..objects import PAPER_OBJECTS
 from .world import PhysicsWorld
 
 DEFAULT_SIZE = (640, 480)  # px
@@ -110,7 +110,7 @@ def render_png(
 
 
 def render_goal_grasps(
-    out_dir: str | Path = "docs/img", names: tuple[str, ...] = OBJECT_NAMES
+    out_dir: str | Path = "docs/img", names: tuple[str, ...] = PAPER_OBJECTS
 ) -> list[Path]:
     """Execute each object's goal WRT at its true (nominal) pose, noise-free, and save
     ``goal_<name>.png`` showing the closed hand on the object."""
@@ -126,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     """``python -m rrg_sim.physics.render [--out DIR] [names…]``: render every goal grasp."""
     parser = argparse.ArgumentParser(description=main.__doc__)
     parser.add_argument("--out", type=Path, default=Path("docs/img"))
-    parser.add_argument("names", nargs="*", default=list(OBJECT_NAMES))
+    parser.add_argument("names", nargs="*", default=list(PAPER_OBJECTS))
     args = parser.parse_args(argv)
     for path in render_goal_grasps(args.out, tuple(args.names)):
         print(path)

@@ -17,8 +17,8 @@ reorientation grasp holds only within a few millimetres: in MuJoCo 32 of 40 teac
 succeed with it, against 36 with the mean shift.)
 
 ``python -m rrg_sim.physics.reorient_study [objects…] [--runs N] [--workers W]`` measures and
-writes ``rrg_sim/objects/reorientation.json`` (the committed fits the catalogue loads into
-its reorientation WRTs).
+writes each object's ``reorientation.json`` into its folder, where the object loads it into
+its reorientation WRTs.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from rrg_sim.config import REORIENT_MIN_FINGERS, WORLD
 from rrg_sim.executor.trajectory import InfeasiblePath
 from rrg_sim.objects.object_model import REORIENTATION_FILE
 
-from ..objects import OBJECT_NAMES, get_object
+from ..objects import PAPER_OBJECTS, get_object
 from ..observation import holds_object
 from ..poses import compose_planar, relative_planar, wrap_angle
 from .settle import run_study, study_args
@@ -112,24 +112,24 @@ def main(argv: list[str] | None = None) -> None:
     args = study_args(
         argv,
         __doc__,
-        [n for n in OBJECT_NAMES if get_object(n).reorient_wrts],
+        [n for n in PAPER_OBJECTS if get_object(n).reorient_wrts],
         "runs",
         40,
         "runs per reorientation WRT",
-        REORIENTATION_FILE,
     )
     run_study(
         args.objects,
         args.runs,
         args.seed,
         args.workers,
-        args.out,
+        REORIENTATION_FILE,
         _measure_job,
         fit,
         _report,
         "reorientation",
         f"python -m rrg_sim.physics.reorient_study --runs {args.runs} --seed {args.seed} "
         "(MuJoCo, reorientation WRTs at the nominal pose)",
+        args.out_dir,
     )
 
 

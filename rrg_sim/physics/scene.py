@@ -16,7 +16,7 @@ from pathlib import Path
 import mujoco
 
 from ..config import WORLD
-from ..objects import OBJECT_NAMES, ObjectModel, get_object
+from ..objects import PAPER_OBJECTS, ObjectModel, get_object
 from .mjcf import primitive_volume, sub, to_xml
 from .mjcf_robot import ROBOT_FILE, robot_xml
 
@@ -199,7 +199,7 @@ def build_model(object_name: str | None) -> mujoco.MjModel:
 def asset_files() -> dict[str, str]:
     """File name → MJCF text of every generated asset."""
     files = {ROBOT_FILE: robot_xml(), "scene.xml": scene_xml(None)}
-    files |= {f"scene_{name}.xml": scene_xml(get_object(name)) for name in OBJECT_NAMES}
+    files |= {f"scene_{name}.xml": scene_xml(get_object(name)) for name in PAPER_OBJECTS}
     return files
 
 

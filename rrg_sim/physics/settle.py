@@ -15,7 +15,8 @@ maps near each Δ and predict the hold (objects.Settling.outcome, Settling.hold_
 the result is the object's ``objects.Settling`` model.
 
 ``python -m rrg_sim.physics.settle [objects…] [--grasps N] [--workers W]`` measures and
-writes ``rrg_sim/objects/settling.json`` (the committed fits the catalogue loads).
+writes each object's ``settling.json`` into its folder (rrg_sim.objects.catalogue), where
+the object loads it.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ from rrg_sim.executor.trajectory import InfeasiblePath
 from rrg_sim.objects.object_model import SETTLING_FILE, SETTLING_THETA_BOX
 
 from ..config import WORLD
-from ..objects import OBJECT_NAMES, get_object
+from ..objects import PAPER_OBJECTS, get_object, object_folders
 from ..observation import fingers_in_contact
 from ..poses import compose_planar, relative_planar, wrap_angle
 from .judge import judge_grasp
@@ -156,29 +157,32 @@ def run_study(
     count: int,
     seed: int,
     workers: int,
-    out: Path,
+    filename: str,
     measure_job,
     fit_fn,
     report,
     desc: str,
     source: str,
+    out_dir: Path | None = None,
 ) -> None:
     """Measure ``objects`` in parallel (measure_job((name, count, seed)) → (name, records)), fit
-    each (fit_fn(name, records)), print report(name, fit, records), and update the JSON ``out``
-    (sorted, with its ``_source``). Shared by this study and physics.reorient_study."""
-    fits = json.loads(out.read_text()) if out.exists() else {}
+    each (fit_fn(name, records)), print report(name, fit, records), and write each fit with
+    its ``source`` to ``filename`` in the object's folder (or in out_dir/<name>/). Shared by
+    this study and physics.reorient_study."""
+    folders = object_folders()
     t0 = time.perf_counter()
     jobs = [(name, count, seed) for name in objects]
     with mp.get_context("fork").Pool(workers) as pool:
         for name, records in tqdm(
             pool.imap_unordered(measure_job, jobs), total=len(jobs), desc=desc
         ):
-            fits[name] = fit_fn(name, records)
-            print(report(name, fits[name], records), flush=True)
-    fits = {k: fits[k] for k in sorted(fits)}
-    fits["_source"] = source
-    out.write_text(_dumps(fits) + "\n")
-    print(f"wrote {out} in {time.perf_counter() - t0:.0f} s")
+            fit = fit_fn(name, records)
+            print(report(name, fit, records), flush=True)
+            folder = folders[name] if out_dir is None else out_dir / name
+            folder.mkdir(parents=True, exist_ok=True)
+            (folder / filename).write_text(_dumps({"source": source, **fit}) + "\n")
+            print(f"wrote {folder / filename}")
+    print(f"{desc}: {len(jobs)} objects in {time.perf_counter() - t0:.0f} s")
 
 
 def _report(name: str, f: dict, records: list[dict]) -> str:
@@ -197,9 +201,8 @@ def study_args(
     count: str,
     count_default: int,
     count_help: str,
-    out: Path,
 ) -> argparse.Namespace:
-    """The command line of a study: objects, --<count>, --seed, --workers, --out."""
+    """The command line of a study: objects, --<count>, --seed, --workers, --out-dir."""
     parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     parser.add_argument(
         "objects", nargs="*", default=objects, help="objects (default: %(default)s)"
@@ -207,26 +210,29 @@ def study_args(
     parser.add_argument(f"--{count}", type=int, default=count_default, help=count_help)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--out", type=Path, default=out, help="JSON to update with the fits")
+    parser.add_argument(
+        "--out-dir",
+        type=Path,
+        help="write <out-dir>/<object>/<fit file> (default: into each object's folder)",
+    )
     return parser.parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = study_args(
-        argv, __doc__, list(OBJECT_NAMES), "grasps", 60, "goal grasps per object", SETTLING_FILE
-    )
+    args = study_args(argv, __doc__, list(PAPER_OBJECTS), "grasps", 60, "goal grasps per object")
     run_study(
         args.objects,
         args.grasps,
         args.seed,
         args.workers,
-        args.out,
+        SETTLING_FILE,
         _measure_job,
         fit,
         _report,
         "settling",
         f"python -m rrg_sim.physics.settle --grasps {args.grasps} --seed {args.seed} "
         "(MuJoCo, goal WRT at the nominal pose)",
+        args.out_dir,
     )
 
 

@@ -16,7 +16,7 @@ import time
 import mujoco
 import numpy as np
 
-from rrg_sim.objects import OBJECT_NAMES
+from rrg_sim.objects import PAPER_OBJECTS
 from rrg_sim.physics.judge import judge_grasp
 from rrg_sim.physics.world import PhysicsWorld
 
@@ -34,7 +34,7 @@ def _time_goal(world: PhysicsWorld) -> tuple[float, float, bool]:
 def bench_sim(argv: list[str] | None = None) -> int:
     """Run the physics benchmark (see the module doc); returns the exit code."""
     parser = argparse.ArgumentParser(prog="rrg-bench sim", description="Physics world speed.")
-    parser.add_argument("--objects", nargs="*", default=list(OBJECT_NAMES))
+    parser.add_argument("--objects", nargs="*", default=list(PAPER_OBJECTS))
     parser.add_argument("--runs", type=int, default=1, help="timed executions per object")
     parser.add_argument(
         "--json", action="store_true", help="print the figures as JSON on the last line"

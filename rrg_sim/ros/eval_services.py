@@ -34,7 +34,7 @@ from rrg_sim.ros_common.msg_conversions import (
 from rrg_sim.ros_common.node_main import keep_serving
 
 from ..config import PHYSICS, WORLD
-from ..objects import OBJECT_NAMES
+from ..objects import object_names, unknown_object_message
 from ..physics.judge import judge_grasp
 from ..physics.world import PhysicsWorld
 
@@ -100,9 +100,9 @@ class EvalServices:
     @keep_serving
     def on_reset_sim(self, req: ResetSim.Request, resp: ResetSim.Response) -> ResetSim.Response:
         pose = planar_from_msg(req.pose)
-        if req.object_name not in OBJECT_NAMES:
+        if req.object_name not in object_names():
             resp.error_code = ResetSim.Response.UNKNOWN_OBJECT
-            resp.error_msg = f"unknown object {req.object_name!r}; valid: {list(OBJECT_NAMES)}"
+            resp.error_msg = unknown_object_message(req.object_name)
         elif not (
             np.all(np.isfinite(pose))
             and WORLD.table_x[0] <= pose[0] <= WORLD.table_x[1]

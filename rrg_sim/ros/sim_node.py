@@ -59,7 +59,6 @@ from rrg_sim.ros_common.node_main import keep_serving, run_node
 
 from .. import wam
 from ..config import SENSING, WORLD_PROFILES
-from ..objects import OBJECT_NAMES
 from ..physics.mjcf_robot import TIP_BODIES
 from ..physics.sensing import HandSensors
 from ..physics.world import PhysicsWorld, WorldsByObject
@@ -87,7 +86,7 @@ class SimNode(Node):
             "object_name",
             "powerdrill",
             ParameterDescriptor(
-                description=f"Object in the scene at start ({', '.join(OBJECT_NAMES)}); "
+                description="Installed object in the scene at start (rrg-object list); "
                 "reset_sim may change it"
             ),
         )

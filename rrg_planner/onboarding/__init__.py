@@ -1,0 +1,1 @@
+"""Onboarding a lab's own objects: ``rrg-object``."""
