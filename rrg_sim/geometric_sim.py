@@ -36,7 +36,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from .config import GEOMSIM, N_SENSORS
-from .hand import FINGERS, LINKS, BodySpec, body_poses, hand_tree, joint_angles
+from .hand import FINGERS, LINKS, BodySpec, GeomSpec, body_poses, hand_tree, joint_angles
+from .objects.primitives import Primitive, mjcf_mesh_asset, union_bounds
 from .observation import Observation, grasp_arrived
 from .poses import planar_pose
 from .wrt import WRT
@@ -48,18 +49,9 @@ PRESHAPE = [0, 0, 0]  # closing-lattice indices of the preshape
 SIM_VERSION = "1"  # bump when the simulator's results change (observation tables are keyed by it)
 
 
-class PrimitiveLike(Protocol):
-    """A collision primitive of an object, in the object frame (MuJoCo size semantics)."""
-
-    kind: str
-    size: Sequence[float]
-    pos: Sequence[float]
-    quat: Sequence[float]  # wxyz
-
-
 class ObjectLike(Protocol):
     name: str
-    parts: Sequence[PrimitiveLike]
+    parts: Sequence[Primitive]
 
 
 @dataclass
@@ -140,18 +132,27 @@ def _hand_body_xml(body: BodySpec, children: dict[str, list[BodySpec]]) -> str:
     )
 
 
-def probe_mjcf(parts: Sequence[PrimitiveLike]) -> str:
+def _object_geom_xml(k: int, p: Primitive) -> str:
+    shape = f'mesh="object_{k}"' if p.kind == "mesh" else f'size="{_fmt(p.size)}"'
+    return (
+        f'<geom name="object_{k}" type="{p.kind}" {shape} pos="{_fmt(p.pos)}" '
+        f'quat="{_fmt(p.quat)}" contype="0" conaffinity="1"/>'
+    )
+
+
+def probe_mjcf(parts: Sequence[Primitive]) -> str:
     """MJCF of the probe: table plane, the object (free body ``object``) and the free hand."""
     children: dict[str, list[BodySpec]] = {}
     for b in hand_tree():
         children.setdefault(b.parent, []).append(b)
-    obj = "".join(
-        f'<geom name="object_{k}" type="{p.kind}" size="{_fmt(p.size)}" pos="{_fmt(p.pos)}" '
-        f'quat="{_fmt(p.quat)}" contype="0" conaffinity="1"/>'
+    obj = "".join(_object_geom_xml(k, p) for k, p in enumerate(parts))
+    meshes = "".join(
+        '<mesh name="{name}" vertex="{vertex}"/>'.format(**mjcf_mesh_asset(p, f"object_{k}"))
         for k, p in enumerate(parts)
+        if p.kind == "mesh"
     )
     return (
-        '<mujoco model="geometric_probe"><worldbody>'
+        f'<mujoco model="geometric_probe"><asset>{meshes}</asset><worldbody>'
         '<geom name="table" type="plane" size="0 0 1" contype="0" conaffinity="1"/>'
         f'<body name="object"><freejoint/>{obj}</body>'
         f"{_hand_body_xml(children[None][0], children)}"
@@ -214,8 +215,8 @@ def _planar_qpos(w) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ conservative culling
-def primitive_aabb(p: PrimitiveLike) -> tuple[np.ndarray, np.ndarray]:
-    """Exact axis-aligned bounds (lo, hi) of a primitive in the object frame."""
+def primitive_aabb(p: GeomSpec) -> tuple[np.ndarray, np.ndarray]:
+    """Exact axis-aligned bounds (lo, hi) of a hand geom in its body frame."""
     R = Rotation.from_quat(np.asarray(p.quat, float), scalar_first=True).as_matrix()
     size = np.asarray(p.size, float)
     if p.kind == "box":
@@ -232,19 +233,6 @@ def primitive_aabb(p: PrimitiveLike) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"unsupported primitive kind {p.kind!r}")
     c = np.asarray(p.pos, float)
     return c - half, c + half
-
-
-def local_half_extents(p: PrimitiveLike) -> np.ndarray:
-    """(3,) half extents of a primitive's bounding box in its own frame."""
-    size = np.asarray(p.size, float)
-    r = size[0]
-    return {
-        "box": size,
-        "ellipsoid": size,
-        "sphere": np.full(3, r),
-        "cylinder": np.array([r, r, size[-1]]),
-        "capsule": np.array([r, r, size[-1] + r]),
-    }[p.kind]
 
 
 def box_sphere_cover(lo: np.ndarray, hi: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
@@ -302,8 +290,7 @@ class GeometricSimulator:
         for i in (1, 2):
             self._qpos[jadr(f"f{i}_spread")] = wrt.spread
         self._init_geom_maps()
-        boxes = [primitive_aabb(p) for p in obj.parts]
-        lo, hi = np.min([b[0] for b in boxes], axis=0), np.max([b[1] for b in boxes], axis=0)
+        lo, hi = union_bounds(obj.parts)
         self._obj_centre, self._obj_half = (lo + hi) / 2, (hi - lo) / 2
         self._part_rot = np.stack(
             [
@@ -312,7 +299,7 @@ class GeometricSimulator:
             ]
         )
         self._part_centre = np.array([p.pos for p in obj.parts], float)
-        self._part_half = np.array([local_half_extents(p) for p in obj.parts])
+        self._part_half = np.array([p.local_half_extents() for p in obj.parts])
         self.path = SweptPath.from_wrt(wrt)
         self._init_sweep_spheres()
         self._init_closing()

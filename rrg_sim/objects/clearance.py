@@ -18,7 +18,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .. import hand
-from .primitives import Primitive, box_distance, surface_samples
+from .primitives import Primitive, box_distance, mjcf_mesh_asset, surface_samples
 
 #: Spacing of the hand's surface samples [m] (bounding-box distances only).
 SAMPLE_SPACING = 0.004
@@ -33,8 +33,8 @@ def _fmt(values) -> str:
     return " ".join(f"{v:.9g}" for v in np.atleast_1d(values))
 
 
-def _geom(parent: ET.Element, kind: str, size, pos, quat, margin: float) -> None:
-    ET.SubElement(
+def _geom(parent: ET.Element, kind: str, size, pos, quat, margin: float) -> ET.Element:
+    return ET.SubElement(
         parent,
         "geom",
         type=kind,
@@ -62,10 +62,17 @@ class HandObjectScene:
         table_margin: float,
     ) -> None:
         root = ET.Element("mujoco", model="hand_object_clearance")
+        asset = ET.SubElement(root, "asset")
         world = ET.SubElement(root, "worldbody")
         _geom(world, "box", _TABLE_HALF, (0.0, 0.0, -_TABLE_HALF[2]), (1, 0, 0, 0), table_margin)
-        for part in parts:
-            _geom(world, part.kind, part.size, part.pos, part.quat, object_margin)
+        for k, part in enumerate(parts):
+            if part.kind == "mesh":
+                ET.SubElement(asset, "mesh", mjcf_mesh_asset(part, f"part_{k}"))
+                geom = _geom(world, "mesh", (), part.pos, part.quat, object_margin)
+                geom.set("mesh", f"part_{k}")
+                del geom.attrib["size"]
+            else:
+                _geom(world, part.kind, part.size, part.pos, part.quat, object_margin)
         body = ET.SubElement(world, "body", name="hand")
         ET.SubElement(body, "freejoint")
         for geom, T in hand.hand_geoms_world(np.eye(4), spread, np.full(3, preclose)):

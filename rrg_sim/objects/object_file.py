@@ -4,7 +4,8 @@ An object folder holds:
 
 * ``object.toml``: name, mass, friction, sizes, source, the goal region with its required
   contacts, the goal grasp, optional hand-designed info grasps and reorientation, and the
-  shape as named collision parts (``[[parts]]``: MuJoCo primitives);
+  shape as named collision parts (``[[parts]]``: MuJoCo primitives, or convex mesh parts
+  whose files the folder keeps, ``kind = "mesh"`` and ``file``);
 * the artefacts measured for it: ``settling.json`` (rrg_sim.physics.settle) and
   ``reorientation.json`` (rrg_sim.physics.reorient_study), loaded when present.
 
@@ -20,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import trimesh
 
 from .object_model import GoalRegion, ObjectModel, RequiredContact
 from .primitives import SIZE_LENGTHS, Primitive
@@ -98,20 +100,22 @@ class _Table:
         return [_Table(t, f"{self.where} [[{key}]] #{i + 1}") for i, t in enumerate(v)]
 
 
-def _part(t: _Table) -> tuple[str, Primitive]:
+def _part(t: _Table, folder: Path) -> tuple[str, Primitive]:
     kind = t.text("kind")
     if kind not in SIZE_LENGTHS:
         raise t.error("kind", f"unknown kind {kind!r}; valid: {', '.join(sorted(SIZE_LENGTHS))}")
+    pose = t.vector("pos_m", 3, [0.0, 0.0, 0.0]), t.vector("quat_wxyz", 4, [1.0, 0.0, 0.0, 0.0])
+    if kind == "mesh":
+        path = folder / t.text("file")
+        try:
+            vertices = trimesh.load_mesh(path, process=False).vertices
+            return t.text("name"), Primitive("mesh", (), *pose, vertices=vertices)
+        except (OSError, ValueError) as exc:
+            raise t.error("file", f"{path}: {exc}") from exc
     try:
-        part = Primitive(
-            kind,
-            t.vector("size_m", SIZE_LENGTHS[kind]),
-            t.vector("pos_m", 3, [0.0, 0.0, 0.0]),
-            t.vector("quat_wxyz", 4, [1.0, 0.0, 0.0, 0.0]),
-        )
+        return t.text("name"), Primitive(kind, t.vector("size_m", SIZE_LENGTHS[kind]), *pose)
     except ValueError as exc:
         raise t.error("size_m", str(exc)) from exc
-    return t.text("name"), part
 
 
 def _goal_region(t: _Table, part_index: dict[str, int]) -> GoalRegion:
@@ -197,7 +201,7 @@ def load_object_folder(folder: Path | str) -> ObjectModel:
     folder = Path(folder)
     path = folder / OBJECT_FILE
     top = _Table(read_object_file(path), str(path))
-    named = [_part(t) for t in top.tables("parts")]
+    named = [_part(t, folder) for t in top.tables("parts")]
     if not named:
         raise top.error("parts", "an object needs at least one part")
     part_index = {n: i for i, (n, _) in enumerate(named)}

@@ -6,7 +6,9 @@ collision geometry of the geometric simulator and of the MuJoCo physics model:
 * box: ``size`` = 3 half-extents (x, y, z) [m];
 * cylinder: (radius, half-height along local z) [m];
 * capsule: (radius, half-length of the local-z segment between the cap centres) [m];
-* sphere: (radius,) [m].
+* sphere: (radius,) [m];
+* mesh: no size; ``vertices`` (N,3) [m] in its own frame, whose convex hull it is (MuJoCo
+  collides every mesh as its convex hull): a part of a convex decomposition.
 
 ``pos`` (3,) [m] and ``quat`` (4,) w x y z place the primitive in the object frame.
 """
@@ -20,10 +22,11 @@ from typing import Literal
 
 import numpy as np
 import trimesh
+from scipy.spatial import ConvexHull, QhullError
 from scipy.spatial.transform import Rotation
 
-PrimitiveKind = Literal["box", "cylinder", "capsule", "sphere"]
-SIZE_LENGTHS: dict[str, int] = {"box": 3, "cylinder": 2, "capsule": 2, "sphere": 1}
+PrimitiveKind = Literal["box", "cylinder", "capsule", "sphere", "mesh"]
+SIZE_LENGTHS: dict[str, int] = {"box": 3, "cylinder": 2, "capsule": 2, "sphere": 1, "mesh": 0}
 IDENTITY_QUAT = (1.0, 0.0, 0.0, 0.0)
 
 
@@ -35,12 +38,14 @@ class Primitive:
     size: tuple[float, ...]
     pos: tuple[float, float, float] = (0.0, 0.0, 0.0)
     quat: tuple[float, float, float, float] = IDENTITY_QUAT
+    #: mesh only: the vertices (N,3) [m] in the primitive's frame (their convex hull is the part)
+    vertices: tuple[tuple[float, float, float], ...] = ()
 
     def __post_init__(self) -> None:
         if self.kind not in SIZE_LENGTHS:
             raise ValueError(f"unknown primitive kind {self.kind!r}; valid: {sorted(SIZE_LENGTHS)}")
         size = tuple(float(s) for s in self.size)
-        if len(size) != SIZE_LENGTHS[self.kind] or min(size) < 0.0:
+        if len(size) != SIZE_LENGTHS[self.kind] or min(size, default=0.0) < 0.0:
             raise ValueError(
                 f"{self.kind} needs {SIZE_LENGTHS[self.kind]} non-negative sizes, got {size}"
             )
@@ -51,6 +56,41 @@ class Primitive:
         object.__setattr__(self, "size", size)
         object.__setattr__(self, "pos", tuple(float(p) for p in self.pos))
         object.__setattr__(self, "quat", tuple(float(q) for q in quat))
+        vertices = tuple(tuple(float(x) for x in v) for v in self.vertices)
+        if (self.kind == "mesh") != bool(vertices):
+            raise ValueError("a mesh part needs its vertices, and only a mesh part has them")
+        object.__setattr__(self, "vertices", vertices)
+        if vertices:
+            try:
+                self._hull  # noqa: B018  (a flat or degenerate set of vertices has no hull)
+            except (QhullError, ValueError) as exc:
+                raise ValueError(f"mesh vertices span no volume: {exc}") from exc
+
+    @cached_property
+    def _hull(self) -> ConvexHull:
+        """The convex hull of a mesh part's vertices (its own frame)."""
+        hull = ConvexHull(np.asarray(self.vertices, dtype=float))
+        if not hull.volume > 0.0:
+            raise ValueError("zero volume")
+        return hull
+
+    @property
+    def volume(self) -> float:
+        """Volume [m³] (a mesh part: its hull's)."""
+        if self.kind == "mesh":
+            return float(self._hull.volume)
+        return primitive_volume(self.kind, self.size)
+
+    def local_half_extents(self) -> np.ndarray:
+        """(3,) half extents [m] of a box about the primitive's origin, in its own frame,
+        that holds it."""
+        s = np.asarray(self.size, dtype=float)
+        if self.kind == "box":
+            return s
+        if self.kind == "mesh":
+            return np.abs(np.asarray(self.vertices)).max(axis=0)
+        r = s[0]
+        return np.array([r, r, {"sphere": r, "cylinder": s[-1], "capsule": s[-1] + r}[self.kind]])
 
     @cached_property
     def rotation(self) -> np.ndarray:
@@ -70,12 +110,21 @@ class Primitive:
         return (np.asarray(points, dtype=float) - self.pos) @ self.rotation
 
     def signed_distance(self, points) -> np.ndarray:
-        """Exact signed distance (…) [m] of object-frame points (…,3): < 0 inside."""
-        return local_signed_distance(self.kind, self.size, self.to_local(points))
+        """Signed distance (…) [m] of object-frame points (…,3): < 0 inside. Exact, but for a
+        mesh part outside: there, the largest distance past one of its face planes, exact
+        in front of a face and smaller (closer) near its edges and corners."""
+        local = self.to_local(points)
+        if self.kind == "mesh":
+            planes = self._hull.equations  # (F,4): unit outward normal n, offset d; n·x + d
+            return np.max(local @ planes[:, :3].T + planes[:, 3], axis=-1)
+        return local_signed_distance(self.kind, self.size, local)
 
     def bounds(self) -> np.ndarray:
         """(2,3) axis-aligned bounds [m] in the object frame (exact)."""
         R, s = self.rotation, self.size
+        if self.kind == "mesh":
+            world = np.asarray(self.vertices) @ R.T + self.pos
+            return np.stack([world.min(axis=0), world.max(axis=0)])
         if self.kind == "box":
             half = np.abs(R) @ np.asarray(s)
         elif self.kind == "sphere":
@@ -91,6 +140,9 @@ class Primitive:
     def mesh(self) -> trimesh.Trimesh:
         """Triangle mesh of the primitive in the object frame (for visualization)."""
         s = self.size
+        if self.kind == "mesh":
+            hull = trimesh.convex.convex_hull(np.asarray(self.vertices))
+            return hull.apply_transform(self.transform)
         if self.kind == "box":
             return trimesh.creation.box(extents=2 * np.asarray(s), transform=self.transform)
         if self.kind == "cylinder":
@@ -122,6 +174,27 @@ def local_signed_distance(kind: str, size: Sequence[float], p: np.ndarray) -> np
     if kind == "sphere":
         return np.linalg.norm(p, axis=-1) - size[0]
     raise ValueError(f"unknown primitive kind {kind!r}")
+
+
+def primitive_volume(kind: str, size) -> float:
+    """Volume [m³] of a MuJoCo box / cylinder / capsule / sphere / ellipsoid with MJCF ``size``."""
+    s = size
+    if kind == "box":
+        return 8 * s[0] * s[1] * s[2]
+    if kind == "cylinder":
+        return np.pi * s[0] ** 2 * 2 * s[1]
+    if kind == "capsule":
+        return np.pi * s[0] ** 2 * 2 * s[1] + 4 / 3 * np.pi * s[0] ** 3
+    if kind == "ellipsoid":
+        return 4 / 3 * np.pi * s[0] * s[1] * s[2]
+    if kind == "sphere":
+        return 4 / 3 * np.pi * s[0] ** 3
+    raise ValueError(f"no volume for geom type {kind!r}")
+
+
+def mjcf_mesh_asset(part: Primitive, name: str) -> dict[str, str]:
+    """The attributes of the MJCF ``<mesh>`` asset ``name`` of a mesh part (its vertices)."""
+    return {"name": name, "vertex": " ".join(f"{x:.9g}" for v in part.vertices for x in v)}
 
 
 def signed_distance(parts: Sequence[Primitive], points) -> np.ndarray:

@@ -79,6 +79,8 @@ def _face_patches(part: Primitive) -> list[tuple[np.ndarray, np.ndarray]]:
     primitive."""
     R, s = part.rotation, part.size
     out = []
+    if part.kind == "mesh":
+        return _hull_face_patches(part)
     if part.kind == "box":
         samples = surface_samples("box", s, PATCH_SPACING)
         for k in range(3):
@@ -114,6 +116,33 @@ def _face_patches(part: Primitive) -> list[tuple[np.ndarray, np.ndarray]]:
         if abs(normal[2]) <= np.sin(MAX_FACE_TILT):
             out.append((local.reshape(-1, 3) @ R.T + part.pos, normal))
     return out
+
+
+def _hull_face_patches(part: Primitive) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(object-frame samples, outward unit normal) of each roughly vertical planar face of a
+    mesh part's convex hull (its coplanar triangles together), sampled PATCH_SPACING apart."""
+    hull = part.mesh()
+    grouped = {int(f) for facet in hull.facets for f in facet}
+    faces = [np.asarray(f) for f in hull.facets] + [
+        np.array([f]) for f in range(len(hull.faces)) if f not in grouped
+    ]
+    out = []
+    for face in faces:
+        normal = hull.face_normals[face[0]]
+        if abs(normal[2]) > np.sin(MAX_FACE_TILT):
+            continue
+        points = np.concatenate([_triangle_samples(t) for t in hull.triangles[face]])
+        out.append((np.unique(np.round(points, 9), axis=0), normal))
+    return out
+
+
+def _triangle_samples(triangle: np.ndarray) -> np.ndarray:
+    """(N,3) points on a triangle (3,3), a lattice about PATCH_SPACING apart."""
+    a, b, c = triangle
+    n = max(1, int(np.ceil(max(np.linalg.norm(b - a), np.linalg.norm(c - a)) / PATCH_SPACING)))
+    i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+    keep = i + j <= n
+    return a + np.outer(i[keep] / n, b - a) + np.outer(j[keep] / n, c - a)
 
 
 def _samples(lo: float, hi: float) -> np.ndarray:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import xml.etree.ElementTree as ET
 from collections.abc import Iterable
 
@@ -42,19 +41,3 @@ def to_xml(root: ET.Element) -> str:
     """Pretty-printed XML text of an element tree."""
     ET.indent(root, space="  ")
     return ET.tostring(root, encoding="unicode") + "\n"
-
-
-def primitive_volume(kind: str, size) -> float:
-    """Volume [m³] of a MuJoCo box / cylinder / capsule / sphere / ellipsoid with MJCF ``size``."""
-    s = size
-    if kind == "box":
-        return 8 * s[0] * s[1] * s[2]
-    if kind == "cylinder":
-        return math.pi * s[0] ** 2 * 2 * s[1]
-    if kind == "capsule":
-        return math.pi * s[0] ** 2 * 2 * s[1] + 4 / 3 * math.pi * s[0] ** 3
-    if kind == "ellipsoid":
-        return 4 / 3 * math.pi * s[0] * s[1] * s[2]
-    if kind == "sphere":
-        return 4 / 3 * math.pi * s[0] ** 3
-    raise ValueError(f"no volume for geom type {kind!r}")

@@ -26,8 +26,9 @@ import numpy as np
 
 from ..config import HAND, PHYSICS, SENSOR_NAMES, WAM, WAM_ARMATURE, WAM_LINKS
 from ..hand import FINGERS, BodySpec, GeomSpec, hand_tree
+from ..objects.primitives import primitive_volume
 from ..wam import HAND_MOUNT
-from .mjcf import full_inertia_in, pose_attrs, primitive_volume, sub, to_xml
+from .mjcf import full_inertia_in, pose_attrs, sub, to_xml
 
 ROBOT_FILE = "wam_barretthand.xml"
 ARM_JOINTS = tuple(f"wam/j{i}" for i in range(1, 8))

@@ -17,7 +17,8 @@ import mujoco
 
 from ..config import WORLD
 from ..objects import PAPER_OBJECTS, ObjectModel, get_object
-from .mjcf import primitive_volume, sub, to_xml
+from ..objects.primitives import mjcf_mesh_asset
+from .mjcf import sub, to_xml
 from .mjcf_robot import ROBOT_FILE, robot_xml
 
 ASSETS_DIR = Path(__file__).resolve().parent.parent / "assets"
@@ -138,15 +139,16 @@ def _object(worldbody: ET.Element, obj: ObjectModel) -> None:
     convex hull for the table contact (see the collision bits above)."""
     body = sub(worldbody, "body", name=OBJECT_BODY, pos=(0, 0, WORLD.table_top_z))
     sub(body, "freejoint", name=OBJECT_JOINT)
-    volume = sum(primitive_volume(p.kind, p.size) for p in obj.parts)
+    volume = sum(p.volume for p in obj.parts)
     friction = f"{obj.friction} 0.005 0.0001"
     for k, p in enumerate(obj.parts):
+        shape = {"mesh": f"object_part_{k}"} if p.kind == "mesh" else {"size": p.size}
         sub(
             body,
             "geom",
             name=f"object/{k}",
             type=p.kind,
-            size=p.size,
+            **shape,
             pos=p.pos,
             quat=p.quat,
             density=obj.mass / volume,
@@ -175,6 +177,9 @@ def _object(worldbody: ET.Element, obj: ObjectModel) -> None:
 def _hull_asset(root: ET.Element, obj: ObjectModel) -> None:
     asset = root.find("asset")
     sub(asset, "mesh", name="object_hull", vertex=obj.mesh().convex_hull.vertices.ravel())
+    for k, p in enumerate(obj.parts):
+        if p.kind == "mesh":
+            sub(asset, "mesh", **mjcf_mesh_asset(p, f"object_part_{k}"))
 
 
 def scene_xml(obj: ObjectModel | None) -> str:

@@ -1,0 +1,189 @@
+"""Mesh parts and mesh import: a convex mesh part is what its hull is to every simulator,
+and a mesh file that cannot become an object is refused with a clear error."""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import replace
+
+import mujoco
+import numpy as np
+import pytest
+import trimesh
+
+from rrg_sim.geometric_sim import GeometricSimulator
+from rrg_sim.objects import Primitive, get_object
+from rrg_sim.objects.mesh_import import (
+    MeshError,
+    check_mesh,
+    convex_parts,
+    import_mesh,
+    stand_on_table,
+)
+from rrg_sim.objects.wrt_generation import info_wrts
+from rrg_sim.physics.mjcf_robot import ROBOT_FILE, robot_xml
+from rrg_sim.physics.scene import scene_xml
+
+
+def as_mesh_part(p: Primitive) -> Primitive:
+    """A box primitive as a mesh part: the convex hull of its eight corners."""
+    corners = [tuple(np.array(s) * p.size) for s in itertools.product((-1, 1), repeat=3)]
+    return Primitive("mesh", (), p.pos, p.quat, vertices=corners)
+
+
+@pytest.fixture(scope="module")
+def boxes():
+    """The catalogue box, and the same box whose part is a mesh."""
+    box = get_object("box")
+    return box, replace(box, parts=(as_mesh_part(box.parts[0]),))
+
+
+def test_a_mesh_part_has_its_hulls_distance_bounds_and_volume(boxes):
+    box, mesh_box = boxes
+    p, m = box.parts[0], mesh_box.parts[0]
+    points = np.random.default_rng(0).uniform(-0.15, 0.15, (2000, 3)) + (0.0, 0.0, 0.05)
+    exact, planes = p.signed_distance(points), m.signed_distance(points)
+    inside = exact < 0
+    assert inside.sum() > 50
+    np.testing.assert_allclose(planes[inside], exact[inside], atol=1e-12)
+    assert np.all(planes[~inside] <= exact[~inside] + 1e-12)  # a lower bound outside
+    front = np.abs(points[:, 1]) < 0.09  # in front of the ±x faces, nearest a face
+    on_x = ~inside & front & (np.abs(points[:, 2] - 0.05) < 0.04)
+    np.testing.assert_allclose(planes[on_x], exact[on_x], atol=1e-12)
+    np.testing.assert_allclose(m.bounds(), p.bounds(), atol=1e-15)
+    assert m.volume == pytest.approx(p.volume, rel=1e-12)
+    np.testing.assert_allclose(m.local_half_extents(), p.size)
+    assert m.mesh().is_watertight and m.mesh().volume == pytest.approx(p.volume, rel=1e-9)
+
+
+def test_a_mesh_part_needs_vertices_that_span_a_volume():
+    with pytest.raises(ValueError, match="span no volume"):
+        Primitive("mesh", (), vertices=[(0, 0, 0), (1, 0, 0), (0, 1, 0), (1, 1, 0)])
+    with pytest.raises(ValueError, match="needs its vertices"):
+        Primitive("mesh", ())
+    with pytest.raises(ValueError, match="only a mesh part"):
+        Primitive("sphere", (0.1,), vertices=[(0, 0, 0)])
+
+
+def test_info_grasps_of_a_mesh_part_are_those_of_its_primitive(boxes):
+    box, mesh_box = boxes
+    for a, b in zip(info_wrts(box.parts), info_wrts(mesh_box.parts), strict=True):
+        np.testing.assert_allclose(a.poses, b.poses, atol=1e-9)
+
+
+def test_the_geometric_simulator_sees_a_mesh_part_as_its_primitive(boxes):
+    box, mesh_box = boxes
+    deltas = np.random.default_rng(1).normal(0.0, (0.02, 0.02, 0.2), (120, 3))
+    for wrt in box.wrts()[:2]:
+        a = GeometricSimulator(box, wrt).simulate_batch(deltas)
+        b = GeometricSimulator(mesh_box, wrt).simulate_batch(deltas)
+        np.testing.assert_array_equal(a.contact, b.contact)
+        np.testing.assert_allclose(a.progress, b.progress, atol=5e-4)
+        # MuJoCo's box-box and mesh-box collisions differ only at grazing finger contacts.
+        assert np.mean(np.abs(a.closure - b.closure) < 0.02) > 0.97
+
+
+def test_the_physics_scene_holds_a_mesh_part_with_the_objects_mass(boxes):
+    _, mesh_box = boxes
+    model = mujoco.MjModel.from_xml_string(
+        scene_xml(mesh_box), assets={ROBOT_FILE: robot_xml().encode()}
+    )
+    assert model.body("object").mass[0] == pytest.approx(mesh_box.mass, rel=1e-6)
+    assert model.geom("object/0").type == mujoco.mjtGeom.mjGEOM_MESH
+
+
+# ------------------------------------------------------------------ mesh files
+def write(mesh: trimesh.Trimesh, path) -> str:
+    mesh.export(path)
+    return str(path)
+
+
+def test_import_scales_declared_units_and_turns_the_up_axis(tmp_path):
+    tall_in_y = trimesh.creation.box(extents=(40.0, 100.0, 20.0))  # millimetres, y up
+    mesh = import_mesh(write(tall_in_y, tmp_path / "b.stl"), units="mm", up="y")
+    np.testing.assert_allclose(mesh.extents, (0.04, 0.02, 0.1), atol=1e-9)
+    with pytest.raises(MeshError, match="unknown units"):
+        import_mesh(tmp_path / "b.stl", units="furlong")
+
+
+def test_an_empty_or_unreadable_file_is_refused(tmp_path):
+    (tmp_path / "empty.stl").write_text("solid empty\nendsolid empty\n")
+    with pytest.raises(MeshError, match="empty"):
+        import_mesh(tmp_path / "empty.stl")
+    (tmp_path / "junk.ply").write_bytes(b"\x00not a mesh")
+    with pytest.raises(MeshError, match="cannot read a mesh|empty"):
+        import_mesh(tmp_path / "junk.ply")
+
+
+def test_an_open_or_non_manifold_mesh_is_refused():
+    box = trimesh.creation.box(extents=(0.05, 0.05, 0.05))
+    open_box = trimesh.Trimesh(box.vertices, box.faces[4:], process=False)  # two sides gone
+    with pytest.raises(MeshError, match="not a closed manifold"):
+        check_mesh(open_box)
+    a = trimesh.creation.box(extents=(0.05, 0.05, 0.05))
+    b = a.copy().apply_translation((0.05, 0.05, 0.0))  # the two cubes share one edge
+    with pytest.raises(MeshError, match="not a closed manifold|encloses no volume"):
+        check_mesh(trimesh.util.concatenate([a, b]))
+
+
+def test_a_mesh_in_millimetres_declared_as_metres_is_refused_unless_told(tmp_path):
+    mug_mm = trimesh.creation.cylinder(radius=45.0, height=95.0)
+    mesh = import_mesh(write(mug_mm, tmp_path / "mug.stl"), units="m")
+    with pytest.raises(MeshError, match=r"95 m across.*--units mm"):
+        check_mesh(mesh)
+    assert check_mesh(mesh, allow_size=True).extents.max() == pytest.approx(95.0)
+
+
+def test_stand_on_table_centres_the_footprint_and_refuses_what_would_fall():
+    box = trimesh.creation.box(extents=(0.04, 0.06, 0.1))
+    box.apply_translation((0.3, -0.2, 0.5))
+    placed = stand_on_table(box)
+    np.testing.assert_allclose(placed.bounds, [[-0.02, -0.03, 0.0], [0.02, 0.03, 0.1]], atol=1e-12)
+    cone = trimesh.creation.cone(radius=0.03, height=0.08)
+    cone.apply_transform(trimesh.transformations.rotation_matrix(np.pi, (1, 0, 0)))  # on its tip
+    with pytest.raises(MeshError, match="at a point or along a line"):
+        stand_on_table(cone)
+    with pytest.raises(MeshError, match="at a point or along a line"):
+        stand_on_table(trimesh.creation.icosphere(radius=0.04))
+    # An L standing on a short, narrow foot with its long arm overhanging.
+    foot = trimesh.creation.box(extents=(0.02, 0.03, 0.02)).apply_translation((0, 0, 0.01))
+    arm = trimesh.creation.box(extents=(0.15, 0.03, 0.02)).apply_translation((0.065, 0, 0.03))
+    with pytest.raises(MeshError, match="outside its footprint"):
+        stand_on_table(foot.union(arm))
+
+
+def test_convex_parts_keep_a_concavity():
+    u = trimesh.creation.box(extents=(0.08, 0.03, 0.06)).difference(
+        trimesh.creation.box(extents=(0.05, 0.04, 0.05)).apply_translation((0, 0, 0.015))
+    )
+    parts = [Primitive("mesh", (), vertices=v) for v in convex_parts(u)]
+    assert 2 <= len(parts) <= 6
+    from rrg_sim.objects import signed_distance
+
+    assert signed_distance(parts, [(0.0, 0.0, 0.02)]) > 0.005  # the notch stays open
+    assert signed_distance(parts, [(0.03, 0.0, 0.0)]) < 0.0  # the walls stay solid
+    assert sum(p.volume for p in parts) == pytest.approx(u.volume, rel=0.15)
+
+
+def test_an_object_file_takes_mesh_parts_from_its_folder(tmp_path, boxes):
+    import shutil
+
+    from rrg_sim.objects import ObjectFileError, load_object_folder
+    from rrg_sim.objects.catalogue import BUILTIN_DIR
+
+    box, mesh_box = boxes
+    folder = tmp_path / "box"
+    shutil.copytree(BUILTIN_DIR / "box", folder)
+    (folder / "collision").mkdir()
+    mesh_box.parts[0].mesh().export(folder / "collision" / "body.stl")
+    path = folder / "object.toml"
+    text = path.read_text()
+    head, part = text.split("[[parts]]")
+    path.write_text(head + '[[parts]]\nname = "body"\nkind = "mesh"\nfile = "collision/body.stl"\n')
+    loaded = load_object_folder(folder)
+    assert loaded.parts[0].kind == "mesh"
+    np.testing.assert_allclose(loaded.parts[0].bounds(), box.parts[0].bounds(), atol=1e-6)
+    np.testing.assert_allclose(loaded.goal_wrt.poses, box.goal_wrt.poses, atol=1e-6)
+    (folder / "collision" / "body.stl").unlink()
+    with pytest.raises(ObjectFileError, match=r"file: .*body.stl"):
+        load_object_folder(folder)
