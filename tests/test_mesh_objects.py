@@ -102,6 +102,8 @@ def test_import_scales_declared_units_and_turns_the_up_axis(tmp_path):
     tall_in_y = trimesh.creation.box(extents=(40.0, 100.0, 20.0))  # millimetres, y up
     mesh = import_mesh(write(tall_in_y, tmp_path / "b.stl"), units="mm", up="y")
     np.testing.assert_allclose(mesh.extents, (0.04, 0.02, 0.1), atol=1e-9)
+    x_up = import_mesh(tmp_path / "b.stl", units="mm", up="x")
+    np.testing.assert_allclose(x_up.extents, (0.02, 0.1, 0.04), atol=1e-9)
     with pytest.raises(MeshError, match="unknown units"):
         import_mesh(tmp_path / "b.stl", units="furlong")
 
@@ -115,9 +117,14 @@ def test_an_empty_or_unreadable_file_is_refused(tmp_path):
         import_mesh(tmp_path / "junk.ply")
 
 
-def test_an_open_or_non_manifold_mesh_is_refused():
+def test_an_open_or_non_manifold_mesh_is_refused_and_a_small_hole_is_filled():
     box = trimesh.creation.box(extents=(0.05, 0.05, 0.05))
-    open_box = trimesh.Trimesh(box.vertices, box.faces[4:], process=False)  # two sides gone
+    pierced = trimesh.Trimesh(box.vertices, box.faces[1:], process=False)  # one triangle gone
+    assert not pierced.is_watertight
+    assert check_mesh(pierced).volume == pytest.approx(box.volume)
+    sphere = trimesh.creation.icosphere(radius=0.03)
+    cut = sphere.faces[sphere.triangles_center[:, 2] < 0.02]  # its cap above 2 cm gone
+    open_box = trimesh.Trimesh(sphere.vertices, cut, process=False)
     with pytest.raises(MeshError, match="not a closed manifold"):
         check_mesh(open_box)
     a = trimesh.creation.box(extents=(0.05, 0.05, 0.05))
@@ -143,13 +150,16 @@ def test_stand_on_table_centres_the_footprint_and_refuses_what_would_fall():
     cone.apply_transform(trimesh.transformations.rotation_matrix(np.pi, (1, 0, 0)))  # on its tip
     with pytest.raises(MeshError, match="at a point or along a line"):
         stand_on_table(cone)
-    with pytest.raises(MeshError, match="at a point or along a line"):
+    with pytest.raises(MeshError, match="cannot stand"):
         stand_on_table(trimesh.creation.icosphere(radius=0.04))
     # An L standing on a short, narrow foot with its long arm overhanging.
     foot = trimesh.creation.box(extents=(0.02, 0.03, 0.02)).apply_translation((0, 0, 0.01))
     arm = trimesh.creation.box(extents=(0.15, 0.03, 0.02)).apply_translation((0.065, 0, 0.03))
     with pytest.raises(MeshError, match="outside its footprint"):
         stand_on_table(foot.union(arm))
+    tall = trimesh.creation.box(extents=(0.02, 0.02, 0.2))  # tips over at 5.7°
+    with pytest.raises(MeshError, match="inside its footprint.* tips over at 6°"):
+        stand_on_table(tall)
 
 
 def test_convex_parts_keep_a_concavity():

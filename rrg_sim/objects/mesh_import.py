@@ -18,21 +18,31 @@ from pathlib import Path
 import numpy as np
 import trimesh
 from scipy.spatial import ConvexHull, QhullError
+from scipy.spatial.transform import Rotation
 
 log = logging.getLogger(__name__)
 
 #: Length units a mesh file may be declared in, in metres.
 UNITS_M = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}
-#: Axis names a mesh may be declared to have up.
-UP_AXES = {"x": (1, 0, 0), "y": (0, 1, 0), "z": (0, 0, 1), "-x": (-1, 0, 0), "-y": (0, -1, 0)}
+#: The turn that brings a mesh's declared up axis to +z, by the axis's name.
+UP_AXES = {
+    "z": Rotation.identity(),
+    "-z": Rotation.from_euler("x", 180.0, degrees=True),
+    "y": Rotation.from_euler("x", 90.0, degrees=True),
+    "-y": Rotation.from_euler("x", -90.0, degrees=True),
+    "x": Rotation.from_euler("y", -90.0, degrees=True),
+    "-x": Rotation.from_euler("y", 90.0, degrees=True),
+}
 #: Plausible sizes [m] of an object the WAM grasps on a table (chosen: a 2 cm die to a
 #: 60 cm box; outside them a mesh is most likely in other units than declared).
 MIN_SIZE_M, MAX_SIZE_M = 0.02, 0.6
-#: Vertices this close [m] above the lowest one make the footprint (chosen: 1 mm).
-FOOTPRINT_TOLERANCE_M = 0.001
-#: The centre of mass must lie this far [m] inside the footprint (chosen: 2 mm, so that a
-#: table-height draw or a bump does not tip it).
-STABILITY_MARGIN_M = 0.002
+#: Vertices of the convex hull this close [m] above the lowest one make the footprint
+#: (chosen: half a millimetre, the unevenness of a scanned flat base).
+FOOTPRINT_TOLERANCE_M = 0.0005
+#: The object must tilt at least this far [rad] about an edge of its footprint before its
+#: centre of mass passes over it (chosen: 10°; the paper objects need 16°, the drill on its
+#: battery, or more; a 4 cm ball resting on its tessellation, 9°).
+MIN_TIP_ANGLE = np.radians(10.0)
 #: CoACD's concavity threshold (its default, 0.05) and the most parts to keep (chosen: the
 #: paper objects have 1-24 primitives; each part is a MuJoCo collision geom).
 COACD_THRESHOLD = 0.05
@@ -59,7 +69,8 @@ def import_mesh(path: Path | str, units: str = "m", up: str = "z") -> trimesh.Tr
     if len(mesh.faces) == 0:
         raise MeshError(f"{path}: the mesh is empty (no faces)")
     mesh.apply_scale(UNITS_M[units])
-    turn = trimesh.geometry.align_vectors(UP_AXES[up], (0.0, 0.0, 1.0))
+    turn = np.eye(4)
+    turn[:3, :3] = UP_AXES[up].as_matrix()
     mesh.apply_transform(turn)
     return mesh
 
@@ -99,28 +110,32 @@ def check_mesh(mesh: trimesh.Trimesh, allow_size: bool = False) -> trimesh.Trime
 
 def stand_on_table(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     """A copy of ``mesh`` resting on z = 0 with the origin at its footprint's centre, the
-    footprint being its vertices within FOOTPRINT_TOLERANCE_M of the lowest. MeshError if
-    the centre of mass (uniform density) is not STABILITY_MARGIN_M inside the footprint."""
+    footprint being its convex hull's vertices within FOOTPRINT_TOLERANCE_M of the lowest.
+    MeshError if it would tip over at less than MIN_TIP_ANGLE (uniform density)."""
     mesh = mesh.copy()
-    z = mesh.vertices[:, 2]
-    foot = mesh.vertices[z <= z.min() + FOOTPRINT_TOLERANCE_M, :2]
+    hull = mesh.convex_hull.vertices
+    z = hull[:, 2]
+    foot = hull[z <= z.min() + FOOTPRINT_TOLERANCE_M, :2]
     try:
-        hull = ConvexHull(foot)
+        footprint = ConvexHull(foot)
     except (QhullError, ValueError):
         raise MeshError(
-            "the mesh touches the table at a point or along a line only, so it cannot stand "
-            "in the declared orientation (try another --up)"
+            "the mesh cannot stand on the table in the declared orientation: it touches it at "
+            "a point or along a line only (try another --up)"
         ) from None
-    polygon = foot[hull.vertices]
+    polygon = foot[footprint.vertices]
     centre = _polygon_centroid(polygon)
     mesh.apply_translation((-centre[0], -centre[1], -z.min()))
-    com = mesh.center_mass[:2]
-    inside = -np.max(hull.equations[:, :2] @ (com + centre) + hull.equations[:, 2])
-    if inside < STABILITY_MARGIN_M:
+    com = mesh.center_mass
+    inside = -np.max(footprint.equations[:, :2] @ (com[:2] + centre) + footprint.equations[:, 2])
+    tip = np.arctan2(inside, com[2])
+    if tip < MIN_TIP_ANGLE:
+        where = "outside" if inside < 0 else "inside"
         raise MeshError(
-            f"the mesh cannot stand on the table: its centre of mass is "
-            f"{-inside * 1000:+.1f} mm outside its footprint (needs {STABILITY_MARGIN_M * 1000:.0f}"
-            " mm inside; try another --up)"
+            f"the mesh cannot stand on the table in the declared orientation: its centre of "
+            f"mass is {abs(inside) * 1000:.1f} mm {where} its footprint, {com[2] * 1000:.0f} mm "
+            f"up, so it tips over at {np.degrees(tip):.0f}° (needs "
+            f"{np.degrees(MIN_TIP_ANGLE):.0f}°; try another --up)"
         )
     return mesh
 
