@@ -1,6 +1,7 @@
 """The nodes' executor (rrg_sim.ros_common.node_main.SubmitOnceExecutor): with its thread pool
 busy, rclpy's MultiThreadedExecutor hands a queued task over again on every turn; this one
-hands each task over once, and still raises a callback's exception from the spin."""
+hands each task over once, still raises a callback's exception from the spin, and ends quietly
+on a shutdown that lands while it waits."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import pytest
 import rclpy
 from rclpy.executors import MultiThreadedExecutor
 
-from rrg_sim.ros_common.node_main import SubmitOnceExecutor
+from rrg_sim.ros_common.node_main import RCLError, SubmitOnceExecutor, spin_until_shutdown
 
 
 def hand_overs(executor_class, ros_domain: int, seconds: float = 1.0) -> collections.Counter:
@@ -74,6 +75,34 @@ def test_a_callbacks_exception_is_raised_from_the_spin(ros_domain):
                 executor.spin_once(timeout_sec=0.1)
         assert fired.is_set()
         executor.shutdown(timeout_sec=1.0)
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+def test_a_shutdown_while_the_executor_waits_ends_the_spin_quietly(ros_domain):
+    """A signal's handler can shut the context down between the spin's check and its wait;
+    rclpy then raises RCLError from the wait (seen at a bridge node's SIGINT)."""
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=ros_domain)
+    try:
+        node = rclpy.create_node("shutdown_race", context=context)
+        executor = SubmitOnceExecutor(num_threads=2, context=context)
+        executor.add_node(node)
+        spin_once = executor.spin_once
+        calls = []
+
+        def shut_down_then_wait(timeout_sec=None):
+            calls.append(timeout_sec)
+            if len(calls) == 3:
+                rclpy.shutdown(context=context)  # after the loop's check, before the wait
+                with pytest.raises(RCLError, match="context is not valid"):
+                    spin_once(timeout_sec=timeout_sec)  # what rclpy does then
+            return spin_once(timeout_sec=timeout_sec)
+
+        executor.spin_once = shut_down_then_wait
+        spin_until_shutdown(executor)  # returns, no RCLError
+        assert len(calls) == 3 and not context.ok()
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)

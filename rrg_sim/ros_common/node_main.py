@@ -26,12 +26,15 @@ from rclpy.executors import (
     SingleThreadedExecutor,
     TimeoutException,
 )
+from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.task import Task
 
 #: How long the spin loop yields the interpreter when the task it is handed is still queued for
 #: a worker [s].
 QUEUED_YIELD_S = 0.001
+#: rclpy's error from its C layer (the type rclpy itself catches; not in its public API).
+RCLError = rclpy_implementation.RCLError
 
 
 def keep_serving(method: Callable) -> Callable:
@@ -102,6 +105,19 @@ def release_free_memory() -> None:
         pass
 
 
+def spin_until_shutdown(executor: Executor) -> None:
+    """Spin ``executor`` until its context shuts down. A shutdown (a signal's handler) that
+    lands while it waits makes rclpy raise RCLError ("the given context is not valid") from
+    the wait; that ends the spin like any other shutdown."""
+    context = executor.context
+    while context.ok():
+        try:
+            executor.spin_once(timeout_sec=0.1)
+        except RCLError:
+            if context.ok():
+                raise
+
+
 def run_node(
     make_node: Callable[[], Node], multi_threaded: bool = False, argv: list[str] | None = None
 ) -> int:
@@ -119,8 +135,7 @@ def run_node(
     try:
         node = make_node()
         executor.add_node(node)
-        while rclpy.ok():
-            executor.spin_once(timeout_sec=0.1)
+        spin_until_shutdown(executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
