@@ -181,3 +181,17 @@ def test_rrg_object_lists_every_object_and_removes_only_user_ones(user_dir, tmp_
     assert object_cli.remove_object("soup", cache) == user_dir / "soup"
     assert not (user_dir / "soup").exists() and "soup" not in object_names()
     assert sorted(p.name for p in cache.iterdir()) == ["can__goal__0.npz"]
+
+
+def test_rrg_objects_dir_is_a_search_path_whose_first_folder_wins(tmp_path, monkeypatch):
+    first, second = tmp_path / "a", tmp_path / "b"
+    first.mkdir(), second.mkdir()
+    copy_builtin("teabox", "tin", first)
+    copy_builtin("box", "tin", second)
+    copy_builtin("can", "jar", second)
+    monkeypatch.setenv(USER_DIR_ENV, os.pathsep.join([str(first), str(second)]))
+    assert object_names() == (*PAPER_OBJECTS, "tin", "jar")
+    assert object_folders()["tin"] == first / "tin" and get_object("tin").mass == pytest.approx(
+        0.08
+    )
+    assert object_cli.user_objects_dir() == first  # where rrg-object add installs

@@ -1,7 +1,12 @@
 """``rrg-object``: the installed objects.
 
+    rrg-object add MESH --name NAME [--units mm] [--up y] [--mass KG] [--goal-through X Y Z]
     rrg-object list              # every installed object: built-in or user, and what it has
     rrg-object remove NAME       # delete a user object and its cached observation tables
+
+``add`` onboards a mesh file (STL, OBJ, PLY) in stages (rrg_planner.onboarding.onboard):
+check and stand the mesh, decompose it, choose or take the goal grasp, write the object file,
+run the physics studies, build the tables and render the goal grasp.
 
 User objects live in ``$RRG_OBJECTS_DIR`` (default ``~/.local/share/rrg/objects``); the
 paper's ten ship with the package and cannot be removed. Every CLI and node takes an
@@ -24,7 +29,10 @@ from rrg_sim.objects import (
     unknown_object_message,
     user_objects_dir,
 )
+from rrg_sim.objects.mesh_import import UNITS_M, UP_AXES
 from rrg_sim.objects.object_model import REORIENTATION_FILE, SETTLING_FILE
+
+from .onboard import DEFAULT_FRICTION, DEFAULT_TOL, AddOptions, GoalSpec, OnboardError, add_object
 
 
 def cached_tables(name: str, cache_dir: Path = DEFAULT_CACHE_DIR) -> list[Path]:
@@ -79,11 +87,81 @@ def cmd_remove(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_add(args: argparse.Namespace) -> int:
+    goal = None
+    if args.goal_through is not None:
+        goal = GoalSpec(
+            through_m=tuple(args.goal_through),
+            approach=args.goal_approach,
+            yaw_rad=args.goal_yaw,
+            pitch_rad=args.goal_pitch,
+            roll_rad=args.goal_roll,
+            standoff_m=args.goal_standoff,
+            spread_rad=args.goal_spread,
+            tol=tuple(args.goal_tol),
+        )
+    options = AddOptions(
+        args.mesh,
+        args.name,
+        units=args.units,
+        up=args.up,
+        mass_kg=args.mass,
+        friction=args.friction,
+        goal=goal,
+        allow_size=args.allow_size,
+        settle_grasps=args.settle_grasps,
+        workers=args.workers,
+        seed=args.seed,
+    )
+    try:
+        report = add_object(options)
+    except OnboardError as exc:
+        print(f"rrg-object add: {exc} (nothing was installed)", file=sys.stderr)
+        return 2
+    total = sum(report.stage_s.values())
+    print("stage times: " + ", ".join(f"{k} {v:.1f} s" for k, v in report.stage_s.items()))
+    print(f"total {total:.0f} s; rrg-launch --grasp {args.name} runs it")
+    return 0
+
+
+def _add_parser(sub) -> None:
+    add = sub.add_parser("add", help="onboard a mesh file as a new object")
+    add.add_argument("mesh", type=Path, help="STL, OBJ or PLY file")
+    add.add_argument("--name", required=True, help="the new object's name")
+    add.add_argument("--units", default="m", choices=list(UNITS_M), help="the mesh's units")
+    add.add_argument("--up", default="z", choices=list(UP_AXES), help="the mesh's up axis")
+    add.add_argument("--mass", type=float, help="mass [kg] (default: volume at 1000 kg/m³)")
+    add.add_argument("--friction", type=float, default=DEFAULT_FRICTION)
+    add.add_argument("--allow-size", action="store_true", help="accept a size outside 0.02-0.6 m")
+    goal = add.add_argument_group("goal grasp (default: proposed from the mesh)")
+    goal.add_argument("--goal-through", type=float, nargs=3, metavar=("X", "Y", "Z"))
+    goal.add_argument("--goal-approach", default="top_down", choices=["top_down", "side"])
+    goal.add_argument("--goal-yaw", type=float, default=0.0, help="[rad]")
+    goal.add_argument("--goal-pitch", type=float, default=0.0, help="side approach [rad]")
+    goal.add_argument("--goal-roll", type=float, default=0.0, help="side approach [rad]")
+    goal.add_argument("--goal-standoff", type=float, default=0.0, help="[m]")
+    goal.add_argument("--goal-spread", type=float, default=0.0, help="[rad]")
+    goal.add_argument(
+        "--goal-tol",
+        type=float,
+        nargs=3,
+        default=DEFAULT_TOL,
+        metavar=("DX", "DY", "DTHETA"),
+        help=f"goal region [m, m, rad] (default: {DEFAULT_TOL[0]}, {DEFAULT_TOL[1]}, "
+        f"{DEFAULT_TOL[2]:.3f}; inf ignores θ)",
+    )
+    add.add_argument("--settle-grasps", type=int, default=60, help="settling study grasps")
+    add.add_argument("--workers", type=int, default=2)
+    add.add_argument("--seed", type=int, default=0, help="seeds CoACD and the studies")
+    add.set_defaults(run=cmd_add)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="rrg-object", description=__doc__.split("\n\n")[0].strip("`: ")
     )
     sub = parser.add_subparsers(dest="command", required=True)
+    _add_parser(sub)
     sub.add_parser("list", help="every installed object").set_defaults(run=cmd_list)
     remove = sub.add_parser("remove", help="delete a user object and its cached tables")
     remove.add_argument("name")

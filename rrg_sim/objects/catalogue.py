@@ -1,9 +1,11 @@
 """The installed objects: the paper's ten, shipped with the package, and the user's own.
 
 Each object is a folder (rrg_sim.objects.object_file). The built-in ones live in
-``builtin/`` next to this module; user objects in ``user_objects_dir()``: the folder named by
-the ``RRG_OBJECTS_DIR`` environment variable, else ``$XDG_DATA_HOME/rrg/objects``
-(``~/.local/share/rrg/objects``). A user object never shadows a built-in one.
+``builtin/`` next to this module; user objects in ``user_objects_dirs()``: the folders named
+by the ``RRG_OBJECTS_DIR`` environment variable (a list, like ``PATH``; the first is where
+``rrg-object add`` installs), else ``$XDG_DATA_HOME/rrg/objects``
+(``~/.local/share/rrg/objects``). A user object never shadows a built-in one, and an earlier
+folder's object shadows a later one's.
 """
 
 from __future__ import annotations
@@ -37,25 +39,32 @@ BUILTIN_DIR = Path(__file__).with_name("builtin")
 USER_DIR_ENV = "RRG_OBJECTS_DIR"
 
 
-def user_objects_dir() -> Path:
-    """The folder of user objects: $RRG_OBJECTS_DIR, else $XDG_DATA_HOME/rrg/objects."""
-    if os.environ.get(USER_DIR_ENV):
-        return Path(os.environ[USER_DIR_ENV]).expanduser()
+def user_objects_dirs() -> list[Path]:
+    """The folders of user objects: $RRG_OBJECTS_DIR's, else $XDG_DATA_HOME/rrg/objects."""
+    listed = [p for p in os.environ.get(USER_DIR_ENV, "").split(os.pathsep) if p]
+    if listed:
+        return [Path(p).expanduser() for p in listed]
     data_home = os.environ.get("XDG_DATA_HOME") or Path.home() / ".local" / "share"
-    return Path(data_home) / "rrg" / "objects"
+    return [Path(data_home) / "rrg" / "objects"]
+
+
+def user_objects_dir() -> Path:
+    """The folder user objects are installed into: the first of user_objects_dirs()."""
+    return user_objects_dirs()[0]
 
 
 def object_folders() -> dict[str, Path]:
     """Every installed object's folder by name: the built-ins in the paper's order, then the
     user's objects by name."""
     folders = {name: BUILTIN_DIR / name for name in PAPER_OBJECTS}
-    user = user_objects_dir()
-    if user.is_dir():
+    for user in user_objects_dirs():
+        if not user.is_dir():
+            continue
         for folder in sorted(user.iterdir()):
             if not (folder / OBJECT_FILE).is_file():
                 continue
             if folder.name in folders:
-                log.warning("ignoring %s: a built-in object is called %r", folder, folder.name)
+                log.warning("ignoring %s: %s has its name", folder, folders[folder.name])
                 continue
             folders[folder.name] = folder
     return folders

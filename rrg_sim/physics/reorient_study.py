@@ -23,6 +23,8 @@ its reorientation WRTs.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from rrg_sim.config import REORIENT_MIN_FINGERS, WORLD
@@ -108,6 +110,26 @@ def _report(name: str, fits: dict, records: list[dict]) -> str:
     )
 
 
+def study(
+    objects: list[str], runs: int, seed: int = 0, workers: int = 2, out_dir: Path | None = None
+) -> None:
+    """Measure and write each object's reorientation outcomes (``REORIENTATION_FILE``)."""
+    run_study(
+        objects,
+        runs,
+        seed,
+        workers,
+        REORIENTATION_FILE,
+        _measure_job,
+        fit,
+        _report,
+        "reorientation",
+        f"python -m rrg_sim.physics.reorient_study --runs {runs} --seed {seed} "
+        "(MuJoCo, reorientation WRTs at the nominal pose)",
+        out_dir,
+    )
+
+
 def main(argv: list[str] | None = None) -> None:
     args = study_args(
         argv,
@@ -117,20 +139,7 @@ def main(argv: list[str] | None = None) -> None:
         40,
         "runs per reorientation WRT",
     )
-    run_study(
-        args.objects,
-        args.runs,
-        args.seed,
-        args.workers,
-        REORIENTATION_FILE,
-        _measure_job,
-        fit,
-        _report,
-        "reorientation",
-        f"python -m rrg_sim.physics.reorient_study --runs {args.runs} --seed {args.seed} "
-        "(MuJoCo, reorientation WRTs at the nominal pose)",
-        args.out_dir,
-    )
+    study(args.objects, args.runs, args.seed, args.workers, args.out_dir)
 
 
 if __name__ == "__main__":

@@ -218,22 +218,29 @@ def study_args(
     return parser.parse_args(argv)
 
 
-def main(argv: list[str] | None = None) -> None:
-    args = study_args(argv, __doc__, list(PAPER_OBJECTS), "grasps", 60, "goal grasps per object")
+def study(
+    objects: list[str], grasps: int, seed: int = 0, workers: int = 2, out_dir: Path | None = None
+) -> None:
+    """Measure and write each object's settling fit (``SETTLING_FILE`` in its folder)."""
     run_study(
-        args.objects,
-        args.grasps,
-        args.seed,
-        args.workers,
+        objects,
+        grasps,
+        seed,
+        workers,
         SETTLING_FILE,
         _measure_job,
         fit,
         _report,
         "settling",
-        f"python -m rrg_sim.physics.settle --grasps {args.grasps} --seed {args.seed} "
+        f"python -m rrg_sim.physics.settle --grasps {grasps} --seed {seed} "
         "(MuJoCo, goal WRT at the nominal pose)",
-        args.out_dir,
+        out_dir,
     )
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = study_args(argv, __doc__, list(PAPER_OBJECTS), "grasps", 60, "goal grasps per object")
+    study(args.objects, args.grasps, args.seed, args.workers, args.out_dir)
 
 
 if __name__ == "__main__":

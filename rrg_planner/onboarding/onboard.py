@@ -1,0 +1,367 @@
+"""``rrg-object add``: a mesh file onboarded as an installed object, stage by stage.
+
+1. *mesh*: read in its declared units and up axis, repaired and checked, stood on the table
+   (rrg_sim.objects.mesh_import);
+2. *decompose*: CoACD's convex parts, one collision file each;
+3. *goal grasp*: the one given, or proposed: the top-down pinches the info-grasp generator
+   finds on the parts (rrg_sim.objects.surface_pairs), narrower than the hand opens, whose
+   descent is free and which the WAM reaches at the nominal pose, largest faces first; an
+   object with none is too big for the hand;
+4. *object file*: ``object.toml``, read back as every object is;
+5. *studies*: the grasp-settling study, and the reorientation study when the goal grasp cannot
+   run at every heading (rrg_sim.physics.settle, reorient_study);
+6. *tables*: the observation tables and feasibility maps of every WRT at every level
+   (rrg_planner.planning_model);
+7. *picture*: the goal grasp closed on the object, ``goal.png``.
+
+Everything is built in a staging folder beside the user objects folder and moved into it in
+one rename at the end, so a refused or failed onboarding leaves nothing installed.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import re
+import shutil
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from rrg_sim import wam
+from rrg_sim.config import WORLD
+from rrg_sim.objects import (
+    ObjectFileError,
+    Primitive,
+    load_object_folder,
+    object_folders,
+    user_objects_dir,
+)
+from rrg_sim.objects.catalogue import USER_DIR_ENV
+from rrg_sim.objects.mesh_import import (
+    MeshError,
+    check_mesh,
+    convex_parts,
+    import_mesh,
+    stand_on_table,
+)
+from rrg_sim.objects.object_file import OBJECT_FILE
+from rrg_sim.objects.surface_pairs import Pinch, pinch_candidates
+from rrg_sim.objects.wrt_generation import line_grasp_wrt, top_down_poses, top_down_rotation
+
+log = logging.getLogger(__name__)
+
+#: An object's name: a lower-case identifier, as the paper's objects have.
+NAME_PATTERN = re.compile(r"[a-z][a-z0-9_]{0,39}")
+#: Density [kg/m³] that gives a mass when none is declared (chosen: water's, about that of
+#: the plastics and filled containers a lab grasps; pass --mass for anything else).
+DEFAULT_DENSITY = 1000.0
+#: Friction of an object whose friction is not declared (chosen: 0.5, the paper objects'
+#: most common value, docs/world.md).
+DEFAULT_FRICTION = 0.5
+#: Goal region of a proposed goal grasp: |dx|, |dy| [m], |dθ| [rad] (chosen: the paper
+#: objects' most common region, 1 cm and 10°).
+DEFAULT_TOL = (0.01, 0.01, float(np.radians(10.0)))
+#: Goal grasps of the settling study, and runs per WRT of the reorientation study (the paper
+#: objects' studies used 300 and 40; chosen smaller to keep onboarding within minutes).
+SETTLE_GRASPS = 60
+REORIENT_RUNS = 20
+#: Headings [rad] about the nominal at which the goal grasp must run, or the object gets
+#: reorientation WRTs (as in tests of the paper objects).
+HEADINGS = np.linspace(-1.2, 1.2, 9)
+
+
+class OnboardError(ValueError):
+    """Onboarding refused: what is wrong, and what to pass instead. Nothing was installed."""
+
+
+@dataclass(frozen=True)
+class GoalSpec:
+    """A goal grasp as an object file holds it (rrg_sim.objects.object_file)."""
+
+    through_m: tuple[float, float, float]
+    approach: str = "top_down"
+    yaw_rad: float = 0.0
+    pitch_rad: float = 0.0
+    roll_rad: float = 0.0
+    standoff_m: float = 0.0
+    spread_rad: float = 0.0
+    tol: tuple[float, float, float] = DEFAULT_TOL
+    description: str = "given on the command line"
+
+
+@dataclass
+class AddOptions:
+    """What ``rrg-object add`` was asked for."""
+
+    mesh: Path
+    name: str
+    units: str = "m"
+    up: str = "z"
+    mass_kg: float | None = None
+    friction: float = DEFAULT_FRICTION
+    goal: GoalSpec | None = None
+    allow_size: bool = False
+    settle_grasps: int = SETTLE_GRASPS
+    reorient_runs: int = REORIENT_RUNS
+    workers: int = 2
+    seed: int = 0
+
+
+@dataclass
+class AddReport:
+    """What onboarding chose and how long each stage took [s]."""
+
+    folder: Path
+    stage_s: dict[str, float] = field(default_factory=dict)
+    choices: list[str] = field(default_factory=list)
+
+
+def check_name(name: str) -> None:
+    """OnboardError unless ``name`` is a valid name no installed object has."""
+    if not NAME_PATTERN.fullmatch(name):
+        raise OnboardError(
+            f"invalid name {name!r}: use lower-case letters, digits and _, starting with a letter"
+        )
+    folders = object_folders()
+    if name in folders:
+        raise OnboardError(
+            f"an object called {name!r} is already installed ({folders[name]}); choose another "
+            "name, or remove it first (rrg-object remove)"
+        )
+
+
+def _yaw_of(pinch: Pinch) -> float:
+    """The top_down_rotation yaw [rad] whose hand orientation is the pinch's."""
+    x = pinch.rotation().as_matrix()[:, 0]
+    return float(np.arctan2(x[1], x[0]))
+
+
+def propose_goal(parts: tuple[Primitive, ...]) -> tuple[GoalSpec, list[str]]:
+    """The proposed goal grasp (see the module doc) and why; OnboardError if there is none."""
+    candidates = pinch_candidates(parts)
+    if not candidates:
+        raise OnboardError(
+            "too big for the hand: no two opposing, roughly vertical faces are close enough "
+            "for the BarrettHand to pinch them; give a goal grasp (--goal-through ...)"
+        )
+    why = [f"{len(candidates)} top-down pinches fit the hand"]
+    nominal = np.asarray(WORLD.nominal_pose)
+    for rank, pinch in enumerate(candidates):
+        rotation = top_down_rotation(_yaw_of(pinch))
+        if top_down_poses(parts, pinch) is None:
+            continue
+        wrt = line_grasp_wrt(parts, rotation, pinch.centre, spread=pinch.spread)
+        if not wam.feasible_path(wrt.with_home(nominal)):
+            continue
+        why.append(
+            f"chose pinch #{rank + 1}: across {pinch.separation * 100:.1f} cm at "
+            f"({pinch.centre[0]:+.3f}, {pinch.centre[1]:+.3f}, {pinch.centre[2]:.3f}) m, faces "
+            f"of {pinch.score * 1e4:.0f} cm², free descent, reachable at the nominal pose"
+        )
+        return (
+            GoalSpec(
+                through_m=tuple(float(v) for v in pinch.centre),
+                yaw_rad=_yaw_of(pinch),
+                spread_rad=float(pinch.spread),
+                description=f"from above, pinching {pinch.separation * 100:.1f} cm across",
+            ),
+            why,
+        )
+    raise OnboardError(
+        f"none of the {len(candidates)} top-down pinches descends freely and is reachable by "
+        "the WAM at the nominal pose; give a goal grasp (--goal-through ...)"
+    )
+
+
+def _toml(value) -> str:
+    """A TOML value (floats round-trip exactly)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float, np.floating)):
+        v = float(value)
+        return "inf" if v == np.inf else repr(v)
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    return "[" + ", ".join(_toml(v) for v in value) + "]"
+
+
+def object_file_text(
+    name: str,
+    mesh: trimesh.Trimesh,
+    part_files: list[str],
+    mass_kg: float,
+    friction: float,
+    goal: GoalSpec,
+    source: str,
+    reorientation: bool,
+) -> str:
+    """The ``object.toml`` of an onboarded mesh object."""
+    lines = [
+        f"# Onboarded by rrg-object add from {source}.",
+        "",
+        f"name = {_toml(name)}",
+        f"description = {_toml(f'{name}; goal: {goal.description}')}",
+        f"source = {_toml(source)}",
+        f"mass_kg = {_toml(mass_kg)}",
+        f"friction = {_toml(friction)}",
+        "placement_yaw_rad = 0.0",
+        "track_settling = true",
+        "",
+        "[dimensions_m]",
+        *(f"size_{axis} = {_toml(v)}" for axis, v in zip("xyz", mesh.extents)),
+        "",
+        "[goal_region]",
+        f"tol = {_toml(goal.tol)}  # |dx| [m], |dy| [m], |dθ| [rad] (inf: θ ignored)",
+        "min_fingers = 3",
+        "",
+        "[goal_grasp]",
+        f"approach = {_toml(goal.approach)}",
+        f"yaw_rad = {_toml(goal.yaw_rad)}",
+        f"pitch_rad = {_toml(goal.pitch_rad)}",
+        f"roll_rad = {_toml(goal.roll_rad)}",
+        f"through_m = {_toml(goal.through_m)}",
+        f"standoff_m = {_toml(goal.standoff_m)}",
+        f"spread_rad = {_toml(goal.spread_rad)}",
+        f"description = {_toml(goal.description)}",
+    ]
+    if reorientation:
+        lines += ["", "[reorientation]  # the goal grasp cannot run at every heading"]
+    for k, path in enumerate(part_files):
+        lines += [
+            "",
+            "[[parts]]",
+            f'name = "part {k + 1}"',
+            'kind = "mesh"',
+            f"file = {_toml(path)}",
+        ]
+    return "\n".join(lines) + "\n"
+
+
+@contextmanager
+def _searched_first(folder: Path) -> Iterator[None]:
+    """Every object lookup (here and in forked workers) sees ``folder``'s objects first."""
+    old = os.environ.get(USER_DIR_ENV)
+    rest = old if old else str(user_objects_dir())
+    os.environ[USER_DIR_ENV] = os.pathsep.join([str(folder), rest])
+    try:
+        yield
+    finally:
+        if old is None:
+            del os.environ[USER_DIR_ENV]
+        else:
+            os.environ[USER_DIR_ENV] = old
+
+
+def add_object(opts: AddOptions, say: Callable[[str], None] = print) -> AddReport:
+    """Onboard ``opts.mesh`` as the user object ``opts.name`` (see the module doc)."""
+    check_name(opts.name)
+    user = user_objects_dir()
+    user.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".rrg-staging-{opts.name}-", dir=user.parent))
+    folder = staging / opts.name
+    (folder / "collision").mkdir(parents=True)
+    report = AddReport(user / opts.name)
+
+    @contextmanager
+    def stage(name: str) -> Iterator[None]:
+        say(f"[{name}]")
+        t0 = time.perf_counter()
+        yield
+        report.stage_s[name] = time.perf_counter() - t0
+        say(f"[{name}] done in {report.stage_s[name]:.1f} s")
+
+    def choose(text: str) -> None:
+        report.choices.append(text)
+        say(f"  {text}")
+
+    try:
+        with stage("mesh"):
+            raw = import_mesh(opts.mesh, opts.units, opts.up)
+            mesh = stand_on_table(check_mesh(raw, allow_size=opts.allow_size))
+            mesh.export(folder / "mesh.stl")
+            choose(
+                f"{len(mesh.faces)} faces, {mesh.extents[0] * 100:.1f} x "
+                f"{mesh.extents[1] * 100:.1f} x {mesh.extents[2] * 100:.1f} cm, "
+                f"{mesh.volume * 1e6:.0f} cm³, standing on its footprint"
+            )
+        with stage("decompose"):
+            part_files = []
+            for k, vertices in enumerate(convex_parts(mesh, seed=opts.seed)):
+                path = f"collision/part_{k + 1:02d}.stl"
+                trimesh.convex.convex_hull(vertices).export(folder / path)
+                part_files.append(path)
+            choose(f"{len(part_files)} convex parts (CoACD)")
+        parts = tuple(
+            Primitive("mesh", (), vertices=trimesh.load_mesh(folder / p).vertices)
+            for p in part_files
+        )
+        with stage("goal grasp"):
+            if opts.goal is None:
+                goal, why = propose_goal(parts)
+                for line in why:
+                    choose(line)
+            else:
+                goal = opts.goal
+                choose(f"the given goal grasp through {goal.through_m}")
+        mass = opts.mass_kg if opts.mass_kg is not None else DEFAULT_DENSITY * mesh.volume
+        if opts.mass_kg is None:
+            choose(f"mass {mass:.3f} kg: its volume at {DEFAULT_DENSITY:.0f} kg/m³ (--mass)")
+        source = f"mesh {Path(opts.mesh).name} ({opts.units}, {opts.up} up)"
+        with stage("object file"):
+            obj = _write_and_load(folder, opts, mesh, part_files, mass, goal, source, False)
+            nominal = np.asarray(WORLD.nominal_pose)
+            if not wam.feasible_path(obj.goal_wrt.with_home(nominal)):
+                raise OnboardError(
+                    "the WAM cannot reach the goal grasp at the nominal pose "
+                    f"{WORLD.nominal_pose}; give another (--goal-through, --goal-yaw, ...)"
+                )
+            headings = [(nominal[0], nominal[1], t) for t in HEADINGS]
+            reorient = not all(wam.feasible_path(obj.goal_wrt.with_home(e)) for e in headings)
+            if reorient:
+                obj = _write_and_load(folder, opts, mesh, part_files, mass, goal, source, True)
+                choose("reorientation WRTs: the goal grasp cannot run at every heading")
+            choose(f"{len(obj.wrts())} WRTs: " + ", ".join(w.name for w in obj.wrts()))
+        with _searched_first(staging):
+            _measure_and_build(opts, reorient, stage)
+        os.replace(folder, report.folder)
+        say(f"installed {opts.name} in {report.folder}")
+        return report
+    except (MeshError, ObjectFileError) as exc:
+        raise OnboardError(str(exc)) from exc
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def _write_and_load(folder, opts, mesh, part_files, mass, goal, source, reorientation):
+    (folder / OBJECT_FILE).write_text(
+        object_file_text(
+            opts.name, mesh, part_files, mass, opts.friction, goal, source, reorientation
+        )
+    )
+    return load_object_folder(folder)
+
+
+def _measure_and_build(opts: AddOptions, reorient: bool, stage) -> None:
+    """The physics studies, the tables and the picture of the staged object."""
+    from rrg_planner.planning_model import PlanningModel
+    from rrg_sim.physics import reorient_study, settle
+    from rrg_sim.physics.render import render_goal_grasps
+
+    with stage("settling study"):
+        settle.study([opts.name], opts.settle_grasps, opts.seed, opts.workers)
+    if reorient:
+        with stage("reorientation study"):
+            reorient_study.study([opts.name], opts.reorient_runs, opts.seed, opts.workers)
+    with stage("tables"):
+        PlanningModel(opts.name, workers=opts.workers, progress=True)
+    with stage("picture"):
+        folder = object_folders()[opts.name]
+        render_goal_grasps(folder, (opts.name,))
+        (folder / f"goal_{opts.name}.png").rename(folder / "goal.png")

@@ -1,0 +1,86 @@
+"""``rrg-object add``: bad input is refused with a clear error and leaves nothing behind."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from rrg_planner.onboarding import object_cli
+from rrg_planner.onboarding.onboard import AddOptions, GoalSpec, OnboardError, add_object
+from rrg_sim.objects import object_names
+from rrg_sim.objects.catalogue import USER_DIR_ENV
+
+
+@pytest.fixture
+def user_dir(tmp_path, monkeypatch):
+    """An empty user objects folder; its parent is where onboarding stages."""
+    folder = tmp_path / "share" / "objects"
+    monkeypatch.setenv(USER_DIR_ENV, str(folder))
+    return folder
+
+
+def leftovers(user_dir) -> list[str]:
+    """Whatever an onboarding left in the user folder or beside it (its staging)."""
+    parent = user_dir.parent
+    if not parent.exists():
+        return []
+    return sorted(str(p.relative_to(parent)) for p in parent.rglob("*") if p != user_dir)
+
+
+def write(mesh: trimesh.Trimesh, path) -> object:
+    mesh.export(path)
+    return path
+
+
+def refused(user_dir, match: str, **options) -> OnboardError:
+    """add_object's OnboardError (matching ``match``), after checking nothing was left."""
+    with pytest.raises(OnboardError, match=match) as err:
+        add_object(AddOptions(**options), say=lambda text: None)
+    assert leftovers(user_dir) == [], leftovers(user_dir)
+    assert "tin" not in object_names()
+    return err.value
+
+
+def test_a_name_that_clashes_or_is_malformed_is_refused(user_dir, tmp_path):
+    mesh = write(trimesh.creation.box(extents=(0.05, 0.05, 0.05)), tmp_path / "b.stl")
+    refused(user_dir, r"'box' is already installed", mesh=mesh, name="box")
+    refused(user_dir, r"invalid name", mesh=mesh, name="Tin Can")
+
+
+def test_an_empty_or_non_manifold_mesh_is_refused(user_dir, tmp_path):
+    (tmp_path / "empty.stl").write_text("solid empty\nendsolid empty\n")
+    refused(user_dir, "empty", mesh=tmp_path / "empty.stl", name="tin")
+    sphere = trimesh.creation.icosphere(radius=0.03)
+    cut = trimesh.Trimesh(sphere.vertices, sphere.faces[sphere.triangles_center[:, 2] < 0.02])
+    refused(user_dir, "not a closed manifold", mesh=write(cut, tmp_path / "c.ply"), name="tin")
+
+
+def test_a_mesh_in_millimetres_declared_as_metres_is_refused(user_dir, tmp_path):
+    mesh = write(trimesh.creation.cylinder(radius=34.0, height=102.0), tmp_path / "can.stl")
+    refused(user_dir, r"102 m across.*--units mm", mesh=mesh, name="tin")
+
+
+def test_a_mesh_that_cannot_stand_is_refused(user_dir, tmp_path):
+    cone = trimesh.creation.cone(radius=0.03, height=0.08)
+    cone.apply_transform(trimesh.transformations.rotation_matrix(np.pi, (1, 0, 0)))
+    refused(user_dir, "cannot stand", mesh=write(cone, tmp_path / "cone.stl"), name="tin")
+
+
+def test_an_object_too_big_for_the_hand_is_refused(user_dir, tmp_path):
+    crate = write(trimesh.creation.box(extents=(0.3, 0.3, 0.2)), tmp_path / "crate.stl")
+    refused(user_dir, "too big for the hand", mesh=crate, name="tin")
+
+
+def test_a_goal_grasp_the_wam_cannot_reach_is_refused(user_dir, tmp_path):
+    box = write(trimesh.creation.box(extents=(0.05, 0.05, 0.08)), tmp_path / "b.stl")
+    behind = GoalSpec(through_m=(0.0, 0.0, 0.07), approach="side", yaw_rad=np.pi)
+    refused(user_dir, "cannot reach the goal grasp", mesh=box, name="tin", goal=behind)
+
+
+def test_the_cli_prints_the_error_and_exits_2(user_dir, tmp_path, capsys):
+    mesh = write(trimesh.creation.box(extents=(0.05, 0.05, 0.05)), tmp_path / "b.stl")
+    assert object_cli.main(["add", str(mesh), "--name", "cup"]) == 2
+    err = capsys.readouterr().err
+    assert "already installed" in err and "nothing was installed" in err
+    assert leftovers(user_dir) == []
