@@ -32,7 +32,15 @@ from rrg_sim.objects import (
 from rrg_sim.objects.mesh_import import UNITS_M, UP_AXES
 from rrg_sim.objects.object_model import REORIENTATION_FILE, SETTLING_FILE
 
-from .onboard import DEFAULT_FRICTION, DEFAULT_TOL, AddOptions, GoalSpec, OnboardError, add_object
+from .onboard import (
+    DEFAULT_FRICTION,
+    DEFAULT_TOL,
+    SETTLE_GRASPS,
+    AddOptions,
+    GoalSpec,
+    OnboardError,
+    add_object,
+)
 
 
 def cached_tables(name: str, cache_dir: Path = DEFAULT_CACHE_DIR) -> list[Path]:
@@ -150,7 +158,9 @@ def _add_parser(sub) -> None:
         help=f"goal region [m, m, rad] (default: {DEFAULT_TOL[0]}, {DEFAULT_TOL[1]}, "
         f"{DEFAULT_TOL[2]:.3f}; inf ignores θ)",
     )
-    add.add_argument("--settle-grasps", type=int, default=60, help="settling study grasps")
+    add.add_argument(
+        "--settle-grasps", type=int, default=SETTLE_GRASPS, help="settling study grasps"
+    )
     add.add_argument("--workers", type=int, default=2)
     add.add_argument("--seed", type=int, default=0, help="seeds CoACD and the studies")
     add.set_defaults(run=cmd_add)
