@@ -84,3 +84,35 @@ def test_the_cli_prints_the_error_and_exits_2(user_dir, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "already installed" in err and "nothing was installed" in err
     assert leftovers(user_dir) == []
+
+
+def test_the_goal_candidates_of_a_mug_are_distinct_pinches_of_its_rim_and_handle():
+    """A mesh's curved wall (narrow faces, gathered by the way they face) yields rim pinches;
+    the candidates are reachable, and their centres at least 2 cm apart."""
+    from rrg_planner.onboarding.onboard import CANDIDATE_SPACING_M, goal_candidates
+    from rrg_sim.objects import Primitive
+    from rrg_sim.objects.mesh_import import check_mesh, convex_parts, stand_on_table
+
+    body = trimesh.creation.cylinder(radius=0.045, height=0.095, sections=32)
+    cavity = trimesh.creation.cylinder(radius=0.040, height=0.095, sections=32)
+    handle = trimesh.creation.torus(0.03, 0.006, major_sections=32, minor_sections=12)
+    handle.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (0, 1, 0)))
+    mug = body.difference(cavity.apply_translation((0, 0, 0.006))).union(
+        handle.apply_translation((0, 0.055, 0.0))
+    )
+    mesh = stand_on_table(check_mesh(mug))
+    parts = tuple(Primitive("mesh", (), vertices=v) for v in convex_parts(mesh, max_parts=12))
+    goals = goal_candidates(parts)
+    through = np.array([g.through_m for g in goals])
+    rim = np.abs(np.hypot(through[:, 0], through[:, 1]) - 0.0425) < 0.006
+    assert rim.sum() >= 3 and np.allclose(through[rim, 2], 0.095, atol=0.002)
+    handle_pinches = through[:, 1] > 0.05
+    assert handle_pinches.any()
+    gaps = np.linalg.norm(through[:, None] - through[None], axis=-1)[np.triu_indices(len(goals), 1)]
+    assert gaps.min() >= CANDIDATE_SPACING_M
+
+
+def test_the_paper_column_is_empty_for_an_object_not_in_the_paper():
+    from rrg_planner.experiment.report import paper_rrg_info
+
+    assert paper_rrg_info("mug", "high") == "–" and paper_rrg_info("cup", "high") == "<95%"

@@ -15,12 +15,16 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from rrg_planner.config import SEARCH
+from rrg_sim.objects import PAPER_OBJECTS
 
 STRATEGY_LABELS = {"open-loop": "Open-loop", "rrg-goal": "RRG-Goal", "rrg-info": "RRG-Info"}
 
 
 def paper_rrg_info(obj: str, level: str) -> str:
-    """What the paper's text reports for RRG-Info (H = 2), for the side-by-side table."""
+    """What the paper's text reports for RRG-Info (H = 2), for the side-by-side table ("–"
+    for an object not in the paper)."""
+    if obj not in PAPER_OBJECTS:
+        return "–"
     if level == "low":
         return "89%" if obj == "teabox" else ">97%"
     return "<95%" if obj in ("cup", "teabox") else ">95%"

@@ -3,10 +3,11 @@
 1. *mesh*: read in its declared units and up axis, repaired and checked, stood on the table
    (rrg_sim.objects.mesh_import);
 2. *decompose*: CoACD's convex parts, one collision file each;
-3. *goal grasp*: the one given, or proposed: the top-down pinches the info-grasp generator
-   finds on the parts (rrg_sim.objects.surface_pairs), narrower than the hand opens, whose
-   descent is free and which the WAM reaches at the nominal pose, largest faces first; an
-   object with none is too big for the hand;
+3. *goal grasp*: the one given, or proposed: among the top-down pinches the info-grasp
+   generator finds on the parts (rrg_sim.objects.surface_pairs), narrower than the hand opens,
+   whose descent is free and which the WAM reaches at the nominal pose, a few distinct ones
+   are each run from starts across twice the goal region in physics, and the one whose
+   grasps held most often wins (an object with no pinch is too big for the hand);
 4. *object file*: ``object.toml``, read back as every object is;
 5. *studies*: the grasp-settling study, and the reorientation study when the goal grasp cannot
    run at every heading (rrg_sim.physics.settle, reorient_study);
@@ -21,6 +22,7 @@ one rename at the end, so a refused or failed onboarding leaves nothing installe
 from __future__ import annotations
 
 import logging
+import multiprocessing as mp
 import os
 import re
 import shutil
@@ -72,6 +74,12 @@ DEFAULT_TOL = (0.01, 0.01, float(np.radians(10.0)))
 #: objects' studies used 300 and 40; chosen smaller to keep onboarding within minutes).
 SETTLE_GRASPS = 60
 REORIENT_RUNS = 20
+#: Goal candidates measured in physics, grasps each from starts across twice the goal
+#: region (the settling study's box), and how far apart [m] their centres must be (chosen:
+#: about 20 s on two cores; a mug's rim and handle give distinct candidates).
+RANKED_CANDIDATES = 6
+RANKING_GRASPS = 12
+CANDIDATE_SPACING_M = 0.02
 #: Headings [rad] about the nominal at which the goal grasp must run, or the object gets
 #: reorientation WRTs (as in tests of the paper objects).
 HEADINGS = np.linspace(-1.2, 1.2, 9)
@@ -143,41 +151,57 @@ def _yaw_of(pinch: Pinch) -> float:
     return float(np.arctan2(x[1], x[0]))
 
 
-def propose_goal(parts: tuple[Primitive, ...]) -> tuple[GoalSpec, list[str]]:
-    """The proposed goal grasp (see the module doc) and why; OnboardError if there is none."""
-    candidates = pinch_candidates(parts)
-    if not candidates:
+def goal_candidates(parts: tuple[Primitive, ...]) -> list[GoalSpec]:
+    """Up to RANKED_CANDIDATES goal grasps to measure: the top-down pinches the generator finds
+    (largest faces first), with a free descent, reachable at the nominal pose, their centres
+    CANDIDATE_SPACING_M apart. OnboardError if there is none."""
+    pinches = pinch_candidates(parts)
+    if not pinches:
         raise OnboardError(
             "too big for the hand: no two opposing, roughly vertical faces are close enough "
             "for the BarrettHand to pinch them; give a goal grasp (--goal-through ...)"
         )
-    why = [f"{len(candidates)} top-down pinches fit the hand"]
     nominal = np.asarray(WORLD.nominal_pose)
-    for rank, pinch in enumerate(candidates):
-        rotation = top_down_rotation(_yaw_of(pinch))
+    chosen: list[GoalSpec] = []
+    for pinch in pinches:
+        if any(
+            np.linalg.norm(np.subtract(g.through_m, pinch.centre)) < CANDIDATE_SPACING_M
+            for g in chosen
+        ):
+            continue
         if top_down_poses(parts, pinch) is None:
             continue
+        rotation = top_down_rotation(_yaw_of(pinch))
         wrt = line_grasp_wrt(parts, rotation, pinch.centre, spread=pinch.spread)
         if not wam.feasible_path(wrt.with_home(nominal)):
             continue
-        why.append(
-            f"chose pinch #{rank + 1}: across {pinch.separation * 100:.1f} cm at "
-            f"({pinch.centre[0]:+.3f}, {pinch.centre[1]:+.3f}, {pinch.centre[2]:.3f}) m, faces "
-            f"of {pinch.score * 1e4:.0f} cm², free descent, reachable at the nominal pose"
-        )
-        return (
+        c = pinch.centre
+        chosen.append(
             GoalSpec(
-                through_m=tuple(float(v) for v in pinch.centre),
+                through_m=tuple(float(v) for v in c),
                 yaw_rad=_yaw_of(pinch),
                 spread_rad=float(pinch.spread),
-                description=f"from above, pinching {pinch.separation * 100:.1f} cm across",
-            ),
-            why,
+                description=f"from above, pinching {pinch.separation * 100:.1f} cm across at "
+                f"({c[0]:+.3f}, {c[1]:+.3f}, {c[2]:.3f}) m",
+            )
         )
-    raise OnboardError(
-        f"none of the {len(candidates)} top-down pinches descends freely and is reachable by "
-        "the WAM at the nominal pose; give a goal grasp (--goal-through ...)"
-    )
+        if len(chosen) == RANKED_CANDIDATES:
+            break
+    if not chosen:
+        raise OnboardError(
+            f"none of the {len(pinches)} top-down pinches descends freely and is reachable by "
+            "the WAM at the nominal pose; give a goal grasp (--goal-through ...)"
+        )
+    return chosen
+
+
+def _score_job(args: tuple[str, int, int]) -> float:
+    """The share of a candidate's goal grasps that made their fingers and held (physics)."""
+    from rrg_sim.physics import settle
+
+    name, grasps, seed = args
+    records = settle.measure(name, grasps, seed)
+    return sum(r["held"] for r in records) / grasps
 
 
 def _toml(value) -> str:
@@ -302,18 +326,27 @@ def add_object(opts: AddOptions, say: Callable[[str], None] = print) -> AddRepor
             Primitive("mesh", (), vertices=trimesh.load_mesh(folder / p).vertices)
             for p in part_files
         )
-        with stage("goal grasp"):
-            if opts.goal is None:
-                goal, why = propose_goal(parts)
-                for line in why:
-                    choose(line)
-            else:
-                goal = opts.goal
-                choose(f"the given goal grasp through {goal.through_m}")
         mass = opts.mass_kg if opts.mass_kg is not None else DEFAULT_DENSITY * mesh.volume
         if opts.mass_kg is None:
             choose(f"mass {mass:.3f} kg: its volume at {DEFAULT_DENSITY:.0f} kg/m³ (--mass)")
         source = f"mesh {Path(opts.mesh).name} ({opts.units}, {opts.up} up)"
+        with stage("goal grasp"):
+            if opts.goal is None:
+                candidates = goal_candidates(parts)
+                scores = _rank(staging, folder, opts, mesh, part_files, mass, source, candidates)
+                for goal, score in zip(candidates, scores):
+                    choose(f"{score:4.0%} held of {RANKING_GRASPS}: {goal.description}")
+                best = int(np.argmax(scores))
+                if scores[best] == 0.0:
+                    raise OnboardError(
+                        f"none of the {len(candidates)} proposed goal grasps held the object in "
+                        "physics; give a goal grasp (--goal-through ...)"
+                    )
+                goal = candidates[best]
+                choose(f"chose the goal grasp that held most: {goal.description}")
+            else:
+                goal = opts.goal
+                choose(f"the given goal grasp through {goal.through_m}")
         with stage("object file"):
             obj = _write_and_load(folder, opts, mesh, part_files, mass, goal, source, False)
             nominal = np.asarray(WORLD.nominal_pose)
@@ -337,6 +370,25 @@ def add_object(opts: AddOptions, say: Callable[[str], None] = print) -> AddRepor
         raise OnboardError(str(exc)) from exc
     finally:
         shutil.rmtree(staging, ignore_errors=True)
+
+
+def _rank(staging, folder, opts, mesh, part_files, mass, source, candidates) -> list[float]:
+    """Each candidate's share of held grasps in physics: each staged as an object of its own
+    (the object's collision files, that goal grasp), measured in parallel."""
+    names = []
+    for k, goal in enumerate(candidates):
+        name = f"{opts.name}_candidate{k + 1}"
+        shutil.copytree(folder / "collision", staging / name / "collision")
+        opts_k = AddOptions(opts.mesh, name, friction=opts.friction)
+        _write_and_load(staging / name, opts_k, mesh, part_files, mass, goal, source, False)
+        names.append(name)
+    jobs = [(name, RANKING_GRASPS, opts.seed) for name in names]
+    try:
+        with _searched_first(staging), mp.get_context("fork").Pool(opts.workers) as pool:
+            return list(pool.map(_score_job, jobs))
+    finally:
+        for name in names:
+            shutil.rmtree(staging / name, ignore_errors=True)
 
 
 def _write_and_load(folder, opts, mesh, part_files, mass, goal, source, reorientation):

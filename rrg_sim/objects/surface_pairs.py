@@ -119,19 +119,24 @@ def _face_patches(part: Primitive) -> list[tuple[np.ndarray, np.ndarray]]:
 
 
 def _hull_face_patches(part: Primitive) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(object-frame samples, outward unit normal) of each roughly vertical planar face of a
-    mesh part's convex hull (its coplanar triangles together), sampled PATCH_SPACING apart."""
+    """(object-frame samples, outward unit normal) of a mesh part's convex hull: its roughly
+    vertical faces gathered by the direction they face into ROUND_BINS bins, as a round
+    primitive's side is (a tessellated curved wall is many narrow faces, none wide enough to
+    pinch alone); the normal is the bin's area-weighted mean, and samples are PATCH_SPACING
+    apart."""
     hull = part.mesh()
-    grouped = {int(f) for facet in hull.facets for f in facet}
-    faces = [np.asarray(f) for f in hull.facets] + [
-        np.array([f]) for f in range(len(hull.faces)) if f not in grouped
-    ]
+    normals = hull.face_normals
+    vertical = np.abs(normals[:, 2]) <= np.sin(MAX_FACE_TILT)
+    azimuth = np.arctan2(normals[:, 1], normals[:, 0])
+    bins = np.round(azimuth / (2 * np.pi / ROUND_BINS)).astype(int) % ROUND_BINS
     out = []
-    for face in faces:
-        normal = hull.face_normals[face[0]]
-        if abs(normal[2]) > np.sin(MAX_FACE_TILT):
+    for b in range(ROUND_BINS):
+        faces = np.flatnonzero(vertical & (bins == b))
+        if len(faces) == 0:
             continue
-        points = np.concatenate([_triangle_samples(t) for t in hull.triangles[face]])
+        normal = (hull.area_faces[faces, None] * normals[faces]).sum(axis=0)
+        normal /= np.linalg.norm(normal)
+        points = np.concatenate([_triangle_samples(t) for t in hull.triangles[faces]])
         out.append((np.unique(np.round(points, 9), axis=0), normal))
     return out
 
