@@ -116,6 +116,7 @@ def cmd_add(args: argparse.Namespace) -> int:
         mass_kg=args.mass,
         friction=args.friction,
         goal=goal,
+        goal_tol=tuple(args.goal_tol),
         allow_size=args.allow_size,
         settle_grasps=args.settle_grasps,
         workers=args.workers,

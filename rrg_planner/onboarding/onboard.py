@@ -115,6 +115,8 @@ class AddOptions:
     mass_kg: float | None = None
     friction: float = DEFAULT_FRICTION
     goal: GoalSpec | None = None
+    #: the goal region of a proposed goal grasp (a given GoalSpec has its own)
+    goal_tol: tuple[float, float, float] = DEFAULT_TOL
     allow_size: bool = False
     settle_grasps: int = SETTLE_GRASPS
     reorient_runs: int = REORIENT_RUNS
@@ -151,7 +153,9 @@ def _yaw_of(pinch: Pinch) -> float:
     return float(np.arctan2(x[1], x[0]))
 
 
-def goal_candidates(parts: tuple[Primitive, ...]) -> list[GoalSpec]:
+def goal_candidates(
+    parts: tuple[Primitive, ...], tol: tuple[float, float, float] = DEFAULT_TOL
+) -> list[GoalSpec]:
     """Up to RANKED_CANDIDATES goal grasps to measure: the top-down pinches the generator finds
     (largest faces first), with a free descent, reachable at the nominal pose, their centres
     CANDIDATE_SPACING_M apart. OnboardError if there is none."""
@@ -181,6 +185,7 @@ def goal_candidates(parts: tuple[Primitive, ...]) -> list[GoalSpec]:
                 through_m=tuple(float(v) for v in c),
                 yaw_rad=_yaw_of(pinch),
                 spread_rad=float(pinch.spread),
+                tol=tol,
                 description=f"from above, pinching {pinch.separation * 100:.1f} cm across at "
                 f"({c[0]:+.3f}, {c[1]:+.3f}, {c[2]:.3f}) m",
             )
@@ -332,7 +337,7 @@ def add_object(opts: AddOptions, say: Callable[[str], None] = print) -> AddRepor
         source = f"mesh {Path(opts.mesh).name} ({opts.units}, {opts.up} up)"
         with stage("goal grasp"):
             if opts.goal is None:
-                candidates = goal_candidates(parts)
+                candidates = goal_candidates(parts, opts.goal_tol)
                 scores = _rank(staging, folder, opts, mesh, part_files, mass, source, candidates)
                 for goal, score in zip(candidates, scores):
                     choose(f"{score:4.0%} held of {RANKING_GRASPS}: {goal.description}")
