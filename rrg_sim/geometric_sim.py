@@ -37,7 +37,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from .config import GEOMSIM, N_SENSORS
 from .hand import FINGERS, LINKS, BodySpec, GeomSpec, body_poses, hand_tree, joint_angles
-from .objects.primitives import Primitive, mjcf_mesh_asset, union_bounds
+from .objects.primitives import Primitive, mjcf_mesh_asset, rotated_half_extents, union_bounds
 from .observation import Observation, grasp_arrived
 from .poses import planar_pose
 from .wrt import WRT
@@ -218,19 +218,7 @@ def _planar_qpos(w) -> np.ndarray:
 def primitive_aabb(p: GeomSpec) -> tuple[np.ndarray, np.ndarray]:
     """Exact axis-aligned bounds (lo, hi) of a hand geom in its body frame."""
     R = Rotation.from_quat(np.asarray(p.quat, float), scalar_first=True).as_matrix()
-    size = np.asarray(p.size, float)
-    if p.kind == "box":
-        half = np.abs(R) @ size
-    elif p.kind == "sphere":
-        half = np.full(3, size[0])
-    elif p.kind == "capsule":
-        half = np.abs(R[:, 2]) * size[1] + size[0]
-    elif p.kind == "cylinder":
-        half = np.abs(R[:, 2]) * size[1] + size[0] * np.sqrt(np.clip(1 - R[:, 2] ** 2, 0, 1))
-    elif p.kind == "ellipsoid":
-        half = np.sqrt(((R * size) ** 2).sum(axis=1))
-    else:
-        raise ValueError(f"unsupported primitive kind {p.kind!r}")
+    half = rotated_half_extents(p.kind, p.size, R)
     c = np.asarray(p.pos, float)
     return c - half, c + half
 

@@ -42,8 +42,9 @@ FIG9_DELTAS = (0.5, 0.3, 0.1, 0.03)
 
 def unknown_names(objects, levels, strategies) -> list[str]:
     """The objects, levels and strategies that the runner does not know."""
+    installed = object_names()
     return (
-        [o for o in objects if o not in object_names()]
+        [o for o in objects if o not in installed]
         + [lv for lv in levels if lv not in LEVELS]
         + [s for s in strategies if s not in STRATEGIES]
     )

@@ -33,12 +33,16 @@ def _fmt(values) -> str:
     return " ".join(f"{v:.9g}" for v in np.atleast_1d(values))
 
 
-def _geom(parent: ET.Element, kind: str, size, pos, quat, margin: float) -> ET.Element:
-    return ET.SubElement(
+def _geom(
+    parent: ET.Element, kind: str, size, pos, quat, margin: float, mesh: str | None = None
+) -> None:
+    """A geom: a primitive of ``size``, or (``mesh``) the named mesh asset."""
+    shape = {"size": _fmt(size)} if mesh is None else {"mesh": mesh}
+    ET.SubElement(
         parent,
         "geom",
         type=kind,
-        size=_fmt(size),
+        **shape,
         pos=_fmt(pos),
         quat=_fmt(quat),
         margin=_fmt(margin),
@@ -66,13 +70,10 @@ class HandObjectScene:
         world = ET.SubElement(root, "worldbody")
         _geom(world, "box", _TABLE_HALF, (0.0, 0.0, -_TABLE_HALF[2]), (1, 0, 0, 0), table_margin)
         for k, part in enumerate(parts):
-            if part.kind == "mesh":
-                ET.SubElement(asset, "mesh", mjcf_mesh_asset(part, f"part_{k}"))
-                geom = _geom(world, "mesh", (), part.pos, part.quat, object_margin)
-                geom.set("mesh", f"part_{k}")
-                del geom.attrib["size"]
-            else:
-                _geom(world, part.kind, part.size, part.pos, part.quat, object_margin)
+            mesh = f"part_{k}" if part.kind == "mesh" else None
+            if mesh is not None:
+                ET.SubElement(asset, "mesh", mjcf_mesh_asset(part, mesh))
+            _geom(world, part.kind, part.size, part.pos, part.quat, object_margin, mesh)
         body = ET.SubElement(world, "body", name="hand")
         ET.SubElement(body, "freejoint")
         for geom, T in hand.hand_geoms_world(np.eye(4), spread, np.full(3, preclose)):

@@ -121,20 +121,10 @@ class Primitive:
 
     def bounds(self) -> np.ndarray:
         """(2,3) axis-aligned bounds [m] in the object frame (exact)."""
-        R, s = self.rotation, self.size
         if self.kind == "mesh":
-            world = np.asarray(self.vertices) @ R.T + self.pos
+            world = np.asarray(self.vertices) @ self.rotation.T + self.pos
             return np.stack([world.min(axis=0), world.max(axis=0)])
-        if self.kind == "box":
-            half = np.abs(R) @ np.asarray(s)
-        elif self.kind == "sphere":
-            half = np.full(3, s[0])
-        else:
-            axis = np.abs(R[:, 2])
-            across = (
-                s[0] if self.kind == "capsule" else s[0] * np.sqrt(np.clip(1.0 - axis**2, 0.0, 1.0))
-            )
-            half = s[1] * axis + across
+        half = rotated_half_extents(self.kind, self.size, self.rotation)
         return np.stack([np.asarray(self.pos) - half, np.asarray(self.pos) + half])
 
     def mesh(self) -> trimesh.Trimesh:
@@ -174,6 +164,23 @@ def local_signed_distance(kind: str, size: Sequence[float], p: np.ndarray) -> np
     if kind == "sphere":
         return np.linalg.norm(p, axis=-1) - size[0]
     raise ValueError(f"unknown primitive kind {kind!r}")
+
+
+def rotated_half_extents(kind: str, size: Sequence[float], R: np.ndarray) -> np.ndarray:
+    """(3,) half extents [m] of the axis-aligned box that holds a MuJoCo box / sphere /
+    capsule / cylinder / ellipsoid of MJCF ``size`` turned by R (3,3) (exact)."""
+    s = np.asarray(size, dtype=float)
+    if kind == "box":
+        return np.abs(R) @ s
+    if kind == "sphere":
+        return np.full(3, s[0])
+    if kind == "ellipsoid":
+        return np.sqrt(((R * s) ** 2).sum(axis=1))
+    if kind in ("capsule", "cylinder"):
+        axis = np.abs(R[:, 2])
+        across = s[0] if kind == "capsule" else s[0] * np.sqrt(np.clip(1.0 - axis**2, 0.0, 1.0))
+        return s[1] * axis + across
+    raise ValueError(f"unsupported primitive kind {kind!r}")
 
 
 def primitive_volume(kind: str, size) -> float:
