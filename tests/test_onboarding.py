@@ -86,34 +86,75 @@ def test_the_cli_prints_the_error_and_exits_2(user_dir, tmp_path, capsys):
     assert leftovers(user_dir) == []
 
 
-def test_the_goal_candidates_of_a_mug_are_distinct_pinches_of_its_rim_and_handle():
-    """A mesh's curved wall (narrow faces, gathered by the way they face) yields rim pinches;
-    the candidates are reachable, and their centres at least 2 cm apart."""
-    from rrg_planner.onboarding.onboard import CANDIDATE_SPACING_M, goal_candidates
+def _parts(mesh: trimesh.Trimesh, max_parts: int = 12):
     from rrg_sim.objects import Primitive
     from rrg_sim.objects.mesh_import import check_mesh, convex_parts, stand_on_table
 
-    body = trimesh.creation.cylinder(radius=0.045, height=0.095, sections=32)
-    cavity = trimesh.creation.cylinder(radius=0.040, height=0.095, sections=32)
-    handle = trimesh.creation.torus(0.03, 0.006, major_sections=32, minor_sections=12)
-    handle.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (0, 1, 0)))
-    mug = body.difference(cavity.apply_translation((0, 0, 0.006))).union(
-        handle.apply_translation((0, 0.055, 0.0))
-    )
-    mesh = stand_on_table(check_mesh(mug))
-    parts = tuple(Primitive("mesh", (), vertices=v) for v in convex_parts(mesh, max_parts=12))
-    goals = goal_candidates(parts, tol=(0.012, 0.015, np.inf))
+    mesh = stand_on_table(check_mesh(mesh))
+    return tuple(Primitive("mesh", (), vertices=v) for v in convex_parts(mesh, max_parts=max_parts))
+
+
+def test_the_goal_candidates_of_a_mug_are_distinct_pinches_of_its_rim_and_handle():
+    """A mesh's curved wall (narrow faces, gathered by the way they face) yields rim pinches;
+    the candidates are reachable, and those of one preshape at least 2 cm apart."""
+    from generated_meshes import mug
+    from rrg_planner.onboarding.onboard import CANDIDATE_SPACING_M, goal_candidates
+
+    goals = goal_candidates(_parts(mug()), tol=(0.012, 0.015, np.inf))
     assert all(g.tol == (0.012, 0.015, np.inf) for g in goals)
-    through = np.array([g.through_m for g in goals])
+    pinches = [g for g in goals if g.approach == "top_down"]
+    through = np.array([g.through_m for g in pinches])
     rim = np.abs(np.hypot(through[:, 0], through[:, 1]) - 0.0425) < 0.006
     assert rim.sum() >= 3 and np.allclose(through[rim, 2], 0.095, atol=0.002)
-    handle_pinches = through[:, 1] > 0.05
-    assert handle_pinches.any()
-    gaps = np.linalg.norm(through[:, None] - through[None], axis=-1)[np.triu_indices(len(goals), 1)]
-    assert gaps.min() >= CANDIDATE_SPACING_M
+    assert (through[:, 1] > 0.05).any()  # the handle
+    for spread in {g.spread_rad for g in pinches}:
+        same = through[[g.spread_rad == spread for g in pinches]]
+        gaps = np.linalg.norm(same[:, None] - same[None], axis=-1)[np.triu_indices(len(same), 1)]
+        assert gaps.size == 0 or gaps.min() >= CANDIDATE_SPACING_M
+
+
+def test_a_plate_too_wide_to_pinch_well_gets_side_envelopes_facing_the_reachable_heading():
+    """The bracket's upright (4 cm wide, 6 mm thick) is enveloped from either face: the object
+    is placed turned so that the face meets the hand at SIDE_APPROACH_YAW, finger 3 over the
+    top, fingers 1 and 2 round its 4 cm."""
+    from generated_meshes import l_bracket
+    from rrg_planner.onboarding import onboard
+
+    goals = onboard.goal_candidates(_parts(l_bracket()))
+    sides = [g for g in goals if g.approach == "side"]
+    assert len(sides) == 2 and len(goals) == 4
+    placements = sorted(g.placement_yaw_rad for g in sides)
+    # the upright's faces look along -x and +x of the mesh: turned so each meets the hand
+    expected = sorted(
+        float(np.angle(np.exp(1j * (onboard.SIDE_APPROACH_YAW - a)))) for a in (0.0, np.pi)
+    )
+    np.testing.assert_allclose(placements, expected, atol=0.01)
+    for g in sides:
+        assert g.yaw_rad == onboard.SIDE_APPROACH_YAW and g.spread_rad == np.pi / 2
+        assert "round 4.0 cm" in g.description
+        assert g.through_m[2] == pytest.approx(0.08 - onboard.ENVELOPE_DEPTH_M, abs=1e-3)
 
 
 def test_the_paper_column_is_empty_for_an_object_not_in_the_paper():
     from rrg_planner.experiment.report import paper_rrg_info
 
     assert paper_rrg_info("mug", "high") == "–" and paper_rrg_info("cup", "high") == "<95%"
+
+
+def test_check_runs_rrg_info_and_open_loop_at_both_levels_and_refuses_bad_input(
+    tmp_path, capsys
+):
+    import json
+
+    assert object_cli.main(["check", "box", "--trials", "1", "--dev", "--out", str(tmp_path)]) == 0
+    records = [json.loads(line) for line in (tmp_path / "trials.jsonl").read_text().splitlines()]
+    assert sorted(r["cell"] for r in records) == [
+        "box/high/open-loop",
+        "box/high/rrg-info",
+        "box/low/open-loop",
+        "box/low/rrg-info",
+    ]
+    assert "| box |" in capsys.readouterr().out
+    assert object_cli.main(["check", "mug_that_is_not", "--dev"]) == 2
+    assert "unknown object 'mug_that_is_not'" in capsys.readouterr().err
+    assert object_cli.main(["check", "box", "--trials", "0", "--dev"]) == 2

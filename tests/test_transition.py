@@ -201,7 +201,7 @@ def test_the_reorientation_study_fits_the_full_turns_shift_and_the_catalogue_loa
     Δ'_θ half the angle away, is left to the mixture); the catalogue's reorientation WRTs
     carry the committed fits."""
     from rrg_sim.objects import get_object
-    from rrg_sim.physics.reorient_study import fit
+    from rrg_sim.physics.reorient_study import TooFewTurns, fit
 
     rng = np.random.default_rng(0)
     records = []
@@ -220,3 +220,8 @@ def test_the_reorientation_study_fits_the_full_turns_shift_and_the_catalogue_loa
     for name in ("giant_teacup", "powerdrill", "brita_pitcher", "cup"):
         for wrt in get_object(name).wrts():
             assert (wrt.reorient_outcome is not None) == (wrt.kind == "reorient")
+    half_turns = [r for r in records if r["wrt"] == "reorient_cw"]
+    for r in half_turns[:6]:
+        r["after"] = [0.0, 0.0, -0.3]
+    with pytest.raises(TooFewTurns, match="only 6 of 13 runs turned it fully"):
+        fit("giant_teacup", records)

@@ -83,6 +83,24 @@ def campaign_specs(
     return specs
 
 
+def base_seed(version: str, seed: int | None, dev: bool) -> tuple[int, str]:
+    """The campaign's base seed and where it came from: --seed, --dev, or the code version."""
+    if seed is not None:
+        return seed, "--seed"
+    if dev:
+        return DEV_SEED, "--dev"
+    return campaign_seed(version), "code version"
+
+
+def add_seed_options(ap: argparse.ArgumentParser) -> None:
+    """--seed and --dev (mutually exclusive)."""
+    group = ap.add_mutually_exclusive_group()
+    group.add_argument("--seed", type=int, help="base seed (default: drawn from the code version)")
+    group.add_argument(
+        "--dev", action="store_true", help=f"the development seed ({DEV_SEED}): for probes only"
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         prog="rrg-experiment",
@@ -112,11 +130,7 @@ def main(argv: list[str] | None = None) -> int:
         help="run the trials on Ray: 'auto' (a running cluster, else a local one of --workers "
         "CPUs) or a cluster address",
     )
-    seeds = ap.add_mutually_exclusive_group()
-    seeds.add_argument("--seed", type=int, help="base seed (default: drawn from the code version)")
-    seeds.add_argument(
-        "--dev", action="store_true", help=f"the development seed ({DEV_SEED}): for probes only"
-    )
+    add_seed_options(ap)
     ap.add_argument(
         "--out", type=Path, help="output folder (default: results/paper, or results/realistic)"
     )
@@ -131,12 +145,7 @@ def main(argv: list[str] | None = None) -> int:
         format="%(levelname)s %(name)s: %(message)s",
     )
     version = code_version()
-    if args.seed is not None:
-        seed, seed_source = args.seed, "--seed"
-    elif args.dev:
-        seed, seed_source = DEV_SEED, "--dev"
-    else:
-        seed, seed_source = campaign_seed(version), "code version"
+    seed, seed_source = base_seed(version, args.seed, args.dev)
     if args.replay:
         cell_key, _, idx = args.replay.rpartition("#")
         try:
@@ -164,19 +173,41 @@ def main(argv: list[str] | None = None) -> int:
         print(f"unknown objects/levels/strategies: {bad}", file=sys.stderr)
         return 2
     out = args.out or DEFAULT_OUT[args.world]
+    specs = campaign_specs(objects, levels, strategies, trials, fig9_trials, seed, args.world)
+    return run_and_report(
+        specs,
+        out,
+        objects,
+        levels,
+        (version, seed, seed_source, args.world),
+        args.workers,
+        args.ray,
+    )
+
+
+def run_and_report(
+    specs: list[TrialSpec],
+    out: Path,
+    objects: list[str],
+    levels: list[str],
+    provenance: tuple[str, int, str, str],
+    workers: int,
+    ray: str | None = None,
+) -> int:
+    """Run (or resume) the trials into ``out``, write the tables and figures, and print the
+    success table; provenance is (code version, base seed, where the seed came from, world).
+    Returns the exit status: 2 when ``out`` holds another campaign's records."""
+    version, seed, seed_source, world = provenance
     if "+dirty" in version:
         print(f"note: uncommitted changes to the code: version {version}", file=sys.stderr)
-    print(f"code {version}, base seed {seed} ({seed_source}), world {args.world}", flush=True)
+    print(f"code {version}, base seed {seed} ({seed_source}), world {world}", flush=True)
     t0 = time.perf_counter()
-    specs = campaign_specs(objects, levels, strategies, trials, fig9_trials, seed, args.world)
     try:
-        records = run_campaign(
-            specs, out / "trials.jsonl", version, workers=args.workers, ray=args.ray
-        )
+        records = run_campaign(specs, out / "trials.jsonl", version, workers=workers, ray=ray)
     except CampaignMismatch as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    campaign = dict(commit=version, seed=seed, seed_source=seed_source, world=args.world)
+    campaign = dict(commit=version, seed=seed, seed_source=seed_source, world=world)
     summary = write_outputs(records, out, objects, levels, campaign)
     print((out / "table.md").read_text())
     main_cells = [

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from scipy.spatial.transform import Rotation
 
 from rrg_sim import wam
 from rrg_sim.config import WORLD
@@ -46,6 +47,7 @@ from rrg_sim.objects import (
     user_objects_dir,
 )
 from rrg_sim.objects.catalogue import USER_DIR_ENV
+from rrg_sim.objects.composites import turn_about_z
 from rrg_sim.objects.mesh_import import (
     MeshError,
     check_mesh,
@@ -54,8 +56,13 @@ from rrg_sim.objects.mesh_import import (
     stand_on_table,
 )
 from rrg_sim.objects.object_file import OBJECT_FILE
-from rrg_sim.objects.surface_pairs import Pinch, pinch_candidates
-from rrg_sim.objects.wrt_generation import line_grasp_wrt, top_down_poses, top_down_rotation
+from rrg_sim.objects.surface_pairs import MIN_FINGER_CLEARANCE, Pinch, finger_gap, pinch_candidates
+from rrg_sim.objects.wrt_generation import (
+    line_grasp_wrt,
+    side_rotation,
+    top_down_poses,
+    top_down_rotation,
+)
 
 log = logging.getLogger(__name__)
 
@@ -75,11 +82,28 @@ DEFAULT_TOL = (0.01, 0.01, float(np.radians(10.0)))
 SETTLE_GRASPS = 60
 REORIENT_RUNS = 20
 #: Goal candidates measured in physics, grasps each from starts across twice the goal
-#: region (the settling study's box), and how far apart [m] their centres must be (chosen:
-#: about 20 s on two cores; a mug's rim and handle give distinct candidates).
-RANKED_CANDIDATES = 6
+#: region (the settling study's box), and how far apart [m] the centres of two with the same
+#: preshape must be (chosen: about 30 s on two cores; a mug's rim and handle give distinct
+#: candidates, and a plate is tried with both preshapes).
+RANKED_CANDIDATES = 8
+RANKED_ENVELOPES = 3
 RANKING_GRASPS = 12
 CANDIDATE_SPACING_M = 0.02
+#: Side envelope grasps: the hand comes level with the object's top, palm against a face,
+#: finger 3 over the top and fingers 1 and 2 (spread π/2) closing round the face's width, as
+#: the can's goal grasp (builtin/can/object.toml). Every paper side grasp approaches at world
+#: heading 1.0 rad, where the WAM reaches them; the object is placed turned so that the
+#: chosen face meets the hand there. Tilt down [rad]: the can's (a level side grasp of a low
+#: object is out of reach). The hand's axis passes this far [m] below the top of the face,
+#: and fingers 1 and 2 close round what lies within ENVELOPE_BAND_M [m] below it (chosen).
+SIDE_APPROACH_YAW = 1.0
+SIDE_PITCH = 0.15
+ENVELOPE_DEPTH_M = 0.01
+ENVELOPE_BAND_M = 0.04
+#: Two envelopes whose approaches differ by less than this [rad] come at the same face.
+SAME_FACE_RAD = 0.1
+#: The pinch generator's preshapes by spread [rad] (rrg_sim.objects.surface_pairs).
+PRESHAPES = {0.0: "finger 3 against fingers 1 and 2", float(np.pi / 2): "finger 1 against 2"}
 #: Headings [rad] about the nominal at which the goal grasp must run, or the object gets
 #: reorientation WRTs (as in tests of the paper objects).
 HEADINGS = np.linspace(-1.2, 1.2, 9)
@@ -102,6 +126,9 @@ class GoalSpec:
     spread_rad: float = 0.0
     tol: tuple[float, float, float] = DEFAULT_TOL
     description: str = "given on the command line"
+    #: the turn [rad] about z from the mesh as given to the object as placed on the table
+    #: (the goal grasp is in the placed frame)
+    placement_yaw_rad: float = 0.0
 
 
 @dataclass
@@ -156,9 +183,11 @@ def _yaw_of(pinch: Pinch) -> float:
 def goal_candidates(
     parts: tuple[Primitive, ...], tol: tuple[float, float, float] = DEFAULT_TOL
 ) -> list[GoalSpec]:
-    """Up to RANKED_CANDIDATES goal grasps to measure: the top-down pinches the generator finds
-    (largest faces first), with a free descent, reachable at the nominal pose, their centres
-    CANDIDATE_SPACING_M apart. OnboardError if there is none."""
+    """The goal grasps to measure: up to RANKED_CANDIDATES top-down pinches and
+    RANKED_ENVELOPES side envelopes (envelope_candidates). The pinches are those the generator
+    finds (largest faces first), with a free descent, reachable at the nominal pose, and
+    distinct: centres CANDIDATE_SPACING_M apart, or another preshape (finger 3 against
+    fingers 1 and 2, or finger 1 against 2). OnboardError if there is none."""
     pinches = pinch_candidates(parts)
     if not pinches:
         raise OnboardError(
@@ -168,8 +197,11 @@ def goal_candidates(
     nominal = np.asarray(WORLD.nominal_pose)
     chosen: list[GoalSpec] = []
     for pinch in pinches:
+        if len(chosen) == RANKED_CANDIDATES:
+            break
         if any(
-            np.linalg.norm(np.subtract(g.through_m, pinch.centre)) < CANDIDATE_SPACING_M
+            g.spread_rad == pinch.spread
+            and np.linalg.norm(np.subtract(g.through_m, pinch.centre)) < CANDIDATE_SPACING_M
             for g in chosen
         ):
             continue
@@ -186,17 +218,83 @@ def goal_candidates(
                 yaw_rad=_yaw_of(pinch),
                 spread_rad=float(pinch.spread),
                 tol=tol,
-                description=f"from above, pinching {pinch.separation * 100:.1f} cm across at "
-                f"({c[0]:+.3f}, {c[1]:+.3f}, {c[2]:.3f}) m",
+                description=f"from above, {PRESHAPES[float(pinch.spread)]} pinching "
+                f"{pinch.separation * 100:.1f} cm across at ({c[0]:+.3f}, {c[1]:+.3f}, "
+                f"{c[2]:.3f}) m",
             )
         )
-        if len(chosen) == RANKED_CANDIDATES:
-            break
+    chosen += envelope_candidates(parts, pinches, tol)
     if not chosen:
         raise OnboardError(
-            f"none of the {len(pinches)} top-down pinches descends freely and is reachable by "
-            "the WAM at the nominal pose; give a goal grasp (--goal-through ...)"
+            f"none of the {len(pinches)} top-down pinches and side envelopes is free and "
+            "reachable by the WAM at the nominal pose; give a goal grasp (--goal-through ...)"
         )
+    return chosen
+
+
+def envelope_candidates(
+    parts: tuple[Primitive, ...], pinches: list[Pinch], tol: tuple[float, float, float]
+) -> list[GoalSpec]:
+    """Up to RANKED_ENVELOPES side envelopes (see SIDE_APPROACH_YAW): the palm comes against
+    one of a pinch's faces, along the pinch axis, and fingers 1 and 2 close round what lies
+    within ENVELOPE_BAND_M of the face's top, if it fits between them. Each places the object
+    turned so that the face meets the hand at SIDE_APPROACH_YAW; reachable, with a free start,
+    and distinct: another face direction, or centres CANDIDATE_SPACING_M apart."""
+    gap = finger_gap(np.pi / 2) - 2 * MIN_FINGER_CLEARANCE
+    vertices = np.vstack([np.asarray(p.vertices) for p in parts])
+    rotation = side_rotation(pitch=SIDE_PITCH, roll=np.pi / 2, yaw=SIDE_APPROACH_YAW)
+    nominal = np.asarray(WORLD.nominal_pose)
+    chosen: list[GoalSpec] = []
+    for pinch in pinches:
+        for approach in (pinch.axis, -pinch.axis):
+            if len(chosen) == RANKED_ENVELOPES:
+                return chosen
+            top = pinch.centre[2]
+            across = np.array([-approach[1], approach[0], 0.0])
+            band = vertices[
+                (vertices[:, 2] >= top - ENVELOPE_BAND_M)
+                & (np.abs((vertices - pinch.centre) @ approach) <= ENVELOPE_BAND_M)
+            ]
+            lateral = band @ across
+            width = float(np.ptp(lateral)) if len(band) else np.inf
+            if width > gap:
+                continue
+            shift = (lateral.max() + lateral.min()) / 2 - pinch.centre @ across
+            through = pinch.centre + shift * across
+            through[2] = top - ENVELOPE_DEPTH_M
+            placement = float(SIDE_APPROACH_YAW - np.arctan2(approach[1], approach[0]))
+            placement = float(np.arctan2(np.sin(placement), np.cos(placement)))
+            placed = Rotation.from_euler("z", placement).apply(through)
+            if any(
+                np.cos(g.placement_yaw_rad - placement) > np.cos(SAME_FACE_RAD)
+                and np.linalg.norm(np.subtract(g.through_m, placed)) < CANDIDATE_SPACING_M
+                for g in chosen
+            ):
+                continue
+            try:
+                wrt = line_grasp_wrt(
+                    turn_about_z(parts, placement), rotation, placed, spread=np.pi / 2
+                )
+            except ValueError:  # the start is not clear of the object or the table
+                continue
+            if not wam.feasible_path(wrt.with_home(nominal)):
+                continue
+            chosen.append(
+                GoalSpec(
+                    through_m=tuple(float(v) for v in placed),
+                    approach="side",
+                    yaw_rad=SIDE_APPROACH_YAW,
+                    pitch_rad=SIDE_PITCH,
+                    roll_rad=float(np.pi / 2),
+                    spread_rad=float(np.pi / 2),
+                    tol=tol,
+                    placement_yaw_rad=placement,
+                    description=f"from the side along ({approach[0]:+.2f}, {approach[1]:+.2f}) "
+                    f"of the mesh, through ({through[0]:+.3f}, {through[1]:+.3f}, "
+                    f"{through[2]:.3f}) m, finger 3 over the top, fingers 1 and 2 round "
+                    f"{width * 100:.1f} cm",
+                )
+            )
     return chosen
 
 
@@ -240,7 +338,7 @@ def object_file_text(
         f"source = {_toml(source)}",
         f"mass_kg = {_toml(mass_kg)}",
         f"friction = {_toml(friction)}",
-        "placement_yaw_rad = 0.0",
+        f"placement_yaw_rad = {_toml(goal.placement_yaw_rad)}",
         "track_settling = true",
         "",
         "[dimensions_m]",
@@ -353,6 +451,9 @@ def add_object(opts: AddOptions, say: Callable[[str], None] = print) -> AddRepor
                 goal = opts.goal
                 choose(f"the given goal grasp through {goal.through_m}")
         with stage("object file"):
+            place(folder, ["mesh.stl", *part_files], goal.placement_yaw_rad)
+            if goal.placement_yaw_rad:
+                choose(f"placed turned by {goal.placement_yaw_rad:+.2f} rad for the goal grasp")
             obj = _write_and_load(folder, opts, mesh, part_files, mass, goal, source, False)
             nominal = np.asarray(WORLD.nominal_pose)
             if not wam.feasible_path(obj.goal_wrt.with_home(nominal)):
@@ -366,8 +467,12 @@ def add_object(opts: AddOptions, say: Callable[[str], None] = print) -> AddRepor
                 obj = _write_and_load(folder, opts, mesh, part_files, mass, goal, source, True)
                 choose("reorientation WRTs: the goal grasp cannot run at every heading")
             choose(f"{len(obj.wrts())} WRTs: " + ", ".join(w.name for w in obj.wrts()))
+
+        def drop_reorientation() -> None:
+            _write_and_load(folder, opts, mesh, part_files, mass, goal, source, False)
+
         with _searched_first(staging):
-            _measure_and_build(opts, reorient, stage)
+            _measure_and_build(opts, reorient, stage, choose, drop_reorientation)
         os.replace(folder, report.folder)
         say(f"installed {opts.name} in {report.folder}")
         return report
@@ -384,6 +489,7 @@ def _rank(staging, folder, opts, mesh, part_files, mass, source, candidates) -> 
     for k, goal in enumerate(candidates):
         name = f"{opts.name}_candidate{k + 1}"
         shutil.copytree(folder / "collision", staging / name / "collision")
+        place(staging / name, part_files, goal.placement_yaw_rad)
         opts_k = AddOptions(opts.mesh, name, friction=opts.friction)
         _write_and_load(staging / name, opts_k, mesh, part_files, mass, goal, source, False)
         names.append(name)
@@ -396,6 +502,15 @@ def _rank(staging, folder, opts, mesh, part_files, mass, source, candidates) -> 
             shutil.rmtree(staging / name, ignore_errors=True)
 
 
+def place(folder: Path, files: list[str], yaw: float) -> None:
+    """Turn the mesh files in ``folder`` by ``yaw`` [rad] about z: the object as placed."""
+    if yaw == 0.0:
+        return
+    turn = trimesh.transformations.rotation_matrix(yaw, (0.0, 0.0, 1.0))
+    for path in files:
+        trimesh.load_mesh(folder / path).apply_transform(turn).export(folder / path)
+
+
 def _write_and_load(folder, opts, mesh, part_files, mass, goal, source, reorientation):
     (folder / OBJECT_FILE).write_text(
         object_file_text(
@@ -405,8 +520,10 @@ def _write_and_load(folder, opts, mesh, part_files, mass, goal, source, reorient
     return load_object_folder(folder)
 
 
-def _measure_and_build(opts: AddOptions, reorient: bool, stage) -> None:
-    """The physics studies, the tables and the picture of the staged object."""
+def _measure_and_build(opts: AddOptions, reorient: bool, stage, choose, drop_reorientation) -> None:
+    """The physics studies, the tables and the picture of the staged object. Reorientation
+    WRTs that turn the object fully too rarely to fit are dropped: the goal grasp then runs
+    only at the headings the WAM reaches."""
     from rrg_planner.planning_model import PlanningModel
     from rrg_sim.physics import reorient_study, settle
     from rrg_sim.physics.render import render_goal_grasps
@@ -415,7 +532,14 @@ def _measure_and_build(opts: AddOptions, reorient: bool, stage) -> None:
         settle.study([opts.name], opts.settle_grasps, opts.seed, opts.workers)
     if reorient:
         with stage("reorientation study"):
-            reorient_study.study([opts.name], opts.reorient_runs, opts.seed, opts.workers)
+            try:
+                reorient_study.study([opts.name], opts.reorient_runs, opts.seed, opts.workers)
+            except reorient_study.TooFewTurns as exc:
+                drop_reorientation()
+                choose(
+                    f"no reorientation WRTs: {exc}; the goal grasp runs only at headings "
+                    "the WAM reaches"
+                )
     with stage("tables"):
         PlanningModel(opts.name, workers=opts.workers, progress=True)
     with stage("picture"):

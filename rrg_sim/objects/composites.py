@@ -32,6 +32,7 @@ def turn_about_z(parts: tuple[Primitive, ...], yaw: float) -> tuple[Primitive, .
             p.size,
             tuple(turn.apply(p.pos)),
             _quat(turn * Rotation.from_quat(p.quat, scalar_first=True)),
+            vertices=p.vertices,
         )
         for p in parts
     )

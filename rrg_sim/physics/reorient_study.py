@@ -69,6 +69,10 @@ def measure(object_name: str, runs: int, seed: int = 0) -> list[dict]:
     return records
 
 
+class TooFewTurns(ValueError):
+    """A reorientation WRT turned the object fully in too few runs to fit its outcome."""
+
+
 def fit(object_name: str, records: list[dict]) -> dict:
     """Per reorientation WRT: runs that held, full turns, the box, and the mean (``shift``) and
     σ of Δ' - Δ over the full turns [m, m, rad] (θ 0 for an object whose goal ignores it)."""
@@ -83,8 +87,9 @@ def fit(object_name: str, records: list[dict]) -> dict:
         )
         full = off < FULL_TURN_FRACTION * abs(wrt.reorient_angle)
         if full.sum() < 8:
-            raise ValueError(
-                f"{object_name}/{wrt.name}: only {full.sum()} full turns; too few to fit"
+            raise TooFewTurns(
+                f"{object_name}/{wrt.name}: only {full.sum()} of {len(rows)} runs turned it "
+                "fully; too few to fit"
             )
         moved = after[full] - start[full]
         moved[:, 2] = 0.0 if ignores else wrap_angle(moved[:, 2])
