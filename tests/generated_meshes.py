@@ -1,7 +1,7 @@
 """Meshes of three everyday objects, generated with trimesh, for onboarding tests and the
 onboarding benchmark (docs/objects.md, "Measured").
 
-    python tests/generated_meshes.py OUT_DIR     # writes mug.stl, spray_bottle.stl, l_bracket.stl
+    python tests/generated_meshes.py OUT_DIR   # writes <name>.stl; prints "name path mass_kg"
 
 Sizes (m) are those of common household items (chosen, not measured from one item).
 """
@@ -63,4 +63,4 @@ def write_all(out_dir: Path) -> dict[str, Path]:
 
 if __name__ == "__main__":
     for name, path in write_all(Path(sys.argv[1])).items():
-        print(f"{path}  --mass {GENERATED[name][1]}")
+        print(name, path, GENERATED[name][1])

@@ -142,6 +142,10 @@ def test_an_edited_object_file_is_reloaded(user_dir):
         (lambda t: t.replace("[goal_region]", "[goal_region\n"), r"object.toml: "),
         (lambda t: t.replace("tol = [0.015,", "tol = [0.0,"), r"tol: every tolerance must be > 0"),
         (
+            lambda t: t.replace("[goal_region]", "[goal_region]\ncentre = [0.0]"),
+            r"centre: expected 3",
+        ),
+        (
             lambda t: t + '\n[[goal_region.required_contacts]]\nname = "lid"\nparts = ["lid"]\n',
             r"no part called \['lid'\]",
         ),

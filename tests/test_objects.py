@@ -245,6 +245,18 @@ def test_info_generation_is_deterministic_and_works_for_new_objects():
     assert np.abs(axes @ axes.T).min() < np.cos(np.radians(30))  # at least two directions
 
 
+def test_a_goal_region_about_a_centre_holds_the_offsets_near_it():
+    """An onboarded grasp's region is about where the grasp leaves the object (its centre):
+    contains and probability both measure Δ from it, θ modulo the period."""
+    region = GoalRegion((0.01, 0.01, 0.1), centre=(0.005, -0.012, 0.05))
+    delta = np.array(
+        [[0.005, -0.012, 0.05], [0.0, 0.0, 0.0], [0.014, -0.003, 0.14], [0.0, -0.012, 2 * np.pi]]
+    )
+    np.testing.assert_array_equal(region.contains(delta), [True, False, True, True])
+    p = region.probability(delta[:2], np.full(3, 1e-4))
+    np.testing.assert_allclose(p, [1.0, 0.0], atol=1e-9)
+
+
 def test_goal_region_contains():
     region = GoalRegion((0.015, 0.05, np.radians(10)))
     delta = np.array(
@@ -261,6 +273,7 @@ def test_goal_region_contains():
     assert region.contains(np.zeros((4, 5, 3))).shape == (4, 5)
     for name in PAPER_OBJECTS:
         o = get_object(name)
+        assert o.goal.centre == (0.0, 0.0, 0.0)  # designed to leave the object where it was
         assert o.goal.contains(np.zeros(3)) and o.symmetric == (
             name in ("can", "cup", "wooden_bowl", "taperoll")
         )

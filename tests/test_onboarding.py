@@ -98,6 +98,7 @@ def test_the_goal_candidates_of_a_mug_are_distinct_pinches_of_its_rim_and_handle
     """A mesh's curved wall (narrow faces, gathered by the way they face) yields rim pinches;
     the candidates are reachable, and those of one preshape at least 2 cm apart."""
     from generated_meshes import mug
+
     from rrg_planner.onboarding.onboard import CANDIDATE_SPACING_M, goal_candidates
 
     goals = goal_candidates(_parts(mug()), tol=(0.012, 0.015, np.inf))
@@ -118,6 +119,7 @@ def test_a_plate_too_wide_to_pinch_well_gets_side_envelopes_facing_the_reachable
     is placed turned so that the face meets the hand at SIDE_APPROACH_YAW, finger 3 over the
     top, fingers 1 and 2 round its 4 cm."""
     from generated_meshes import l_bracket
+
     from rrg_planner.onboarding import onboard
 
     goals = onboard.goal_candidates(_parts(l_bracket()))
@@ -141,9 +143,7 @@ def test_the_paper_column_is_empty_for_an_object_not_in_the_paper():
     assert paper_rrg_info("mug", "high") == "–" and paper_rrg_info("cup", "high") == "<95%"
 
 
-def test_check_runs_rrg_info_and_open_loop_at_both_levels_and_refuses_bad_input(
-    tmp_path, capsys
-):
+def test_check_runs_rrg_info_and_open_loop_at_both_levels_and_refuses_bad_input(tmp_path, capsys):
     import json
 
     assert object_cli.main(["check", "box", "--trials", "1", "--dev", "--out", str(tmp_path)]) == 0
@@ -158,3 +158,33 @@ def test_check_runs_rrg_info_and_open_loop_at_both_levels_and_refuses_bad_input(
     assert object_cli.main(["check", "mug_that_is_not", "--dev"]) == 2
     assert "unknown object 'mug_that_is_not'" in capsys.readouterr().err
     assert object_cli.main(["check", "box", "--trials", "0", "--dev"]) == 2
+
+
+@pytest.mark.slow
+def test_a_mesh_is_onboarded_end_to_end_and_removed(user_dir, tmp_path, capsys):
+    """rrg-object add on a box mesh: every stage runs (goal proposed and ranked in physics,
+    studies, tables, picture), the object loads by name with its region centred on the
+    measured settling, a grasp trial runs on it, and remove leaves nothing."""
+    from rrg_planner.onboarding.object_cli import cached_tables
+    from rrg_sim.objects import get_object
+
+    mesh = write(trimesh.creation.box(extents=(0.05, 0.07, 0.09)), tmp_path / "tin.stl")
+    report = add_object(AddOptions(mesh, "tin", mass_kg=0.2, settle_grasps=12), say=print)
+    out = capsys.readouterr().out
+    assert "chose the goal grasp that held most" in out and "goal region centred" in out
+    assert list(report.stage_s)[:2] == ["mesh", "decompose"] and "tables" in report.stage_s
+    folder = user_dir / "tin"
+    assert report.folder == folder and leftovers(user_dir) == sorted(
+        str(p.relative_to(user_dir.parent)) for p in folder.parent.rglob("*")
+    )
+    for name in ("object.toml", "mesh.stl", "settling.json", "goal.png"):
+        assert (folder / name).stat().st_size > 0
+    obj = get_object("tin")
+    assert obj.mass == 0.2 and obj.folder == folder
+    assert {"goal", "sweep"} <= {w.name for w in obj.wrts()}
+    np.testing.assert_allclose(obj.goal.centre[:2], obj.grasp_settling.closed.b[:2], atol=1e-4)
+    assert cached_tables("tin")
+    assert object_cli.main(["check", "tin", "--trials", "1", "--dev", "--out", str(tmp_path)]) == 0
+    assert "| tin |" in capsys.readouterr().out
+    assert object_cli.main(["remove", "tin"]) == 0
+    assert "tin" not in object_names() and not cached_tables("tin") and leftovers(user_dir) == []

@@ -30,7 +30,7 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -129,6 +129,8 @@ class GoalSpec:
     #: the turn [rad] about z from the mesh as given to the object as placed on the table
     #: (the goal grasp is in the placed frame)
     placement_yaw_rad: float = 0.0
+    #: the goal region's centre (Δx [m], Δy [m], Δθ [rad]; rrg_sim.objects.GoalRegion)
+    centre: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 @dataclass
@@ -346,6 +348,7 @@ def object_file_text(
         "",
         "[goal_region]",
         f"tol = {_toml(goal.tol)}  # |dx| [m], |dy| [m], |dθ| [rad] (inf: θ ignored)",
+        f"centre = {_toml(goal.centre)}  # where the grasp leaves it: Δx, Δy [m], Δθ [rad]",
         "min_fingers = 3",
         "",
         "[goal_grasp]",
@@ -468,11 +471,11 @@ def add_object(opts: AddOptions, say: Callable[[str], None] = print) -> AddRepor
                 choose("reorientation WRTs: the goal grasp cannot run at every heading")
             choose(f"{len(obj.wrts())} WRTs: " + ", ".join(w.name for w in obj.wrts()))
 
-        def drop_reorientation() -> None:
-            _write_and_load(folder, opts, mesh, part_files, mass, goal, source, False)
+        def rewrite(goal: GoalSpec, reorientation: bool) -> None:
+            _write_and_load(folder, opts, mesh, part_files, mass, goal, source, reorientation)
 
         with _searched_first(staging):
-            _measure_and_build(opts, reorient, stage, choose, drop_reorientation)
+            _measure_and_build(opts, goal, reorient, rewrite, stage, choose)
         os.replace(folder, report.folder)
         say(f"installed {opts.name} in {report.folder}")
         return report
@@ -520,22 +523,43 @@ def _write_and_load(folder, opts, mesh, part_files, mass, goal, source, reorient
     return load_object_folder(folder)
 
 
-def _measure_and_build(opts: AddOptions, reorient: bool, stage, choose, drop_reorientation) -> None:
-    """The physics studies, the tables and the picture of the staged object. Reorientation
-    WRTs that turn the object fully too rarely to fit are dropped: the goal grasp then runs
-    only at the headings the WAM reaches."""
+def _measure_and_build(
+    opts: AddOptions,
+    goal: GoalSpec,
+    reorient: bool,
+    rewrite: Callable[[GoalSpec, bool], None],
+    stage,
+    choose: Callable[[str], None],
+) -> None:
+    """The physics studies, the tables and the picture of the staged object.
+
+    The goal region is centred where the goal grasp leaves the object from a perfect start
+    (the settling study's intercept): a grasp that pulls the object into the hand meets its
+    region about there, not where the estimate put the object. Reorientation WRTs that turn
+    the object fully too rarely to fit are dropped: the goal grasp then runs only at the
+    headings the WAM reaches."""
     from rrg_planner.planning_model import PlanningModel
+    from rrg_sim.objects import get_object
     from rrg_sim.physics import reorient_study, settle
     from rrg_sim.physics.render import render_goal_grasps
 
     with stage("settling study"):
         settle.study([opts.name], opts.settle_grasps, opts.seed, opts.workers)
+        b = get_object(opts.name).grasp_settling.closed.b
+        theta = 0.0 if np.isinf(goal.tol[2]) else round(float(b[2]), 4)
+        goal = replace(goal, centre=(round(float(b[0]), 4), round(float(b[1]), 4), theta))
+        rewrite(goal, reorient)
+        choose(
+            "goal region centred where the grasp leaves the object from a perfect start: "
+            f"Δ = ({goal.centre[0] * 100:+.1f} cm, {goal.centre[1] * 100:+.1f} cm, "
+            f"{np.degrees(goal.centre[2]):+.1f}°)"
+        )
     if reorient:
         with stage("reorientation study"):
             try:
                 reorient_study.study([opts.name], opts.reorient_runs, opts.seed, opts.workers)
             except reorient_study.TooFewTurns as exc:
-                drop_reorientation()
+                rewrite(goal, False)
                 choose(
                     f"no reorientation WRTs: {exc}; the goal grasp runs only at headings "
                     "the WAM reaches"

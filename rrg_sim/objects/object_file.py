@@ -148,6 +148,7 @@ def _goal_region(t: _Table, part_index: dict[str, int]) -> GoalRegion:
             min_fingers=int(t.number("min_fingers", 3)),
             required_contacts=tuple(contacts),
             theta_period=t.number("theta_period_rad", 2 * np.pi, positive=True),
+            centre=t.vector("centre", 3, [0.0, 0.0, 0.0]),
         )
     except ValueError as exc:
         raise t.error("min_fingers", str(exc)) from exc

@@ -199,12 +199,16 @@ class GoalRegion:
     predicts them from the settling study).
     theta_period: the object's rotational symmetry [rad] about its vertical axis through the
     origin (π for a box: turned half round it is the same object), dθ is taken modulo it.
+    centre: (Δx [m], Δy [m], Δθ [rad]) the Δ the bounds are about: 0 for a grasp designed to
+    leave the object where the estimate put it; an onboarded grasp's is where it leaves the
+    object from a perfect start (the settling study's intercept).
     """
 
     tol: tuple[float, float, float]
     min_fingers: int = 3
     required_contacts: tuple[RequiredContact, ...] = ()
     theta_period: float = 2 * np.pi
+    centre: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         if not 0 <= self.min_fingers <= 3:
@@ -216,7 +220,7 @@ class GoalRegion:
 
     def contains(self, delta) -> np.ndarray:
         """(…) bool: Δ (…,3) lies in the pose part of the region."""
-        delta = np.asarray(delta, dtype=float)
+        delta = np.asarray(delta, dtype=float) - self.centre
         ok = (np.abs(delta[..., 0]) <= self.tol[0]) & (np.abs(delta[..., 1]) <= self.tol[1])
         if self.ignores_theta:
             return ok
@@ -226,7 +230,7 @@ class GoalRegion:
     def probability(self, mean, sigma) -> np.ndarray:
         """(…) P(Δ in the pose part of the region) for Δ ~ N(mean (…,3), diag(sigma (3,))²)
         (θ taken modulo the period about the wrapped mean)."""
-        mean = np.asarray(mean, dtype=float)
+        mean = np.asarray(mean, dtype=float) - self.centre
         sigma = np.maximum(np.asarray(sigma, dtype=float), 1e-9)
         tol = np.asarray(self.tol, dtype=float)
         m = mean.copy()
