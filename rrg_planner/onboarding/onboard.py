@@ -243,7 +243,7 @@ def envelope_candidates(
     turned so that the face meets the hand at SIDE_APPROACH_YAW; reachable, with a free start,
     and distinct: another face direction, or centres CANDIDATE_SPACING_M apart."""
     gap = finger_gap(np.pi / 2) - 2 * MIN_FINGER_CLEARANCE
-    vertices = np.vstack([np.asarray(p.vertices) for p in parts])
+    vertices = np.vstack([p.mesh().vertices for p in parts])
     rotation = side_rotation(pitch=SIDE_PITCH, roll=np.pi / 2, yaw=SIDE_APPROACH_YAW)
     nominal = np.asarray(WORLD.nominal_pose)
     chosen: list[GoalSpec] = []
