@@ -5,12 +5,14 @@
 2. *decompose*: CoACD's convex parts, one collision file each;
 3. *goal grasp*: the one given, or proposed: among the top-down pinches the info-grasp
    generator finds on the parts (rrg_sim.objects.surface_pairs), narrower than the hand opens,
-   whose descent is free and which the WAM reaches at the nominal pose, a few distinct ones
-   are each run from starts across twice the goal region in physics, and the one whose
+   whose descent is free and which the WAM reaches at the nominal pose, and side envelopes of
+   the pinched faces (the object placed turned so that the WAM reaches them), a few distinct
+   ones are each run from starts across twice the goal region in physics, and the one whose
    grasps held most often wins (an object with no pinch is too big for the hand);
 4. *object file*: ``object.toml``, read back as every object is;
-5. *studies*: the grasp-settling study, and the reorientation study when the goal grasp cannot
-   run at every heading (rrg_sim.physics.settle, reorient_study);
+5. *studies*: the grasp-settling study, whose intercept centres the goal region, and the
+   reorientation study when the goal grasp cannot run at every heading (dropped if its WRTs
+   rarely turn the object; rrg_sim.physics.settle, reorient_study);
 6. *tables*: the observation tables and feasibility maps of every WRT at every level
    (rrg_planner.planning_model);
 7. *picture*: the goal grasp closed on the object, ``goal.png``.
