@@ -106,3 +106,34 @@ def test_a_shutdown_while_the_executor_waits_ends_the_spin_quietly(ros_domain):
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
+
+
+def test_a_callback_the_shutdown_cuts_short_is_collected_not_left_unretrieved(ros_domain, capfd):
+    """A callback still running in the pool when a signal shuts the context down fails (the
+    simulator's state publisher: "publisher's context is invalid"); the executor's shutdown
+    waits for it and collects the error, so rclpy never prints it as "never retrieved"."""
+    import gc
+
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=ros_domain)
+    node = rclpy.create_node("cut_short", context=context)
+    started, release = threading.Event(), threading.Event()
+
+    def publish_late() -> None:
+        started.set()
+        release.wait(5.0)
+        raise RuntimeError("Failed to publish: publisher's context is invalid")
+
+    node.create_timer(0.01, publish_late)
+    executor = SubmitOnceExecutor(num_threads=2, context=context)
+    executor.add_node(node)
+    while not started.is_set():
+        executor.spin_once(timeout_sec=0.1)
+    rclpy.shutdown(context=context)  # the signal, while the callback runs
+    release.set()
+    assert executor.shutdown(timeout_sec=5.0)
+    assert executor._handed == {}
+    node.destroy_node()
+    del executor, node
+    gc.collect()
+    assert "never retrieved" not in capfd.readouterr().err

@@ -15,6 +15,7 @@ import sys
 import time
 from collections.abc import Callable
 from concurrent.futures import Future
+from concurrent.futures import wait as wait_futures
 
 import rclpy
 from rclpy.executors import (
@@ -29,6 +30,8 @@ from rclpy.executors import (
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.task import Task
+
+log = logging.getLogger(__name__)
 
 #: How long the spin loop yields the interpreter when the task it is handed is still queued for
 #: a worker [s].
@@ -92,6 +95,25 @@ class SubmitOnceExecutor(MultiThreadedExecutor):
             if handed.done():
                 del self._handed[key]
                 handed.result()  # raise the handler's exception, as rclpy does
+
+    def shutdown(self, timeout_sec: float | None = None) -> bool:
+        """rclpy's shutdown, then wait up to ``timeout_sec`` for the callbacks already handed to
+        the pool and collect what they raised. A callback that the context's shutdown cut short
+        (a publish after a signal: "publisher's context is invalid") is logged at debug level,
+        where rclpy would print it as an exception "never retrieved"; any other is logged as an
+        error."""
+        finished = super().shutdown(timeout_sec)
+        wait_futures([hand_over for _, hand_over in self._handed.values()], timeout=timeout_sec)
+        for task, _ in self._handed.values():
+            error = task.exception() if task.done() else None
+            if error is None:
+                continue
+            if self.context.ok():
+                log.error("a callback failed before the shutdown: %r", error)
+            else:
+                log.debug("a callback ended by the shutdown: %r", error)
+        self._handed.clear()
+        return finished
 
 
 def release_free_memory() -> None:
