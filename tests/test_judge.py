@@ -92,3 +92,14 @@ def test_the_strict_test_judges_the_offset_where_a_finger_first_touched():
         ok, info = judge_grasp(world, world.obj, E)
         pulled.append((ok, info["touch_in_region"], info["strict_success"]))
     assert any(ok and not touch and not strict for ok, touch, strict in pulled), pulled
+
+
+def test_the_strict_test_asks_the_first_touch_about_the_estimate_not_the_regions_centre():
+    """An onboarded goal region is centred where the closing leaves the object; the first
+    touch, before any closing, is judged against the tolerances about the estimate itself."""
+    from dataclasses import replace
+
+    world, obs = _grasp("cup", (0.0, 0.0, 0.0))
+    shifted = replace(world.obj, goal=replace(world.obj.goal, centre=(0.0, 0.02, 0.0)))
+    ok, info = judge_grasp(world, shifted, E)
+    assert not ok and not info["in_region"] and info["touch_in_region"]

@@ -13,10 +13,13 @@ After a goal WRT has closed the hand, the grasp succeeds iff
   PHYSICS.hold_time: still touching the hand and risen by at least HELD_FRACTION of the lift.
 
 The strict test (``info["strict_success"]``) also asks the offset where a finger first
-touched the object, before the closing pulled it into the hand, to lie in the goal region.
+touched the object, before the closing pulled it into the hand, to lie in the goal region's
+tolerances about the estimate itself (a region's centre is where the closing leaves the object).
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -67,7 +70,7 @@ def judge_grasp(
         world.true_object_pose() if world.first_touch_pose is None else world.first_touch_pose
     )
     touch_delta = relative_planar(e_hand, touch_pose)
-    touch_in_region = bool(obj.goal.contains(touch_delta))
+    touch_in_region = bool(replace(obj.goal, centre=(0.0, 0.0, 0.0)).contains(touch_delta))
     z0, grip0 = world.object_height(), _object_in_hand_frame(world)
     lift = {0: (PHYSICS.lift_speed, PHYSICS.turn_speed)}
     try:
