@@ -65,6 +65,7 @@ from rrg_sim.objects.wrt_generation import (
     top_down_poses,
     top_down_rotation,
 )
+from rrg_sim.poses import wrap_angle
 
 log = logging.getLogger(__name__)
 
@@ -211,15 +212,15 @@ def goal_candidates(
             continue
         if top_down_poses(parts, pinch) is None:
             continue
-        rotation = top_down_rotation(_yaw_of(pinch))
-        wrt = line_grasp_wrt(parts, rotation, pinch.centre, spread=pinch.spread)
+        yaw = _yaw_of(pinch)
+        wrt = line_grasp_wrt(parts, top_down_rotation(yaw), pinch.centre, spread=pinch.spread)
         if not wam.feasible_path(wrt.with_home(nominal)):
             continue
         c = pinch.centre
         chosen.append(
             GoalSpec(
                 through_m=tuple(float(v) for v in c),
-                yaw_rad=_yaw_of(pinch),
+                yaw_rad=yaw,
                 spread_rad=float(pinch.spread),
                 tol=tol,
                 description=f"from above, {PRESHAPES[float(pinch.spread)]} pinching "
@@ -266,8 +267,7 @@ def envelope_candidates(
             shift = (lateral.max() + lateral.min()) / 2 - pinch.centre @ across
             through = pinch.centre + shift * across
             through[2] = top - ENVELOPE_DEPTH_M
-            placement = float(SIDE_APPROACH_YAW - np.arctan2(approach[1], approach[0]))
-            placement = float(np.arctan2(np.sin(placement), np.cos(placement)))
+            placement = float(wrap_angle(SIDE_APPROACH_YAW - np.arctan2(approach[1], approach[0])))
             placed = Rotation.from_euler("z", placement).apply(through)
             if any(
                 np.cos(g.placement_yaw_rad - placement) > np.cos(SAME_FACE_RAD)
@@ -495,8 +495,9 @@ def _rank(staging, folder, opts, mesh, part_files, mass, source, candidates) -> 
         name = f"{opts.name}_candidate{k + 1}"
         shutil.copytree(folder / "collision", staging / name / "collision")
         place(staging / name, part_files, goal.placement_yaw_rad)
-        opts_k = AddOptions(opts.mesh, name, friction=opts.friction)
-        _write_and_load(staging / name, opts_k, mesh, part_files, mass, goal, source, False)
+        _write_and_load(
+            staging / name, replace(opts, name=name), mesh, part_files, mass, goal, source, False
+        )
         names.append(name)
     jobs = [(name, RANKING_GRASPS, opts.seed) for name in names]
     try:
