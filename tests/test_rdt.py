@@ -178,6 +178,11 @@ def test_three_boxes_stream_at_once_without_loss() -> None:
         for c in clients:
             c.start()
         assert all(wait_for(lambda r=r: r.count() >= 500) for r in recs)
+        # the boxes stop sending first, so no record is sent after its client stopped listening
+        for b in boxes:
+            b.close()
+        for r, b in zip(recs, boxes):
+            wait_for(lambda r=r, b=b: r.count() == b.records_sent)
         health = [c.health() for c in clients]
     finally:
         for c in clients:
