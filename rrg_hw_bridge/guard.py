@@ -4,8 +4,10 @@
 forces, measured joint angles, arm joint efforts), tared for a guarded move as the simulator
 tares its sensors, and turns it into the ``Reading`` the executor gets (rrg_sim.hand_sensing:
 the same thresholds and contact localisation as the simulator). ``ContactGuard`` decides, on
-every new sample, whether a guarded move must stop: a sensor over its threshold, or an arm
-joint's effort changed by more than the collision threshold since the move started.
+every new sample, whether a guarded move must stop: a Nano17 over its threshold, a pad over
+its threshold in two pad samples running (rrg_sim.hand_sensing.StopConfirmation, the
+simulator's rule), or an arm joint's effort changed by more than the collision threshold
+since the move started.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ import numpy as np
 
 from rrg_sim.config import SENSING
 from rrg_sim.executor.wrt_executor import Reading
-from rrg_sim.hand_sensing import fired_sensors, reading_from_joints
+from rrg_sim.hand_sensing import StopConfirmation, fired_sensors, reading_from_joints
 
 #: Pads a BarrettHand without pad feedback cannot sense; with derived pads the distal pads
 #: take the fingertip Nano17s' force magnitude (the sensor sits in the distal link's tip).
@@ -120,19 +122,29 @@ class ContactGuard:
         tip_force_threshold: float = SENSING.tip_force_threshold,
         pad_force_threshold: float = SENSING.pad_force_threshold,
         effort_threshold: float = SENSING.arm_torque_threshold,
+        confirm_stops: bool = True,
     ):
+        """confirm_stops: a lone pad trips the move only when the next pad sample agrees."""
         self.thresholds = np.r_[np.full(7, pad_force_threshold), np.full(3, tip_force_threshold)]
         self.effort_threshold = effort_threshold  # [N m]; <= 0: efforts are not watched
         self._effort0: np.ndarray | None = None
+        self.confirmation = StopConfirmation(confirm_stops)
+        self._pad_sample = 0  # pad samples seen during the move
 
     def start(self, effort: np.ndarray | None) -> None:
         """Remember the arm's joint efforts (7,) [N m] at the start of the move."""
         self._effort0 = None if effort is None else np.asarray(effort, dtype=float).copy()
 
-    def check_sensors(self, pads: np.ndarray, tips: np.ndarray) -> Trip | None:
-        """A trip when a pad (7,) or fingertip load (3,6) is over its threshold."""
+    def check_sensors(
+        self, pads: np.ndarray, tips: np.ndarray, new_pad_sample: bool = False
+    ) -> Trip | None:
+        """A trip when a fingertip load (3,6) is over its threshold, or a pad (7,) is over its
+        threshold in this pad sample and the one before (``new_pad_sample``: the pads were
+        just read afresh; a lone pad that the next sample does not confirm is not a trip)."""
+        self._pad_sample += bool(new_pad_sample)
         fired = fired_sensors(pads, tips, self.thresholds)
-        return Trip(fired) if fired.any() else None
+        stop = self.confirmation.update(fired if fired.any() else None, False, self._pad_sample)
+        return Trip(fired) if stop else None
 
     def check_effort(self, effort: np.ndarray) -> Trip | None:
         """A trip when a joint's effort (7,) changed by more than the threshold."""

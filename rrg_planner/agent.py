@@ -23,6 +23,7 @@ from rrg_planner.config import SEARCH
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.requests import check_choice
 from rrg_planner.search import ForwardSearch, SearchResult, SparseBelief
+from rrg_sim.observation import Observation, goal_grasp_mismatches
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +42,10 @@ class RobustGraspAgent:
         horizon: int = SEARCH.horizon,
         delta: float = SEARCH.delta,
         max_actions: int = SEARCH.max_actions,
+        verify: bool = True,
     ):
+        """verify: check each goal grasp's own observation against what the goal needs
+        (``verify_goal``) before believing it; off only to measure what the check gains."""
         check_choice(strategy, horizon, delta)
         self.model = model
         self.search = ForwardSearch(model)
@@ -49,6 +53,7 @@ class RobustGraspAgent:
         self.horizon = horizon
         self.delta = delta
         self.max_actions = max_actions
+        self.verify = verify
         self.goal = model.goal_actions[0]
 
     # --------------------------------------------------------------- choice
@@ -154,6 +159,16 @@ class RobustGraspAgent:
         if act.kind != "goal":
             return float("nan")
         return goal_probability(posterior, act.goal[self.model.level_of(posterior.grid)], e)
+
+    def verify_goal(self, action: int, obs: Observation) -> list[str]:
+        """For a goal WRT just executed: what its own observation says is wrong with the grasp
+        (rrg_sim.observation.goal_grasp_mismatches); [] for any other WRT, or with
+        verification off. A grasp with a mismatch is not believed to hold, whatever the
+        belief's P_b(G): its observation has already entered the belief, and the loop opens
+        the hand and plans again."""
+        if not self.verify or self.model.actions[action].kind != "goal":
+            return []
+        return goal_grasp_mismatches(obs.contact, obs.sensors, self.model.obj.goal)
 
     def static_value(self, belief: Belief) -> float:
         """v(b) without a search: P_b(G) of the goal WRT at its best estimate (goal_estimate; 0

@@ -16,9 +16,12 @@ The agent (``rrg_planner.agent.RobustGraspAgent``) only decides: it never change
 One step: the agent chooses a WRT and the estimate to run it at; the world executes it (a WRT
 found infeasible before anything moved is ruled out at that estimate and the agent chooses
 again); the estimator updates the belief with the observation; for a goal grasp the agent reads
-P_b(G) off the updated belief. The run stops after a goal grasp believed to hold (P_b(G) > 1 − δ)
-or the last action allowed. Otherwise the world retreats the hand and the estimator applies the
-retreat's transition before the next decision.
+P_b(G) off the updated belief, and verifies the grasp against its own observation: a goal grasp
+whose sensors show it is not the goal's (it stopped early, too few fingers, a required
+contact's fingers silent) is not believed to hold, its P(goal) is 0, and the loop goes on. The
+run stops after a goal grasp believed to hold (P_b(G) > 1 − δ) or the last action allowed.
+Otherwise the world retreats the hand and the estimator applies the retreat's transition
+before the next decision.
 """
 
 from __future__ import annotations
@@ -113,9 +116,15 @@ class Step:
     estimate: np.ndarray  # (3,) the estimate the WRT was executed relative to
     contact: bool
     sensors: list[str]
-    p_goal: float  # after a goal grasp, P_b(G) of the grasp just made; else the search's v(b)
+    #: after a goal grasp, P(G) of the grasp just made (0 if its check failed); else the
+    #: search's v(b)
+    p_goal: float
     planning_time: float  # s
     action_values: dict[str, float] = field(default_factory=dict)
+    #: after a goal grasp: P_b(G) under the updated belief, before the grasp's own check
+    p_goal_belief: float = float("nan")
+    #: after a goal grasp: what its own observation says is wrong with it (empty: nothing)
+    mismatches: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -234,7 +243,9 @@ class ClosedLoop:
             return None, self.estimator.belief
         agent.executed(decision.action, e)
         posterior = self.estimator.update(decision.wrt, e, obs)
-        p_exec = agent.grasp_probability(posterior, decision.action, e)
+        p_belief = agent.grasp_probability(posterior, decision.action, e)
+        mismatches = agent.verify_goal(decision.action, obs)
+        p_exec = 0.0 if mismatches else p_belief
         search_p_goal = decision.search.p_goal if decision.search is not None else float("nan")
         step = Step(
             wrt=decision.wrt,
@@ -245,6 +256,8 @@ class ClosedLoop:
             p_goal=float(p_exec if decision.kind == "goal" else search_p_goal),
             planning_time=decision.planning_time,
             action_values=decision.action_values,
+            p_goal_belief=float(p_belief),
+            mismatches=mismatches,
         )
         self.steps.append(step)
         log.info(
@@ -257,6 +270,13 @@ class ClosedLoop:
             step.p_goal,
             decision.planning_time * 1e3,
         )
+        if mismatches:
+            log.info(
+                "goal grasp check failed (%s): not believed to hold (P_b(G) %.3f); %s",
+                "; ".join(mismatches),
+                p_belief,
+                "the last action" if decision.last else "opening and planning again",
+            )
         if self.on_step:
             self.on_step(step, posterior)
         self.p_goal = step.p_goal

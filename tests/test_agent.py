@@ -189,3 +189,50 @@ def test_the_goal_grasp_runs_where_the_measured_closing_leaves_the_drill_best_pl
     assert p_aimed > p_w_star, (p_aimed, p_w_star)
     action, e_run, _, _ = agent.plan_step(belief, step=1)
     assert action == agent.goal and np.allclose(e_run, e)
+
+
+class SilentFinger3(GeometricEnvironment):
+    """Every goal grasp's observation has finger 3's sensors silent (a pad that missed, or a
+    finger that truly missed): the robot senses two fingers where the goal needs three."""
+
+    def execute(self, wrt: WRT, e: np.ndarray):
+        obs = super().execute(wrt, e)
+        if wrt.kind == "goal":
+            obs.sensors[[3, 6, 9]] = False
+        return obs
+
+
+def test_a_goal_grasp_whose_own_sensors_show_too_few_fingers_is_never_declared(model):
+    """With verification, each such goal grasp gets P(goal) 0, the loop plans again, and the
+    run ends undeclared at its last action; without it, the belief's P_b(G) declares it."""
+    runs = {}
+    for verify in (True, False):
+        agent = RobustGraspAgent(model, strategy="rrg-info", max_actions=4, verify=verify)
+        env = SilentFinger3(model.obj, true_pose(), seed=1)
+        runs[verify] = run_in_process(agent, env, SMALL, WORLD.nominal_pose)
+    checked = runs[True]
+    goals = [s for s in checked.steps if s.kind == "goal"]
+    assert not checked.declared and checked.n_actions == 4 and len(goals) >= 2
+    assert all(s.p_goal == 0.0 and s.mismatches == ["2 of 3 fingers sensed"] for s in goals)
+    assert all(s.p_goal_belief > 1.0 - SEARCH.delta for s in goals)
+    unchecked = runs[False]
+    assert unchecked.declared and unchecked.steps[-1].mismatches == []
+    assert unchecked.n_actions < 4
+
+
+def test_goal_grasp_mismatches_name_what_the_sensors_miss():
+    from rrg_sim.objects import get_object
+    from rrg_sim.observation import goal_grasp_mismatches
+
+    drill = get_object("powerdrill").goal
+    sensors = np.zeros(10, bool)
+    sensors[[3, 6, 9]] = True  # finger 3 only
+    assert goal_grasp_mismatches(True, sensors, drill) == [
+        "stopped early",
+        "1 of 3 fingers sensed",
+        "trigger: no sensor of finger 1 or 2 fired",
+    ]
+    sensors[[1, 4]] = True  # and finger 1 (proximal pad, distal pad)
+    assert goal_grasp_mismatches(False, sensors, drill) == ["2 of 3 fingers sensed"]
+    sensors[8] = True  # and finger 2's Nano17
+    assert goal_grasp_mismatches(False, sensors, drill) == []

@@ -121,6 +121,41 @@ def test_contact_guard_trips_on_sensors_and_effort_change():
     assert off.check_effort(effort0 + 10.0) is None
 
 
+def test_stop_confirmation_waits_for_a_second_pad_sample():
+    """A lone pad in one sample is rejected, in two samples running it stops the move; a
+    Nano17 or the collision detection stops it at once, also while a pad is pending; with
+    confirmation off a lone pad stops it at once."""
+    from rrg_sim.hand_sensing import StopConfirmation
+
+    pad, tip = np.zeros(10, bool), np.zeros(10, bool)
+    pad[2], tip[8] = True, True
+    c = StopConfirmation()
+    assert not c.update(pad, False, 0) and not c.update(pad, False, 0)  # the same held sample
+    assert not c.update(None, False, 5) and c.rejected == 1  # the next sample is quiet
+    assert not c.update(pad, False, 10) and c.update(pad, False, 15)  # two samples running
+    c = StopConfirmation()
+    assert not c.update(pad, False, 0) and c.update(tip, False, 0)  # a Nano17 agrees
+    assert StopConfirmation().update(None, True, 0)  # the collision detection
+    assert StopConfirmation().update(tip, False, 0)
+    assert StopConfirmation(confirm=False).update(pad, False, 0)
+
+
+def test_contact_guard_confirms_a_lone_pad_on_the_next_pad_sample():
+    """The bridge's guard: a pad over its threshold trips only when the next pad message still
+    has one; a one-message false alarm does not; fingertip messages between pad messages are
+    not pad samples (pads from a topic), but are (pads derived from the fingertips)."""
+    guard = ContactGuard()
+    pads, quiet, tips = np.r_[0.5, np.zeros(6)], np.zeros(7), np.zeros((3, 6))
+    assert guard.check_sensors(pads, tips, True) is None
+    assert guard.check_sensors(pads, tips, False) is None  # a fingertip sample: the same pads
+    assert guard.check_sensors(quiet, tips, True) is None  # the false alarm is gone
+    assert guard.confirmation.rejected == 1
+    assert guard.check_sensors(pads, tips, True) is None
+    trip = guard.check_sensors(pads, tips, True)
+    assert trip is not None and trip.sensors[0]
+    assert ContactGuard(confirm_stops=False).check_sensors(pads, tips, True) is not None
+
+
 def test_path_index_projects_a_measured_configuration():
     q = np.zeros((4, 7))
     q[:, 0] = [0.0, 0.1, 0.2, 0.4]

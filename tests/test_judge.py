@@ -47,14 +47,26 @@ def test_an_object_touched_by_one_fingertip_is_not_held():
     assert not info["held"] and not ok
 
 
-def test_too_few_fingers_in_the_observation_fail_a_grasp_that_holds():
-    """A centred box grasp holds; judged on an observation in which one fingertip's sensors
-    stayed silent, it shows two fingers, fewer than the goal's three: a failure."""
+def test_the_judge_counts_the_fingers_that_truly_touch_not_the_sensed_ones():
+    """A centred box grasp holds with three fingers on the box. Judged on an observation in
+    which finger 3's sensors stayed silent (a missed pad), it still succeeds: the judge counts
+    MuJoCo's contacts; the observation's two fingers are reported as sensed_fingers only."""
     world, obs = _grasp("box", (0.0, 0.0, 0.0))
     silent = obs.sensors.copy()
     silent[[3, 6, 9]] = False  # finger 3: proximal and distal pads, Nano17
     ok, info = judge_grasp(world, world.obj, E, dataclasses.replace(obs, sensors=silent))
-    assert info["held"] and info["in_region"] and info["fingers"] == 2
+    assert info["held"] and info["in_region"] and info["fingers"] == 3
+    assert info["sensed_fingers"] == 2 and info["fingers_ok"] and ok
+
+
+def test_too_few_fingers_truly_touching_fail_a_grasp_the_sensors_call_whole():
+    """The tea box met off-centre by one finger, judged on an observation in which every
+    finger's sensors fired (false alarms): one finger truly touches, so it fails."""
+    world, obs = _grasp("teabox", (0.011, -0.018, -0.367))
+    loud = obs.sensors.copy()
+    loud[1:] = True
+    ok, info = judge_grasp(world, world.obj, E, dataclasses.replace(obs, sensors=loud))
+    assert info["sensed_fingers"] == 3 and info["fingers"] == 1 and not info["fingers_ok"]
     assert not ok
 
 

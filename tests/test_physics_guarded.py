@@ -116,7 +116,7 @@ def test_arm_collision_detection_stops_on_unsensed_contacts(arm_guard, monkeypat
     pushes the box on by more than 2 cm."""
     from rrg_sim.physics.sensing import HandSensors
 
-    monkeypatch.setattr(HandSensors, "any_fired", lambda self: False)
+    monkeypatch.setattr(HandSensors, "fired_now", lambda self: None)
     if not arm_guard:
         monkeypatch.setattr(HandSensors, "arm_collision", lambda self, dofs: False)
     world = PhysicsWorld("box", seed=3)

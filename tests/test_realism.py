@@ -231,3 +231,38 @@ def test_nano17_noise_is_atis_resolution():
         torques.append(wrench[:, 3:])
     assert np.std(forces) == pytest.approx(REALISTIC.nano17_force_noise, rel=0.05)
     assert np.std(torques) == pytest.approx(REALISTIC.nano17_torque_noise, rel=0.05)
+
+
+@pytest.mark.parametrize("confirm", [True, False], ids=["confirmed", "unconfirmed"])
+def test_a_false_pad_alarm_stops_a_guarded_move_only_without_confirmation(confirm):
+    """Every pad fires falsely once, for one 50 Hz sample, during a guarded move through free
+    space: confirmed stops ride through all seven alarms, unconfirmed ones stop at the first."""
+    import dataclasses
+
+    from rrg_sim.poses import raised
+
+    alarms = dataclasses.replace(NOMINAL, name="alarms", pad_period=0.02, pad_false_alarm=1.0)
+    world = PhysicsWorld("box", seed=1, profile=alarms, confirm_stops=confirm)
+    down = raised(world.hand_pose(), -0.15)[None]  # 15 cm down, still 40 cm above the table
+    _, _, stop = world.move_through(down, guard=True)
+    assert (stop is None) == confirm
+
+
+@pytest.mark.parametrize("case", range(6))
+def test_confirmation_does_not_delay_a_stop_on_a_real_contact(case):
+    """The guarded-move cases of test_physics_guarded, with the pads at 50 Hz: each stops on a
+    real contact in the same control period with and without confirmation (a Nano17 or the
+    collision detection agrees at once, or the pad holds for the next sample)."""
+    import dataclasses
+
+    from test_physics_guarded import CASES
+
+    name, wrt, _ = CASES[case]
+    slow_pads = dataclasses.replace(NOMINAL, name="slow-pads", pad_period=0.02)
+    stops = []
+    for confirm in (False, True):
+        world = PhysicsWorld(name, seed=3, profile=slow_pads, confirm_stops=confirm)
+        _, _, stop = world.move_through(wrt.world_poses(world.true_object_pose()), guard=True)
+        stops.append(stop)
+        assert world.rejected_trips == 0
+    assert stops[0] is not None and stops[0] == stops[1]

@@ -384,6 +384,15 @@ class BridgeNode(Node):
         text("estop_topic", "/rrg/estop", "Latched E-stop (std_msgs/Bool, true = stop)")
         text("limits_file", "", "Per-arm limits YAML (empty: Barrett's published WAM limits)")
         self.declare_parameter(
+            "confirm_stops",
+            True,
+            ParameterDescriptor(
+                description="A lone pad stops a guarded move only when the next pad sample "
+                "agrees (a Nano17 or a joint effort stops it at once)",
+                read_only=True,
+            ),
+        )
+        self.declare_parameter(
             "dry_run",
             False,
             ParameterDescriptor(
@@ -567,8 +576,8 @@ class BridgeNode(Node):
         over = self.ceiling.check(tips)
         if over is not None:
             self.stop_move(over.code, over.check, over.message)
-        elif move.guard is not None:
-            trip = move.guard.check_sensors(self.hand.pads(), tips)
+        elif move.guard is not None:  # derived pads are read afresh with every fingertip sample
+            trip = move.guard.check_sensors(self.hand.pads(), tips, self.hand.derive_pads)
             if trip is not None:
                 self.stop_move(R.NONE, "contact", trip.describe(SENSOR_NAMES), trip)
 
@@ -582,7 +591,7 @@ class BridgeNode(Node):
         self.hand.set_pads(np.asarray(msg.force, dtype=float))
         move = self._move
         if move is not None and move.guard is not None:
-            trip = move.guard.check_sensors(self.hand.pads(), self.hand.tips())
+            trip = move.guard.check_sensors(self.hand.pads(), self.hand.tips(), True)
             if trip is not None:
                 self.stop_move(R.NONE, "contact", trip.describe(SENSOR_NAMES), trip)
 
@@ -787,6 +796,7 @@ class BridgeNode(Node):
                     if goal.pad_force_threshold > 0
                     else SENSING.pad_force_threshold,
                     self.get_parameter("effort_threshold").value,
+                    bool(self.get_parameter("confirm_stops").value),
                 )
                 guard.start(self.effort_baseline())
             move = ActiveMove(guard)

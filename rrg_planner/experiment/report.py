@@ -4,7 +4,6 @@ paper's Fig. 7 (low), Fig. 8 (high) and Fig. 9 (δ sweep on the drill) as PNGs."
 from __future__ import annotations
 
 import json
-import math
 from collections import defaultdict
 from pathlib import Path
 
@@ -15,6 +14,13 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from rrg_planner.config import SEARCH
+from rrg_planner.experiment.calibration import (
+    calibration,
+    calibration_table,
+    main_rrg_info,
+    reliability_diagram,
+    wilson,
+)
 from rrg_sim.objects import PAPER_OBJECTS
 
 STRATEGY_LABELS = {"open-loop": "Open-loop", "rrg-goal": "RRG-Goal", "rrg-info": "RRG-Info"}
@@ -28,17 +34,6 @@ def paper_rrg_info(obj: str, level: str) -> str:
     if level == "low":
         return "89%" if obj == "teabox" else ">97%"
     return "<95%" if obj in ("cup", "teabox") else ">95%"
-
-
-def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """Wilson score 95 % interval of a binomial proportion."""
-    if n == 0:
-        return (0.0, 1.0)
-    p = k / n
-    den = 1 + z * z / n
-    mid = (p + z * z / (2 * n)) / den
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
-    return (max(0.0, mid - half), min(1.0, mid + half))
 
 
 def summarize(records: list[dict]) -> dict[str, dict]:
@@ -317,7 +312,14 @@ def write_outputs(
     out_dir.mkdir(parents=True, exist_ok=True)
     cells = summarize(records)
     paired = fig9_paired(records)
-    summary = dict(campaign=dict(campaign, trials=len(records)), cells=cells, fig9_paired=paired)
+    info = main_rrg_info(records)
+    cal = calibration(info) if info else None
+    summary = dict(
+        campaign=dict(campaign, trials=len(records)),
+        cells=cells,
+        fig9_paired=paired,
+        calibration=cal,
+    )
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=1))
     fig9_cells = any(
         s["delta"] != SEARCH.delta or s["horizon"] != SEARCH.horizon for s in cells.values()
@@ -330,7 +332,12 @@ def write_outputs(
         + failure_table(cells, objects, levels)
         + ("\n" + fig9_table(cells) if fig9_cells else "")
         + ("\n" + fig9_paired_table(paired) if paired else "")
+        + ("\n" + calibration_table(cal) if cal else "")
     )
+    if cal:
+        reliability_diagram(
+            cal, out_dir / "calibration.png", f"RRG-Info P(goal), {campaign['world']} world"
+        )
     titles = {
         "low": "Fig. 7: simulation, low uncertainty (1 cm, 1 cm, 3°)",
         "high": "Fig. 8: simulation, high uncertainty (5 cm, 5 cm, 30°)",

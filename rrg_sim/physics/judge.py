@@ -6,11 +6,16 @@ After a goal WRT has closed the hand, the grasp succeeds iff
   taken before lifting, lies inside the object's goal region (its tolerances); where the
   profile's calibration error puts the hand elsewhere than the robot measures, e_used is
   first moved with the hand (PhysicsWorld.hand_pose_error), so Δ is relative to the hand,
-* the observation shows at least ``goal.min_fingers`` fingers in contact, the hand touches
-  each of ``goal.required_contacts`` (the object parts, e.g. the drill's trigger, that the
-  fingers must reach) once it has closed, and
+* at least ``goal.min_fingers`` fingers truly touch the object once the hand has closed
+  (MuJoCo's contacts, not the sensors: a pad that missed does not fail a grasp, a pad that
+  fired falsely does not make one), the hand touches each of ``goal.required_contacts`` (the
+  object parts, e.g. the drill's trigger, that the fingers must reach), and
 * the object stays in the hand while the arm lifts it PHYSICS.lift_height and holds it
   PHYSICS.hold_time: still touching the hand and risen by at least HELD_FRACTION of the lift.
+
+The judge judges the truth only. What the robot's own sensors said of the grasp (the
+observation's fingers, ``info["sensed_fingers"]``) is the robot's business: its verification
+(rrg_sim.observation.verify_goal_grasp) may reject a grasp before it is ever judged.
 
 The strict test (``info["strict_success"]``) also asks the offset where a finger first
 touched the object, before the closing pulled it into the hand, to lie in the goal region's
@@ -48,7 +53,8 @@ def judge_grasp(
     made; the simulator node passes the one the executor node published).
 
     info: delta (Δ), in_region, touch_delta (Δ where a finger first touched), touch_in_region,
-    strict_success, fingers (in contact), fingers_ok (at least the goal's), required_ok,
+    strict_success, fingers (truly touching the object), sensed_fingers (with a sensor fired
+    in the observation), fingers_ok (at least the goal's, truly), required_ok,
     required (each required contact made), touching (finger → object parts touched before
     the lift), held, lift_feasible, lift_dz [m], slip [m] (object displacement in the hand
     frame during lift and hold), early_contact, w_true (object pose before lifting),
@@ -62,8 +68,8 @@ def judge_grasp(
     e_hand = compose_planar(hand_error, np.asarray(e_used, dtype=float))
     delta = relative_planar(e_hand, w_true)
     in_region = bool(obj.goal.contains(delta))
-    fingers = int(fingers_in_contact(obs.sensors))
     touching = world.touching()
+    fingers = sum(1 for f in (1, 2, 3) if touching.get(f))
     required = {rc.name: rc.met(touching) for rc in obj.goal.required_contacts}
     required_ok = all(required.values())
     touch_pose = (
@@ -95,6 +101,7 @@ def judge_grasp(
         touch_in_region=touch_in_region,
         strict_success=success and touch_in_region,
         fingers=fingers,
+        sensed_fingers=int(fingers_in_contact(obs.sensors)),
         fingers_ok=fingers_ok,
         required_ok=required_ok,
         required=required,

@@ -18,7 +18,7 @@ import numpy as np
 
 from rrg_sim.executor.wrt_executor import Reading
 
-from ..config import NOMINAL, PHYSICS, SENSING, SENSOR_NAMES, WorldProfile
+from ..config import N_SENSORS, NOMINAL, PHYSICS, SENSING, SENSOR_NAMES, WorldProfile
 from ..hand_sensing import fired_sensors, tip_contacts
 from .mjcf_robot import PAD_TOUCH, PALM_BODY, TIP_BODIES, TIP_FORCE, TIP_TORQUE
 
@@ -149,14 +149,26 @@ class HandSensors:
         """(10,) bool: the sensors that fire now (see _fired)."""
         return self._fired(*self.read())
 
-    def any_fired(self) -> bool:
-        """Whether any sensor fires now: ``fired().any()``, skipping the noisy reading while
-        every noise-free signal is more than QUIET_SIGMAS noise σ below its threshold."""
+    def fired_now(self) -> np.ndarray | None:
+        """(10,) bool: the sensors that fire now (``fired()``), or None when none can: the
+        noisy reading is skipped while every noise-free signal is more than QUIET_SIGMAS noise
+        σ below its threshold and no pad sample is held high."""
         s = self.data.sensordata
         f = s[self._force] - self._bias_force
         if s[self._pad].max() < self._quiet_pad and (f * f).sum(axis=1).max() < self._quiet_tip2:
-            return bool(self._pads(None).any())
-        return bool(self.fired().any())
+            pads = self._pads(None)
+            if not pads.any():
+                return None
+            out = np.zeros(N_SENSORS, dtype=bool)
+            out[:7] = pads
+            return out
+        return self.fired()
+
+    def pad_sample(self) -> int:
+        """The index (control period) of the pad sample held now: it changes when a fresh
+        sample arrives (every period in the nominal world, at 50 Hz in the realistic one)."""
+        k = self._period()
+        return k - k % self.pad_period
 
     def arm_collision(self, arm_dofs: np.ndarray) -> bool:
         """Whether the WAM's collision detection trips now: the external (contact) torque on

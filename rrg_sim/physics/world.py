@@ -33,7 +33,7 @@ from rrg_sim.executor.wrt_executor import Reading, WrtExecutor
 
 from .. import wam
 from ..config import HAND, NOMINAL, PHYSICS, WORLD, WORLD_PROFILES, WorldProfile
-from ..hand_sensing import CLOSE_START_TIME, FingerClosing
+from ..hand_sensing import CLOSE_START_TIME, FingerClosing, StopConfirmation
 from ..objects import ObjectModel, get_object
 from ..observation import Observation
 from ..wrt import WRT
@@ -61,6 +61,8 @@ class PhysicsWorld:
     object_name: a catalogue name (rrg_sim.objects). seed: seeds the sensor noise and the
     world profile's draws. sensor_noise: scale of every sensor's noise σ (1 = the profile's
     values, 0 = noiseless). profile: a config.WorldProfile or its name (config.WORLD_PROFILES).
+    confirm_stops: a guarded move stops on a lone pad only once the next pad sample agrees
+    (hand_sensing.StopConfirmation); off only to measure what the confirmation gains.
     """
 
     def __init__(
@@ -69,8 +71,12 @@ class PhysicsWorld:
         seed: int = 0,
         sensor_noise: float = 1.0,
         profile: WorldProfile | str = NOMINAL,
+        confirm_stops: bool = True,
     ):
         self.obj: ObjectModel = get_object(object_name)
+        self.confirm_stops = confirm_stops
+        #: lone pad trips that the next pad sample did not confirm, since the world was made
+        self.rejected_trips = 0
         self.profile = WORLD_PROFILES[profile] if isinstance(profile, str) else profile
         self.model = build_model(object_name)
         self.data = mujoco.MjData(self.model)
@@ -284,10 +290,12 @@ class PhysicsWorld:
         monitor: Callable[[], bool] | None = None,
     ) -> int | None:
         """Step through arm servo targets (N,7) and hand targets (N',4), each held past its end.
-        With ``guard``, stop at the first period any sensor fires or the arm's collision
-        detection trips (HandSensors.arm_collision): hold the arm where it is
-        and return that period's index; None when the motion completed. ``monitor`` is called
-        after every period; when it returns True the motion stops the same way (e.g. a cancel)."""
+        With ``guard``, stop at the first period a sensed contact is confirmed (a Nano17 or the
+        arm's collision detection, HandSensors.arm_collision, at once; a lone pad when the
+        next pad sample agrees: hand_sensing.StopConfirmation, unless ``confirm_stops`` is
+        off): hold the arm where it is and return that period's index; None when the motion
+        completed. ``monitor`` is called after every period; when it returns True the motion
+        stops the same way (e.g. a cancel)."""
         m, d = self.model, self.data
         n = len(arm) if hand is None else max(len(arm), len(hand))
         ctrl = np.repeat(d.ctrl[None], n, axis=0)
@@ -295,19 +303,25 @@ class PhysicsWorld:
         if hand is not None:
             ctrl[:, 7:] = hand[np.minimum(np.arange(n), len(hand) - 1)]
 
-        def fired() -> bool:  # a hand sensor, or the arm's collision detection (unsensed parts)
-            return self.sensors.any_fired() or self.sensors.arm_collision(self._arm_v)
+        trip = StopConfirmation(self.confirm_stops)
+
+        def tripped() -> bool:  # a hand sensor, or the arm's collision detection (unsensed parts)
+            s = self.sensors
+            return trip.update(s.fired_now(), s.arm_collision(self._arm_v), s.pad_sample())
 
         if guard:
             self.sensors.schedule_false_alarms(n)
 
-        for k in range(n):
-            d.ctrl[:] = ctrl[k]
-            mujoco.mj_step(m, d)
-            if (guard and fired()) or (monitor is not None and monitor()):
-                self.hold_arm()
-                return k
-        return None
+        try:
+            for k in range(n):
+                d.ctrl[:] = ctrl[k]
+                mujoco.mj_step(m, d)
+                if (guard and tripped()) or (monitor is not None and monitor()):
+                    self.hold_arm()
+                    return k
+            return None
+        finally:
+            self.rejected_trips += trip.rejected
 
     def hold(self, seconds: float) -> None:
         """Keep every servo target for ``seconds`` of simulated time."""
@@ -394,7 +408,7 @@ class PhysicsWorld:
             mujoco.mj_step(m, d)
             if monitor is not None:
                 monitor()
-            fired = self.sensors.fired() if self.sensors.any_fired() else None
+            fired = self.sensors.fired_now()
             for i in np.nonzero(closing.update(dt, d.qvel[self._finger_v], fired))[0]:
                 self.brake_finger(i)
                 target[i] = d.ctrl[8 + i]
