@@ -18,7 +18,9 @@ from rrg_sim.poses import wrap_angle
 
 @dataclass(frozen=True, eq=False)
 class Belief:
-    """grid: the support, in ``world``; weights: (N,) float64 over grid.points(), summing to 1.
+    """grid: the support, in ``world``; weights: (N,) float64 over grid.points(), summing to 1;
+    frame: the posture class whose readings made it ("" for the prior, a camera's; see
+    rrg_sim.posture_calibration): where the object is as the hand in that posture sees it.
 
     The constructor copies and normalizes the weights; it raises ValueError on a wrong
     shape, NaN/inf, negative weights or zero total mass.
@@ -26,6 +28,7 @@ class Belief:
 
     grid: Grid
     weights: np.ndarray
+    frame: str = ""
 
     def __post_init__(self) -> None:
         w = np.array(self.weights, dtype=np.float64).ravel()
@@ -64,8 +67,12 @@ class Belief:
         return cls.gaussian(Grid.for_level(level, center=mean), mean, level.sigma)
 
     def with_weights(self, weights: np.ndarray) -> Belief:
-        """A new Belief on the same grid (weights are normalized)."""
-        return Belief(self.grid, weights)
+        """A new Belief on the same grid and in the same frame (weights are normalized)."""
+        return Belief(self.grid, weights, self.frame)
+
+    def on_grid(self, grid: Grid, weights: np.ndarray) -> Belief:
+        """A new Belief on another grid, in the same frame (weights are normalized)."""
+        return Belief(grid, weights, self.frame)
 
     # ------------------------------------------------------------- statistics
     def as_grid_array(self) -> np.ndarray:

@@ -3,7 +3,10 @@ WRT's observation and carried through each retreat (design §3). The estimator n
 in-process closed loop (rrg_planner.closed_loop) both keep their belief here, so the sequence of
 updates exists once.
 
-An update is SE(b, τ(e), o): the Bayes update with the WRT's table at the belief's grid level,
+An update is SE(b, τ(e), o): first, where the WRT's posture sees the object from another frame
+than the belief's (rrg_sim.posture_calibration: the robot's calibration error differs between
+postures), the belief moves to the WRT's frame (transition.change_frame); then the Bayes update
+with the WRT's table at the belief's grid level,
 then, for a reorientation WRT whose grasp held the object, the commanded rotation about e. The
 belief after an update is the one the agent's stopping rule reads. When the hand retreats,
 ``retreated`` applies the retreat's transition: the belief is re-gridded finer once it has
@@ -25,12 +28,13 @@ from rrg_estimator.grid import Grid
 from rrg_sim.config import REORIENT_MIN_FINGERS
 from rrg_sim.objects import ObjectModel, get_object
 from rrg_sim.observation import Observation, holds_object
+from rrg_sim.posture_calibration import PostureCalibration
 from rrg_sim.wrt import WRT
 
 from .belief import Belief
 from .obs_model import TableLike, likelihood_params
 from .obs_tables import ObservationTable, load_or_build
-from .transition import reorient, settle
+from .transition import change_frame, reorient, settle
 from .update import update
 from .varres import maybe_refine
 
@@ -120,6 +124,7 @@ class BeliefTracker:
 
     tables: the WRTs and their tables (default: the object's own, from the disk cache).
     levels: the uncertainty levels a concentrated belief may be re-gridded to (variable resolution).
+    calibration: the frames of the object's WRTs (default: none, the nominal world's robot).
     """
 
     def __init__(
@@ -129,8 +134,10 @@ class BeliefTracker:
         tables: WrtTables | None = None,
         levels: Iterable[UncertaintyLevel] = LEVELS.values(),
         variable_resolution: bool = True,
+        calibration: PostureCalibration | None = None,
     ):
         self.obj = obj
+        self.calibration = calibration or PostureCalibration.none()
         self.belief = belief
         self.tables = tables if tables is not None else CachedTables(obj)
         self.levels = tuple(levels)
@@ -167,10 +174,18 @@ class BeliefTracker:
         KeyError for a WRT the object does not have and ValueError for an observation the belief
         cannot explain; the belief (and a pending retreat) is kept then."""
         wrt = self.tables.wrt(wrt_name)
-        prior = self._after_retreat()
+        prior = self.in_frame_of(self._after_retreat(), wrt_name)
         post = wrt_posterior(prior, self.tables.table(wrt_name, prior.grid), wrt, e, obs)
         self.belief, self.pending = post, (wrt, np.asarray(e, dtype=float), bool(obs.contact))
         return post
+
+    def in_frame_of(self, belief: Belief, wrt_name: str) -> Belief:
+        """``belief`` in the frame WRT ``wrt_name`` reads in (itself when it is already)."""
+        frame = self.calibration.reading_frame(wrt_name, belief.frame)
+        if belief.frame == frame:
+            return belief
+        log.info("belief moves from frame %r to %r", belief.frame, frame)
+        return change_frame(belief, self.calibration.sigma(belief.frame, frame), frame)
 
     def retreated(self) -> Belief:
         """The belief once the hand retreated from the last WRT: re-gridded finer if it has

@@ -77,6 +77,15 @@ def displace(a: np.ndarray, grid: Grid, shift, sigma) -> np.ndarray:
     return np.matmul(ky, out) @ kt.T
 
 
+def change_frame(belief: Belief, sigma, frame: str) -> Belief:
+    """The belief moved to another posture's frame (rrg_sim.posture_calibration): blurred by
+    the σ (x [m], y [m], θ [rad], world axes) of the offset between the two frames, which is
+    one fixed, unknown error of the robot's calibration. It is applied once per change, so
+    readings in one frame can sharpen the belief only down to that error, never below it."""
+    a = displace(belief.as_grid_array(), belief.grid, (0.0, 0.0, 0.0), sigma)
+    return Belief(belief.grid, a.ravel(), frame)
+
+
 def rotated_density(belief: Belief, grid: Grid, angle: float, center_xy=None) -> np.ndarray:
     """(N,) the belief's density after turning the object by ``angle`` [rad], sampled at the
     points of ``grid`` (trilinear interpolation; zero off the belief's grid).
@@ -138,7 +147,9 @@ def reorient(
     blur = (0.0, 0.0, params.reorient_sigma_theta)
     if outcome is None or e is None:
         w = sum(p * rotated_density(belief, grid, a, center_xy) for p, a in mix if p > 0.0)
-        return Belief(grid, displace(w.reshape(grid.shape), grid, (0.0, 0.0, 0.0), blur).ravel())
+        return belief.on_grid(
+            grid, displace(w.reshape(grid.shape), grid, (0.0, 0.0, 0.0), blur).ravel()
+        )
     w = sum(
         (p * rotated_density(belief, grid, a, center_xy) for p, a in mix[1:] if p > 0.0),
         np.zeros(grid.size),
@@ -156,7 +167,7 @@ def reorient(
     full = displace(rigid, grid, (0.0, 0.0, 0.0), blur) + displace(
         moved, grid, (0.0, 0.0, 0.0), sigma
     )
-    return Belief(grid, (w + p_full * full).ravel())
+    return belief.on_grid(grid, (w + p_full * full).ravel())
 
 
 def splat(grid: Grid, poses: np.ndarray, mass: np.ndarray) -> np.ndarray:

@@ -77,7 +77,7 @@ def _off_centre(belief: Belief) -> bool:
 def _regrid(belief: Belief, level: UncertaintyLevel, center: np.ndarray) -> Belief:
     center[2] = wrap_angle(center[2])
     fine = Grid.for_level(level, center)
-    return Belief(fine, sample_density(belief, fine.points()))
+    return belief.on_grid(fine, sample_density(belief, fine.points()))
 
 
 def maybe_refine(

@@ -154,11 +154,12 @@ class RobustGraspAgent:
         return None
 
     def grasp_probability(self, posterior: Belief, action: int, e: np.ndarray) -> float:
-        """For a goal WRT just executed at e: P_b(G) under the updated belief; NaN otherwise."""
-        act = self.model.actions[action]
-        if act.kind != "goal":
+        """For a goal WRT just executed at e: P_b(G) under the updated belief, valued from the
+        belief's frame (PlanningModel.goal_table); NaN otherwise."""
+        if self.model.actions[action].kind != "goal":
             return float("nan")
-        return goal_probability(posterior, act.goal[self.model.level_of(posterior.grid)], e)
+        level = self.model.level_of(posterior.grid)
+        return goal_probability(posterior, self.model.goal_table(action, level, posterior.frame), e)
 
     def verify_goal(self, action: int, obs: Observation) -> list[str]:
         """For a goal WRT just executed: what its own observation says is wrong with the grasp

@@ -295,8 +295,8 @@ def in_process_estimator(
     model: PlanningModel, level: UncertaintyLevel | str, mean, variable_resolution: bool = True
 ) -> BeliefTracker:
     """The estimator of an in-process run: the level's Gaussian belief about ``mean``, updated
-    with the planning model's own tables, re-gridded over the model's levels (when it has the
-    finest, ``low``)."""
+    with the planning model's own tables and frames, re-gridded over the model's levels (when
+    it has the finest, ``low``)."""
     level = LEVELS[level] if isinstance(level, str) else level
     return BeliefTracker(
         model.obj,
@@ -304,6 +304,7 @@ def in_process_estimator(
         tables=model,
         levels=model.levels.values(),
         variable_resolution=variable_resolution and "low" in model.levels,
+        calibration=model.calibration,
     )
 
 

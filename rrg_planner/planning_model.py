@@ -18,10 +18,11 @@ from rrg_estimator.obs_model import likelihood_params
 from rrg_estimator.obs_tables import ObservationTable, load_or_build
 from rrg_planner.clustering import ObservationClusters, cluster_table
 from rrg_planner.config import GOAL_AIM_FRACTION, GOAL_MIN_PROBABILITY
-from rrg_sim.config import REORIENT_MIN_FINGERS
+from rrg_sim.config import NOMINAL, REORIENT_MIN_FINGERS, WORLD_PROFILES, WorldProfile
 from rrg_sim.executor.wrt_executor import executed_poses
 from rrg_sim.objects import ObjectModel, get_object
 from rrg_sim.observation import holds_object
+from rrg_sim.posture_calibration import PostureCalibration
 from rrg_sim.wam_feasibility import FeasibilityMap
 from rrg_sim.wrt import WRT
 
@@ -49,6 +50,7 @@ def goal_weights(
     contact: np.ndarray,
     sensors: np.ndarray,
     cell: tuple[float, float, float] | np.ndarray | None = None,
+    start_sigma: np.ndarray | None = None,
 ) -> np.ndarray:
     """P(G | Δ) (N,) for a goal grasp executed relative to an estimate, the object really at
     offset delta (N,3): the grasp made (as in goal_holds), the object, moved by the
@@ -63,14 +65,22 @@ def goal_weights(
     then met on average over a uniform offset within the cell, taken as a Gaussian of
     variance g²/12 per axis added to the closing's spread. Without it, Δ is exact. On the
     high-uncertainty grid (1 cm, 0.1 rad against a 1 cm, 0.14 rad region) point values
-    claim a grasp holds for the whole cell where only its centre does."""
+    claim a grasp holds for the whole cell where only its centre does.
+
+    start_sigma: (3,) σ [m, m, rad] of an unknown offset of the grasp's start, added to the
+    spread in the same way: the calibration error between the frame the belief is held in and
+    the goal grasp's posture (rrg_sim.posture_calibration; world axes, taken as the
+    estimate's, whose θ is near 0 at the nominal pose)."""
     delta = np.asarray(delta, dtype=float)
     made = _grasp_made(obj, contact, sensors)
-    if cell is None:
+    spread2 = np.zeros(3)
+    if cell is not None:
+        spread2 = spread2 + np.asarray(cell, dtype=float) ** 2 / 12.0
+    if start_sigma is not None:
+        spread2 = spread2 + np.asarray(start_sigma, dtype=float) ** 2
+    if not spread2.any():
         p = (obj.goal.contains(delta) & made).astype(np.float64)
-        spread2 = np.zeros(3)
     else:
-        spread2 = np.asarray(cell, dtype=float) ** 2 / 12.0
         p = made * obj.goal.probability(delta, np.sqrt(spread2))
     settling = obj.grasp_settling
     if settling is not None:
@@ -85,12 +95,20 @@ def goal_weights(
     return p
 
 
-def goal_indicator(obj: ObjectModel, table: ObservationTable) -> np.ndarray:
-    """P(G | Δ) over the goal WRT's table offsets (the static evaluation's precomputed weights).
+def goal_indicator(
+    obj: ObjectModel, table: ObservationTable, start_sigma: np.ndarray | None = None
+) -> np.ndarray:
+    """P(G | Δ) over the goal WRT's table offsets (the static evaluation's precomputed weights),
+    for a belief held ``start_sigma`` away from the goal's frame (goal_weights; None: in it).
     The table's outermost entries stand for every offset beyond them (indices are clamped), so
     they get 0, except along a θ the goal ignores."""
     p = goal_weights(
-        obj, table.grid.points(), table.contact, table.sensors, cell=table.grid.spacing
+        obj,
+        table.grid.points(),
+        table.contact,
+        table.sensors,
+        cell=table.grid.spacing,
+        start_sigma=start_sigma,
     )
     shape = table.grid.shape
     edge = np.zeros(shape, dtype=bool)
@@ -121,8 +139,12 @@ class ActionModel:
     feasibility: FeasibilityMap
     tables: dict[str, ObservationTable] = field(default_factory=dict)
     clusters: dict[str, ObservationClusters] = field(default_factory=dict)
-    #: P(G | Δ) over the table offsets, per level (goal WRTs only)
+    #: P(G | Δ) over the table offsets, per level (goal WRTs only), for a belief in the goal's
+    #: own frame (rrg_sim.posture_calibration)
     goal: dict[str, np.ndarray] = field(default_factory=dict)
+    #: the same for a belief in another frame, by frame and level (a world with calibration
+    #: error only): the calibration's offset between the frames blurs it
+    goal_from: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     #: per level, the offset Δ_aim the grasp best meets (goal WRTs only; goal_aim on the finest
     #: level's table for all: on the 0.1 rad grid the teacup's fell on a half step, -0.05 rad,
     #: where the table index of every offset from it is a tie)
@@ -151,14 +173,21 @@ class PlanningModel:
         progress: bool = True,
         wrt_names: tuple[str, ...] | None = None,
         closures_as_predicted: bool = False,
+        world: WorldProfile | str = NOMINAL,
     ):
         """levels: level names from config.LEVELS, or UncertaintyLevel objects (e.g. small test
         grids).
         wrt_names: restrict the actions to these WRTs (default: all of the object's WRTs).
         closures_as_predicted: the world reads every WRT's closures exactly as the geometric
         model predicts (the GeometricEnvironment, where nothing moves), so even the goal
-        grasp's are used (WRT.closure_informative); physics and the robot drag the object."""
+        grasp's are used (WRT.closure_informative); physics and the robot drag the object.
+        world: the world profile (or its name) the robot acts in: its calibration error puts
+        the WRTs' readings in frames (rrg_sim.posture_calibration), and a goal grasp from a
+        belief in another frame than its own is valued with that error."""
         self.obj = get_object(object_name)
+        self.world = WORLD_PROFILES[world] if isinstance(world, str) else world
+        self.calibration = PostureCalibration.for_object(self.obj, self.world)
+        frames = sorted(set(self.calibration.frames.values()) | {""})
         resolved = [LEVELS[n] if isinstance(n, str) else n for n in levels]
         self.levels: dict[str, UncertaintyLevel] = {lv.name: lv for lv in resolved}
         wrts = [
@@ -177,6 +206,12 @@ class PlanningModel:
                 act.clusters[name] = cluster_table(table, level, params=likelihood_params(wrt))
                 if wrt.kind == "goal":
                     act.goal[name] = goal_indicator(self.obj, table)
+                    own = self.calibration.frame_of(wrt.name)
+                    for frame in frames:
+                        if self.calibration.distinct(frame, own):
+                            act.goal_from.setdefault(frame, {})[name] = goal_indicator(
+                                self.obj, table, self.calibration.sigma(frame, own)
+                            )
                 if wrt.kind == "reorient":
                     rep = act.clusters[name].representatives
                     act.turns[name] = holds_object(
@@ -196,13 +231,16 @@ class PlanningModel:
         self.goal_actions = [i for i, a in enumerate(self.actions) if a.kind == "goal"]
         if not self.goal_actions:
             raise ValueError(f"object {object_name!r} has no goal WRT")
-        #: per level, (3,) the largest |Δ| [m, m, rad] with P(G | Δ) > 0 for some goal WRT
+        #: per level, (3,) the largest |Δ| [m, m, rad] with P(G | Δ) > 0 for some goal WRT,
+        #: from a belief in any frame
         self.goal_reach: dict[str, np.ndarray] = {}
         for name in self.levels:
             offsets = np.concatenate(
                 [
-                    self.actions[g].tables[name].grid.points()[self.actions[g].goal[name] > 0]
+                    self.actions[g].tables[name].grid.points()[p > 0]
                     for g in self.goal_actions
+                    for p in [self.actions[g].goal[name]]
+                    + [t[name] for t in self.actions[g].goal_from.values()]
                 ]
             )
             self.goal_reach[name] = np.abs(offsets).max(axis=0) if len(offsets) else np.zeros(3)
@@ -217,6 +255,17 @@ class PlanningModel:
             if a.name == wrt_name:
                 return i
         raise KeyError(f"unknown WRT {wrt_name!r} for {self.obj.name}; valid: {self.names}")
+
+    def reading_frame(self, action: int, current: str) -> str:
+        """The frame a reading of ``action`` puts a belief held in ``current`` in
+        (rrg_sim.posture_calibration.PostureCalibration.reading_frame)."""
+        return self.calibration.reading_frame(self.actions[action].name, current)
+
+    def goal_table(self, action: int, level: str, frame: str) -> np.ndarray:
+        """P(G | Δ) over goal WRT ``action``'s table offsets at ``level``, for a belief held in
+        ``frame``: its own frame's, or the one blurred by the calibration between the two."""
+        act = self.actions[action]
+        return act.goal_from.get(frame, act.goal)[level]
 
     def level_of(self, grid: Grid) -> str:
         """The level whose table spacing matches a belief grid's spacing."""

@@ -22,9 +22,12 @@ The bump transition is left out of the search's posteriors (it blurs each contac
 by a few mm and costs a convolution per branch); the estimator applies it to the real
 belief. Reorientation's rotation is kept, because feasibility depends on it, and so is its
 spread in θ (three nodes per state), because it is what a turn costs in localization.
-A reorientation is valued only where half the belief (SearchParams.reorient_min_in_box)
-lies in its measured outcome's box about w*(b) (``turn_is_measured``): held from further
-off, the object turns unpredictably.
+A reading puts its posterior in its posture's frame (rrg_sim.posture_calibration), and a goal
+grasp is valued from the frame its belief is in (PlanningModel.goal_table); the blur that the
+estimator applies when a belief changes frame (rrg_estimator.transition.change_frame) is left
+out of the search's posteriors, as the bump is. A reorientation is valued only where half the
+belief (SearchParams.reorient_min_in_box) lies in its measured outcome's box about w*(b)
+(``turn_is_measured``): held from further off, the object turns unpredictably.
 """
 
 from __future__ import annotations
@@ -74,7 +77,8 @@ _BLAS = ThreadpoolController()
 
 @dataclass(eq=False)
 class SparseBelief:
-    """A belief restricted to its support: points (S,3) in world (x, y, θ), weights (S,) sum 1.
+    """A belief restricted to its support: points (S,3) in world (x, y, θ), weights (S,) sum 1,
+    held in ``frame`` (Belief.frame; a reading puts its posterior in the reading's frame).
 
     table_index caches, per point, the table entry of its offset from w*(b); moments the
     belief's weighted moment_features, per table entry (scatter_moments) or per point (set by
@@ -86,18 +90,24 @@ class SparseBelief:
     level: str
     table_index: np.ndarray | None = None
     moments: tuple | None = None
+    frame: str = ""
 
     @classmethod
     def compact(
-        cls, points: np.ndarray, weights: np.ndarray, level: str, params: SearchParams = SEARCH
+        cls,
+        points: np.ndarray,
+        weights: np.ndarray,
+        level: str,
+        params: SearchParams = SEARCH,
+        frame: str = "",
     ) -> SparseBelief:
         """Drop the points below support_rel of the max weight and renormalize."""
         keep = np.flatnonzero(weights >= params.support_rel * weights.max())
-        return cls(points[keep], weights[keep] / weights[keep].sum(), level)
+        return cls(points[keep], weights[keep] / weights[keep].sum(), level, frame=frame)
 
     @classmethod
     def from_belief(cls, belief: Belief, level: str, params: SearchParams = SEARCH) -> SparseBelief:
-        return cls.compact(belief.grid.points(), belief.weights, level, params)
+        return cls.compact(belief.grid.points(), belief.weights, level, params, belief.frame)
 
     @property
     def w_star(self) -> np.ndarray:
@@ -435,7 +445,7 @@ class ForwardSearch:
             else:
                 near = self._near_goal(sb.points, e, sb.level)
                 idx, w = table_index(sb.points[near], e, self._grid(sb.level)), sb.weights[near]
-            p = float(w @ self.model.actions[g].goal[sb.level][idx])
+            p = float(w @ self.model.goal_table(g, sb.level, sb.frame)[idx])
             if p > best[0]:
                 best = (p, g, e)
         return best
@@ -462,6 +472,7 @@ class ForwardSearch:
         act = self.model.actions[a]
         clusters = act.clusters[sb.level]
         e = sb.w_star
+        frame = self.model.reading_frame(a, sb.frame)  # the frame the posterior is held in
         idx = self._table_index(sb)
         cl = clusters.assign[idx]
         known = cl >= 0
@@ -492,9 +503,10 @@ class ForwardSearch:
                         act.wrt.reorient_outcome,
                     ),
                     sb.level,
+                    frame=frame,
                 )
             else:
-                child = SparseBelief.compact(sb.points, w, sb.level, self.params)
+                child = SparseBelief.compact(sb.points, w, sb.level, self.params, frame)
             branches.append((p, child))
         return branches
 
@@ -544,7 +556,7 @@ class ForwardSearch:
     def held_probability(self, child: SparseBelief, goal: int, e: np.ndarray) -> float:
         """P_b(G) of goal grasp ``goal`` just made at e, under its posterior ``child``."""
         idx = table_index(child.points, e, self._grid(child.level))
-        return float(child.weights @ self.model.actions[goal].goal[child.level][idx])
+        return float(child.weights @ self.model.goal_table(goal, child.level, child.frame)[idx])
 
     def _outcome_value(
         self, a: int, e: np.ndarray, child: SparseBelief, horizon: int, delta: float

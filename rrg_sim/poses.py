@@ -77,6 +77,17 @@ def compose_planar(e, d) -> np.ndarray:
     )
 
 
+def planar_map(measured: np.ndarray, true: np.ndarray) -> np.ndarray:
+    """(3,) the planar map (x [m], y [m], θ [rad], applied as compose_planar, i.e. about the
+    world origin) that takes the (4,4) pose ``measured`` to the pose ``true`` as seen from
+    above: the turn about z of true·measuredᵀ and the translation that goes with it."""
+    R = true[:3, :3] @ measured[:3, :3].T
+    yaw = float(np.arctan2(R[1, 0] - R[0, 1], R[0, 0] + R[1, 1]))
+    c, s = np.cos(yaw), np.sin(yaw)
+    t = true[:2, 3] - np.array([[c, -s], [s, c]]) @ measured[:2, 3]
+    return np.array([t[0], t[1], yaw])
+
+
 def raised(T: np.ndarray, dz: float) -> np.ndarray:
     """A copy of hand pose(s) T (…,4,4) moved up by dz [m] along the world's z."""
     up = np.array(T, dtype=float)

@@ -111,13 +111,15 @@ _MODELS: dict = {}
 _ENVS: dict = {}
 
 
-def _model(obj: str, level: str):
+def _model(obj: str, level: str, world: str):
+    """The planning model of a trial: the object's tables at the level's grids, and the world
+    profile's calibration frames (the planner knows the profile, never a trial's draw)."""
     from rrg_planner.planning_model import PlanningModel
 
-    key = (obj, model_levels(level))
+    key = (obj, model_levels(level), world)
     if key not in _MODELS:
         _MODELS[key] = PlanningModel(
-            obj, levels=key[1], workers=1, progress=False
+            obj, levels=key[1], workers=1, progress=False, world=world
         )  # no nested pools
     return _MODELS[key]
 
@@ -147,7 +149,7 @@ def _run_trial(spec: TrialSpec) -> dict:
     env = _env(cell.object, spec.world)
     env.reset(true, seed=spec.seed)
     agent = RobustGraspAgent(
-        _model(cell.object, cell.level),
+        _model(cell.object, cell.level, spec.world),
         strategy=cell.strategy,
         horizon=cell.horizon,
         delta=cell.delta,

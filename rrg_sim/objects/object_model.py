@@ -17,7 +17,7 @@ from rrg_sim.objects.primitives import Primitive, union_bounds
 from rrg_sim.poses import wrap_angle
 from rrg_sim.wrt import WRT, ReorientOutcome
 
-from .wrt_generation import info_wrts, sweep_wrt
+from .wrt_generation import goal_probe_wrt, info_wrts, sweep_wrt
 
 #: An object folder's measured grasp-settling fit (rrg_sim.physics.settle writes it).
 SETTLING_FILE = "settling.json"
@@ -306,8 +306,14 @@ class ObjectModel:
     @cached_property
     def info_wrts(self) -> tuple[WRT, ...]:
         """Information-gathering WRTs: generated from the primitives (pinches, then the sweep),
-        then the hand-designed ones."""
-        return info_wrts(self.parts) + (sweep_wrt(self.parts),) + self.designed_info_wrts
+        then the hand-designed ones, then for a side goal grasp its probe (goal_probe_wrt)."""
+        probe = goal_probe_wrt(self.goal_wrt)
+        return (
+            info_wrts(self.parts)
+            + (sweep_wrt(self.parts),)
+            + self.designed_info_wrts
+            + (() if probe is None else (probe,))
+        )
 
     @cached_property
     def _wrts(self) -> tuple[WRT, ...]:

@@ -16,6 +16,7 @@ Every first pose keeps ``APPROACH_CLEARANCE`` from the object's bounding box.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from functools import lru_cache
 
 import numpy as np
@@ -295,4 +296,30 @@ def sweep_wrt(parts: Sequence[Primitive]) -> WRT:
         description=f"horizontal sweep along -y, fingertips {100 * SWEEP_TIP_HEIGHT:.0f} cm "
         f"over the table, from y = {100 * y_start:+.0f} to {100 * y_end:+.0f} cm",
         meta={"sweep_reach": SWEEP_REACH},
+    )
+
+
+#: A goal grasp whose approach axis (hand z) points down by less than this cosine is a side
+#: grasp (chosen: 45°; the paper objects' side grasps are tilted 0.15 rad, their top-down
+#: grasps point straight down).
+SIDE_GRASP_COS = np.cos(np.pi / 4)
+
+
+def goal_probe_wrt(goal: WRT) -> WRT | None:
+    """For a side goal grasp, an information-gathering WRT in its own posture: the goal grasp's
+    path, closing carefully (each finger stops at its first touch) instead of firmly. Its
+    readings see the object from the posture the goal grasp will have, so the robot's
+    calibration error, which differs between a top-down posture and a side one, cancels
+    between them (rrg_sim.posture_calibration). None for a top-down goal grasp, whose
+    posture the top-down information grasps already share."""
+    approach = goal.poses[-1][:3, 2]
+    if -approach[2] >= SIDE_GRASP_COS:
+        return None
+    return replace(
+        goal,
+        name="goal_probe",
+        kind="info",
+        closure_informative=True,
+        description="the goal grasp's path, closing carefully: a reading in its posture",
+        meta={},
     )

@@ -36,6 +36,7 @@ from ..config import HAND, NOMINAL, PHYSICS, WORLD, WORLD_PROFILES, WorldProfile
 from ..hand_sensing import CLOSE_START_TIME, FingerClosing, StopConfirmation
 from ..objects import ObjectModel, get_object
 from ..observation import Observation
+from ..poses import planar_map
 from ..wrt import WRT
 from .mjcf_robot import (
     ARM_ACTUATORS,
@@ -230,12 +231,7 @@ class PhysicsWorld:
         """(3,) the planar map (x [m], y [m], θ [rad], applied as compose_planar) that takes
         where the robot measures its hand to where the hand truly is: identity unless the
         profile's calibration error moves the hand (ground truth, for evaluation only)."""
-        measured, true = self.hand_pose(), self.true_hand_pose()
-        R = true[:3, :3] @ measured[:3, :3].T
-        yaw = float(np.arctan2(R[1, 0] - R[0, 1], R[0, 0] + R[1, 1]))  # R's turn about z
-        c, s = np.cos(yaw), np.sin(yaw)
-        t = true[:2, 3] - np.array([[c, -s], [s, c]]) @ measured[:2, 3]
-        return np.array([t[0], t[1], yaw])
+        return planar_map(self.hand_pose(), self.true_hand_pose())
 
     def touching(self) -> dict[int, set[int]]:
         """The object parts (indices into obj.parts) each finger (1-3; 0: the palm) touches
