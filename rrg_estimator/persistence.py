@@ -27,7 +27,7 @@ from rrg_estimator.tracker import BeliefTracker, WrtTables
 from rrg_sim.objects import get_object
 
 #: Bumped when the stored fields change; a state of another format is refused.
-STATE_FORMAT = 1
+STATE_FORMAT = 2
 
 
 class StateError(ValueError):
@@ -90,6 +90,7 @@ def save_state(path: Path | str, state: EstimatorState) -> None:
         grid_spacing=np.asarray(grid.spacing, dtype=float),
         grid_shape=np.asarray(grid.shape, dtype=np.int64),
         weights=state.belief.weights,
+        posture_frame=np.str_(state.belief.frame),
         pending_wrt=np.str_(state.pending_wrt),
         pending_estimate=np.asarray(state.pending_estimate, dtype=float),
         pending_contact=np.bool_(state.pending_contact),
@@ -135,7 +136,7 @@ def load_state(path: Path | str) -> EstimatorState:
             )
             return EstimatorState(
                 str(z["object_name"]),
-                Belief(grid, z["weights"]),
+                Belief(grid, z["weights"], str(z["posture_frame"])),
                 str(z["pending_wrt"]),
                 np.array(z["pending_estimate"], dtype=float),
                 bool(z["pending_contact"]),

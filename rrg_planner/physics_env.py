@@ -21,10 +21,13 @@ class PhysicsEnvironment:
 
     @classmethod
     def for_object(
-        cls, object_name: str, seed: int = 0, profile: str = "nominal"
+        cls, object_name: str, seed: int = 0, profile: str = "nominal", confirm_stops: bool = True
     ) -> PhysicsEnvironment:
-        """A world of one object under a world profile (rrg_sim.config.WORLD_PROFILES)."""
-        return cls(PhysicsWorld(object_name, seed=seed, profile=profile))
+        """A world of one object under a world profile (rrg_sim.config.world_profile), its
+        guarded moves confirming their stops unless ``confirm_stops`` is off."""
+        return cls(
+            PhysicsWorld(object_name, seed=seed, profile=profile, confirm_stops=confirm_stops)
+        )
 
     def reset(self, true_pose, seed: int) -> None:
         """Start a trial: sensor noise reseeded and the profile's conditions drawn from

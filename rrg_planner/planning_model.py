@@ -18,7 +18,7 @@ from rrg_estimator.obs_model import likelihood_params
 from rrg_estimator.obs_tables import ObservationTable, load_or_build
 from rrg_planner.clustering import ObservationClusters, cluster_table
 from rrg_planner.config import GOAL_AIM_FRACTION, GOAL_MIN_PROBABILITY
-from rrg_sim.config import NOMINAL, REORIENT_MIN_FINGERS, WORLD_PROFILES, WorldProfile
+from rrg_sim.config import NOMINAL, REORIENT_MIN_FINGERS, WorldProfile, world_profile
 from rrg_sim.executor.wrt_executor import executed_poses
 from rrg_sim.objects import ObjectModel, get_object
 from rrg_sim.observation import holds_object
@@ -181,11 +181,11 @@ class PlanningModel:
         closures_as_predicted: the world reads every WRT's closures exactly as the geometric
         model predicts (the GeometricEnvironment, where nothing moves), so even the goal
         grasp's are used (WRT.closure_informative); physics and the robot drag the object.
-        world: the world profile (or its name) the robot acts in: its calibration error puts
-        the WRTs' readings in frames (rrg_sim.posture_calibration), and a goal grasp from a
-        belief in another frame than its own is valued with that error."""
+        world: the world profile (or its spec, config.world_profile) the robot acts in: its
+        calibration error puts the WRTs' readings in frames (rrg_sim.posture_calibration), and
+        a goal grasp from a belief in another frame than its own is valued with that error."""
         self.obj = get_object(object_name)
-        self.world = WORLD_PROFILES[world] if isinstance(world, str) else world
+        self.world = world_profile(world)
         self.calibration = PostureCalibration.for_object(self.obj, self.world)
         frames = sorted(set(self.calibration.frames.values()) | {""})
         resolved = [LEVELS[n] if isinstance(n, str) else n for n in levels]

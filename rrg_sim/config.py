@@ -18,7 +18,7 @@ reason where neither gives a number.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -466,6 +466,47 @@ REALISTIC = WorldProfile(
 
 #: The world profiles by name (``--world``).
 WORLD_PROFILES: dict[str, WorldProfile] = {p.name: p for p in (NOMINAL, REALISTIC)}
+
+#: The WorldProfile fields a profile spec may set (world_profile): the numbers whose
+#: sensitivity the results show.
+PROFILE_KNOBS = ("joint_offset_sigma", "pad_miss", "pad_false_alarm", "table_height_sigma")
+
+
+def world_profile(spec: str | WorldProfile) -> WorldProfile:
+    """The profile a spec names: a WORLD_PROFILES name, or one with some PROFILE_KNOBS set,
+    e.g. ``realistic:joint_offset_sigma=0.0025,pad_false_alarm=0.01`` (named by the spec).
+    ValueError, naming what is valid, for anything else."""
+    if isinstance(spec, WorldProfile):
+        return spec
+    base, _, knobs = spec.partition(":")
+    if base not in WORLD_PROFILES:
+        raise ValueError(f"unknown world profile {base!r}; valid: {sorted(WORLD_PROFILES)}")
+    values = {}
+    for item in filter(None, knobs.split(",")):
+        key, _, value = item.partition("=")
+        if key not in PROFILE_KNOBS:
+            raise ValueError(f"world profile {spec!r}: {key!r} is not one of {PROFILE_KNOBS}")
+        try:
+            values[key] = float(value)
+        except ValueError:
+            raise ValueError(
+                f"world profile {spec!r}: {key} needs a number, got {value!r}"
+            ) from None
+        if values[key] < 0:
+            raise ValueError(f"world profile {spec!r}: {key} must be >= 0")
+    return replace(WORLD_PROFILES[base], name=spec, **values) if values else WORLD_PROFILES[base]
+
+
+def world_spec(spec: str) -> str:
+    """``spec`` itself if it names a world profile (world_profile), for argparse's ``type``;
+    argparse.ArgumentTypeError with world_profile's reason otherwise."""
+    import argparse
+
+    try:
+        world_profile(spec)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return spec
 
 
 def as_array(t: tuple[float, ...]) -> np.ndarray:

@@ -76,6 +76,9 @@ class Observation:
     tip_normals: (3,3) unit contact normals in the hand frame; NaN rows where no contact.
     motion_dir: (3,) unit direction of the hand's motion in ``world`` when it stopped
         (the direction an object is bumped in; the transition model uses it).
+    unconfirmed_stops: lone pad trips of the WRT's guarded moves that the next pad sample did
+        not confirm, so the move went on (hand_sensing.StopConfirmation; not used by the
+        belief, reported for the log and the bag).
     """
 
     contact: bool
@@ -86,6 +89,7 @@ class Observation:
     tip_points: np.ndarray = field(default_factory=lambda: np.full((3, 3), np.nan))
     tip_normals: np.ndarray = field(default_factory=lambda: np.full((3, 3), np.nan))
     motion_dir: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    unconfirmed_stops: int = 0
 
     def __post_init__(self) -> None:
         self.sensors = np.asarray(self.sensors, dtype=bool).reshape(N_SENSORS)

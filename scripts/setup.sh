@@ -29,13 +29,13 @@ if [ ! -x "$VENV/bin/python" ]; then
 fi
 VPY="$VENV/bin/python"
 
-# Re-install only when pyproject.toml changed since the last successful install.
+# Re-install only when pyproject.toml or the pinned versions changed since the last install.
 STAMP="$VENV/.rrg-core-stamp"
-SUM="$(sha256sum "$ROOT/pyproject.toml" | cut -d' ' -f1)"
+SUM="$(cat "$ROOT/pyproject.toml" "$ROOT/scripts/constraints.txt" | sha256sum | cut -d' ' -f1)"
 if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$SUM" ]; then
-  log "installing Python dependencies and RRG (editable)"
+  log "installing Python dependencies (scripts/constraints.txt) and RRG (editable)"
   "$VPY" -m pip install -q --upgrade pip
-  "$VPY" -m pip install -q -e "$ROOT[test,ray]"
+  "$VPY" -m pip install -q -c "$ROOT/scripts/constraints.txt" -e "$ROOT[test,ray]"
   echo "$SUM" > "$STAMP"
 fi
 

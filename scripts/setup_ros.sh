@@ -59,7 +59,7 @@ PIP_SUM="$(printf '%s\n' "${ROS_PACKAGES[@]}" | sha256sum | cut -d' ' -f1)"
 if [ ! -f "$PIP_STAMP" ] || [ "$(cat "$PIP_STAMP")" != "$PIP_SUM" ]; then
   t0=$(date +%s)
   log "installing the ROS 2 Jazzy wheels and bag libraries"
-  "$VPY" -m pip install -q "${ROS_PACKAGES[@]}"
+  "$VPY" -m pip install -q -c "$ROOT/scripts/constraints.txt" "${ROS_PACKAGES[@]}"
   echo "$PIP_SUM" > "$PIP_STAMP"
   log "wheels installed in $(elapsed "$t0")"
 fi

@@ -262,13 +262,24 @@ def test_a_cell_key_names_its_cell_and_nothing_else():
     from rrg_planner.experiment.experiment_cli import campaign_specs
 
     specs = campaign_specs(
-        ["powerdrill", "cup"], ["low", "high"], ["open-loop", "rrg-goal", "rrg-info"], 1, 1, 0
+        ["powerdrill", "cup"],
+        ["low", "high"],
+        ["open-loop", "rrg-goal", "rrg-info"],
+        1,
+        1,
+        0,
+        ablate=("verify", "probe"),
     )
     cells = {s.cell for s in specs}
     assert (
         len(cells) > 12
         and any(c.horizon != 2 for c in cells)
         and any(c.delta != 0.1 for c in cells)
+    )
+    ablated = {c for c in cells if c.without}
+    assert len(ablated) == 8 and {c.without for c in ablated} == {("verify",), ("probe",)}
+    assert Cell("cup", "low", "rrg-info", without=("verify", "confirm")).key == (
+        "cup/low/rrg-info/without-confirm+verify"
     )
     for cell in cells:
         assert Cell.from_key(cell.key) == cell
@@ -278,6 +289,8 @@ def test_a_cell_key_names_its_cell_and_nothing_else():
         "powerdrill/high/rrg-info/d0.3/H1",
         "powerdrill/high/rrg-info/H2",
         "powerdrill/high/rrg-info/Q1",
+        "powerdrill/high/rrg-info/without-verify+confirm",
+        "powerdrill/high/rrg-info/without-wings",
     ):
         with pytest.raises(ValueError):
             Cell.from_key(bad)

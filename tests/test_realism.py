@@ -264,5 +264,23 @@ def test_confirmation_does_not_delay_a_stop_on_a_real_contact(case):
         world = PhysicsWorld(name, seed=3, profile=slow_pads, confirm_stops=confirm)
         _, _, stop = world.move_through(wrt.world_poses(world.true_object_pose()), guard=True)
         stops.append(stop)
-        assert world.rejected_trips == 0
+        assert world.unconfirmed_stops == 0
     assert stops[0] is not None and stops[0] == stops[1]
+
+
+def test_a_world_profile_spec_sets_the_numbers_whose_sensitivity_is_shown():
+    from rrg_sim.config import world_profile
+
+    assert world_profile("realistic") is REALISTIC and world_profile("nominal") is NOMINAL
+    p = world_profile("realistic:joint_offset_sigma=0.0025,pad_false_alarm=0.01")
+    assert p.name == "realistic:joint_offset_sigma=0.0025,pad_false_alarm=0.01"
+    assert p.joint_offset_sigma == 0.0025 and p.pad_false_alarm == 0.01
+    assert p.pad_miss == REALISTIC.pad_miss and p.friction_range == REALISTIC.friction_range
+    for bad, why in (
+        ("wobbly", "unknown world profile"),
+        ("realistic:friction_range=1", "is not one of"),
+        ("realistic:pad_miss=lots", "needs a number"),
+        ("realistic:pad_miss=-1", ">= 0"),
+    ):
+        with pytest.raises(ValueError, match=why):
+            world_profile(bad)

@@ -81,6 +81,7 @@ def belief_to_msg(
     msg.header.stamp, msg.header.frame_id = stamp, frame_id
     msg.weights = float64_array(belief.weights)
     msg.covariance = belief.cov().ravel()
+    msg.posture_frame = belief.frame
     return msg
 
 
@@ -97,7 +98,7 @@ def belief_from_msg(msg: BeliefGrid) -> Belief:
             f"belief has {weights.size} weights, its grid {grid.shape} needs {grid.size}"
         )
     try:
-        return Belief(grid, weights)
+        return Belief(grid, weights, msg.posture_frame)
     except ValueError as exc:
         raise InvalidBelief(str(exc)) from exc
 

@@ -43,7 +43,9 @@ from rrg_estimator.tracker import BeliefTracker, CachedTables
 from rrg_msgs.msg import BeliefGrid, Retreated
 from rrg_msgs.msg import Observation as ObservationMsg
 from rrg_msgs.srv import GetBelief, ResetBelief
+from rrg_sim.config import WORLD_PROFILES, world_profile
 from rrg_sim.objects import get_object
+from rrg_sim.posture_calibration import PostureCalibration
 from rrg_sim.ros_common.liveliness import announce
 from rrg_sim.ros_common.msg_conversions import (
     WORLD_FRAME,
@@ -95,6 +97,16 @@ class EstimatorNode(Node):
             ),
         )
         self.declare_parameter(
+            "world_profile",
+            "nominal",
+            ParameterDescriptor(
+                description="World profile the belief assumes the robot acts in "
+                f"(rrg_sim.config.world_profile: {', '.join(WORLD_PROFILES)}, …): its calibration "
+                "error puts readings in posture frames (rrg_sim.posture_calibration)",
+                read_only=True,
+            ),
+        )
+        self.declare_parameter(
             "state_file",
             "",
             ParameterDescriptor(
@@ -104,6 +116,7 @@ class EstimatorNode(Node):
             ),
         )
         self.frame_id = self.get_parameter("frame_id").value
+        self.world_profile = world_profile(self.get_parameter("world_profile").value)
         state_file = self.get_parameter("state_file").value
         self.state_file = Path(state_file) if state_file else None
         self.tracker: BeliefTracker | None = None
@@ -130,9 +143,11 @@ class EstimatorNode(Node):
         log = self.get_logger()
         try:
             state = load_state(self.state_file)
+            obj = get_object(state.object_name)
             tracker = state.tracker(
-                CachedTables(get_object(state.object_name), workers=1),
+                CachedTables(obj, workers=1),
                 variable_resolution=self.get_parameter("variable_resolution").value,
+                calibration=PostureCalibration.for_object(obj, self.world_profile),
             )
         except FileNotFoundError:
             return
@@ -292,6 +307,9 @@ class EstimatorNode(Node):
                     # process running DDS threads; tables are normally cached on disk)
                     tables=self.tracker.tables if same_object else CachedTables(obj, workers=1),
                     variable_resolution=self.get_parameter("variable_resolution").value,
+                    calibration=self.tracker.calibration
+                    if same_object
+                    else PostureCalibration.for_object(obj, self.world_profile),
                 )
             except KeyError as exc:
                 resp.error_code, resp.error_msg = (

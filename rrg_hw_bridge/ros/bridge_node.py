@@ -852,6 +852,8 @@ class BridgeNode(Node):
             handle.abort()
         elif move.code is None or move.code == R.NONE:
             result.stopped_on_contact = move.trip is not None
+            if move.guard is not None:
+                result.unconfirmed_stops = move.guard.confirmation.rejected
             if move.trip is not None:
                 self.get_logger().info(
                     f"guarded move stopped at {result.path_fraction:.2f} of its path: "

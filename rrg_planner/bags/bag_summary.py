@@ -38,6 +38,7 @@ class StepSummary:
     contact: bool | None = None  # None: no observation recorded (e.g. interrupted)
     sensors: list[str] = field(default_factory=list)
     progress_m: float | None = None
+    check: str = ""  # a goal grasp's: its P(goal), what it accounts for and what it rejected
 
 
 @dataclass
@@ -92,7 +93,14 @@ def summarize(bag: str | Path) -> GraspSummary:
                         r.planning_time,
                     )
                 )
-            else:
+            elif r.event == r.EVENT_GOAL_CHECKED:
+                if s.steps and s.steps[-1].step == r.step:
+                    s.steps[-1].check = (
+                        f"P(goal) = {r.p_goal:.3f} (belief {r.p_goal_belief:.3f} from posture "
+                        f"frame {r.posture_frame or 'prior'!r})"
+                        + (f", rejected: {'; '.join(r.mismatches)}" if r.mismatches else "")
+                    )
+            elif r.event == r.EVENT_DONE:
                 s.planner_outcome = dict(
                     success=r.success,
                     p_goal=r.final_p_goal,
@@ -144,6 +152,8 @@ def format_summary(s: GraspSummary) -> str:
                 f"        observation: contact = {'yes' if st.contact else 'no'}, "
                 f"progress = {st.progress_m:.3f} m, sensors = {st.sensors or 'none'}"
             )
+        if st.check:
+            lines.append(f"        goal check: {st.check}")
     lines.append("")
     lines += [f"Replanned: {r} (nothing moved)" for r in s.replanned]
     if s.planner_outcome:

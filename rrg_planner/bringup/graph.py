@@ -233,8 +233,10 @@ class Graph:
     ) -> None:
         """Start the recorder (if recording), the arm/hand interface and the executor, estimator
         and planner (the launch time counts from here). ``hw_params``: the bridge's parameters;
-        ``world_profile``: the simulator's (rrg_sim.config.WORLD_PROFILES); ``preload``: the
-        objects whose planning models the planner loads first (default: ``object_name``)."""
+        ``world_profile``: the simulator's (rrg_sim.config.WORLD_PROFILES), which the estimator
+        and the planner assume too (on hardware they assume "realistic": a real robot's
+        calibration error); ``preload``: the objects whose planning models the planner loads
+        first (default: ``object_name``)."""
         self.started = time.monotonic()
         if self.bag_dir is not None:
             self.spawn(
@@ -265,10 +267,12 @@ class Graph:
             shutil.rmtree(self.state_dir, ignore_errors=True)
             self.state_dir.mkdir(parents=True)
             state = {n: {"state_file": str(self.state_dir / f"{n}.state")} for n in NODES}
+        assumed = world_profile if self.simulated else "realistic"
         params = {
             "executor": {},
-            "estimator": {**state.get("estimator", {})},
+            "estimator": {"world_profile": assumed, **state.get("estimator", {})},
             "planner": {
+                "world_profile": assumed,
                 "levels": f"[{','.join(repr(lv) for lv in levels)}]",
                 "preload": f"[{','.join(repr(o) for o in preload or [object_name])}]",
                 **state.get("planner", {}),

@@ -65,7 +65,7 @@ from rrg_planner.bringup.graph import (
 )
 from rrg_planner.config import SEARCH
 from rrg_planner.requests import STRATEGIES
-from rrg_sim.config import WORLD_PROFILES
+from rrg_sim.config import WORLD_PROFILES, world_spec
 from rrg_sim.objects import PAPER_OBJECTS, object_names
 
 
@@ -188,9 +188,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--world",
-        choices=sorted(WORLD_PROFILES),
+        type=world_spec,
         default="nominal",
-        help="the simulated world's profile (rrg_sim.config.WORLD_PROFILES; sim mode only)",
+        help=f"the simulated world's profile ({', '.join(WORLD_PROFILES)}, or one with some "
+        "numbers set: rrg_sim.config.world_profile; sim mode only)",
     )
     p.add_argument("--bags", type=Path, default=ROOT / "bags", help="folder of the bags")
     p.add_argument("--bag-name", help="bag folder name (default: rrg_<object>_<time>)")

@@ -26,6 +26,7 @@ from rrg_planner.config import SEARCH
 from rrg_planner.experiment.provenance import DEV_SEED, campaign_seed, code_version
 from rrg_planner.experiment.report import write_outputs
 from rrg_planner.experiment.trials import (
+    CAPABILITIES,
     CampaignMismatch,
     Cell,
     TrialSpec,
@@ -33,7 +34,7 @@ from rrg_planner.experiment.trials import (
     run_trial,
 )
 from rrg_planner.requests import STRATEGIES
-from rrg_sim.config import WORLD_PROFILES
+from rrg_sim.config import PROFILE_KNOBS, WORLD_PROFILES, world_spec
 from rrg_sim.objects import PAPER_OBJECTS, object_names
 
 QUICK = dict(objects=["box"], levels=["low", "high"], trials=2, fig9_trials=0)
@@ -55,15 +56,24 @@ DEFAULT_OUT = {"nominal": Path("results/paper"), "realistic": Path("results/real
 
 
 def campaign_specs(
-    objects, levels, strategies, trials, fig9_trials, seed, world="nominal"
+    objects, levels, strategies, trials, fig9_trials, seed, world="nominal", ablate=()
 ) -> list[TrialSpec]:
     """Every trial of a campaign: the main cells, then Fig. 9's δ and horizon sweep on the
-    drill at high uncertainty (its cells that the main ones already hold are not repeated)."""
+    drill at high uncertainty (its cells that the main ones already hold are not repeated);
+    with ``ablate`` (capabilities, trials.CAPABILITIES), RRG-Info's main cells again with each
+    of them switched off in turn, on the same trials."""
     specs = [
         TrialSpec(Cell(o, lv, s), i, seed, world)
         for o in objects
         for lv in levels
         for s in strategies
+        for i in range(trials)
+    ]
+    specs += [
+        TrialSpec(Cell(o, lv, "rrg-info", without=(c,)), i, seed, world)
+        for c in ablate
+        for o in objects
+        for lv in levels
         for i in range(trials)
     ]
     if fig9_trials:
@@ -119,9 +129,17 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument(
         "--world",
-        choices=sorted(WORLD_PROFILES),
+        type=world_spec,
         default="nominal",
-        help="world profile (rrg_sim.config.WORLD_PROFILES)",
+        help=f"world profile: {', '.join(WORLD_PROFILES)}, or one with some of "
+        f"{', '.join(PROFILE_KNOBS)} set, e.g. realistic:joint_offset_sigma=0.0025 "
+        "(rrg_sim.config.world_profile)",
+    )
+    ap.add_argument(
+        "--ablate",
+        default="",
+        help="also run RRG-Info with each of these capabilities switched off in turn "
+        f"({','.join(CAPABILITIES)}, or all)",
     )
     ap.add_argument("--workers", type=int, default=2, help="worker processes (or Ray CPUs)")
     ap.add_argument(
@@ -172,8 +190,15 @@ def main(argv: list[str] | None = None) -> int:
     if bad:
         print(f"unknown objects/levels/strategies: {bad}", file=sys.stderr)
         return 2
+    if args.out is None and args.world not in DEFAULT_OUT:
+        ap.error(f"--world {args.world} needs --out")
+    ablate = CAPABILITIES if args.ablate == "all" else tuple(filter(None, args.ablate.split(",")))
+    if set(ablate) - set(CAPABILITIES):
+        ap.error(f"--ablate: unknown {sorted(set(ablate) - set(CAPABILITIES))}")
     out = args.out or DEFAULT_OUT[args.world]
-    specs = campaign_specs(objects, levels, strategies, trials, fig9_trials, seed, args.world)
+    specs = campaign_specs(
+        objects, levels, strategies, trials, fig9_trials, seed, args.world, ablate
+    )
     return run_and_report(
         specs,
         out,

@@ -33,24 +33,41 @@ from rrg_sim.poses import compose_planar
 log = logging.getLogger(__name__)
 
 
+#: The capabilities an ablation can switch off (Cell.without): the goal grasp's own check
+#: (RobustGraspAgent.verify), the guarded moves' stop confirmation (PhysicsWorld.confirm_stops),
+#: the posture frames of the planner's models (PlanningModel(world=...): off, they assume a
+#: robot without calibration error) and the goal probe (objects.wrt_generation.goal_probe_wrt).
+CAPABILITIES = ("verify", "confirm", "frames", "probe")
+
+
 @dataclass(frozen=True)
 class Cell:
-    """One experimental condition."""
+    """One experimental condition; ``without``: the CAPABILITIES switched off (sorted)."""
 
     object: str
     level: str
     strategy: str
     horizon: int = SEARCH.horizon
     delta: float = SEARCH.delta
+    without: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        unknown = set(self.without) - set(CAPABILITIES)
+        if unknown:
+            raise ValueError(f"unknown capabilities {sorted(unknown)}; valid: {CAPABILITIES}")
+        object.__setattr__(self, "without", tuple(sorted(set(self.without))))
 
     @property
     def key(self) -> str:
-        """e.g. 'powerdrill/high/rrg-info' (H and δ appended when not the defaults)."""
+        """e.g. 'powerdrill/high/rrg-info' (H and δ appended when not the defaults, then the
+        capabilities switched off, as in 'powerdrill/high/rrg-info/without-confirm+verify')."""
         k = f"{self.object}/{self.level}/{self.strategy}"
         if self.strategy == "rrg-info" and self.horizon != SEARCH.horizon:
             k += f"/H{self.horizon}"
         if self.delta != SEARCH.delta:
             k += f"/d{self.delta:g}"
+        if self.without:
+            k += "/without-" + "+".join(self.without)
         return k
 
     @classmethod
@@ -58,10 +75,14 @@ class Cell:
         """The cell a ``key`` names (its inverse); ValueError for anything else."""
         parts = key.split("/")
         if len(parts) < 3:
-            raise ValueError(f"cell key {key!r} is not object/level/strategy[/H<h>][/d<δ>]")
+            raise ValueError(
+                f"cell key {key!r} is not object/level/strategy[/H<h>][/d<δ>][/without-<a>+<b>]"
+            )
         kw = {}
         for part in parts[3:]:
-            if part[:1] == "H" and part[1:].isdigit():
+            if part.startswith("without-"):
+                kw["without"] = tuple(part[len("without-") :].split("+"))
+            elif part[:1] == "H" and part[1:].isdigit():
                 kw["horizon"] = int(part[1:])
             elif part[:1] == "d":
                 kw["delta"] = float(part[1:])  # ValueError if it is no number
@@ -111,25 +132,36 @@ _MODELS: dict = {}
 _ENVS: dict = {}
 
 
-def _model(obj: str, level: str, world: str):
+def _model(obj: str, level: str, world: str, without: tuple[str, ...] = ()):
     """The planning model of a trial: the object's tables at the level's grids, and the world
-    profile's calibration frames (the planner knows the profile, never a trial's draw)."""
+    profile's calibration frames (the planner knows the profile, never a trial's draw), less
+    the capabilities switched off."""
     from rrg_planner.planning_model import PlanningModel
+    from rrg_sim.objects import get_object
 
-    key = (obj, model_levels(level), world)
+    key = (obj, model_levels(level), world, without)
     if key not in _MODELS:
+        names = None
+        if "probe" in without:
+            names = tuple(w.name for w in get_object(obj).wrts() if w.name != "goal_probe")
         _MODELS[key] = PlanningModel(
-            obj, levels=key[1], workers=1, progress=False, world=world
-        )  # no nested pools
+            obj,
+            levels=key[1],
+            workers=1,  # no nested pools
+            progress=False,
+            world="nominal" if "frames" in without else world,
+            wrt_names=names,
+        )
     return _MODELS[key]
 
 
-def _env(obj: str, world: str):
+def _env(obj: str, world: str, confirm_stops: bool = True):
     from rrg_planner.physics_env import PhysicsEnvironment
 
-    if (obj, world) not in _ENVS:
-        _ENVS[obj, world] = PhysicsEnvironment.for_object(obj, profile=world)
-    return _ENVS[obj, world]
+    key = (obj, world, confirm_stops)
+    if key not in _ENVS:
+        _ENVS[key] = PhysicsEnvironment.for_object(obj, profile=world, confirm_stops=confirm_stops)
+    return _ENVS[key]
 
 
 def run_trial(spec: TrialSpec) -> dict:
@@ -146,13 +178,14 @@ def _run_trial(spec: TrialSpec) -> dict:
     cell = spec.cell
     t0 = time.perf_counter()
     true = spec.true_pose()
-    env = _env(cell.object, spec.world)
+    env = _env(cell.object, spec.world, "confirm" not in cell.without)
     env.reset(true, seed=spec.seed)
     agent = RobustGraspAgent(
-        _model(cell.object, cell.level, spec.world),
+        _model(cell.object, cell.level, spec.world, cell.without),
         strategy=cell.strategy,
         horizon=cell.horizon,
         delta=cell.delta,
+        verify="verify" not in cell.without,
     )
     try:
         res = run_in_process(agent, env, cell.level, WORLD.nominal_pose)

@@ -9,7 +9,7 @@ from std_msgs.msg import Header
 
 from rrg_msgs.action import RobustGrasp
 from rrg_msgs.msg import GraspStep
-from rrg_planner.closed_loop import Decision
+from rrg_planner.closed_loop import Decision, Step
 from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, planar_to_msg
 
 
@@ -66,6 +66,17 @@ def resumed_record(goal: RobustGrasp.Goal, actions: int, reason: str, stamp: Tim
     """A restarted planner goes on with the grasp after ``actions`` actions."""
     msg = _record(goal, GraspStep.EVENT_RESUMED, stamp)
     msg.step, msg.reason = actions, reason
+    return msg
+
+
+def goal_check_record(
+    goal: RobustGrasp.Goal, d: Decision, step: Step, frame: str, stamp: Time
+) -> GraspStep:
+    """A goal grasp closed: its P(goal), what the belief says before the grasp's own check,
+    the belief's posture frame and what the check found."""
+    msg = _with_decision(_record(goal, GraspStep.EVENT_GOAL_CHECKED, stamp), d)
+    msg.p_goal, msg.p_goal_belief = float(step.p_goal), float(step.p_goal_belief)
+    msg.posture_frame, msg.mismatches = frame, list(step.mismatches)
     return msg
 
 

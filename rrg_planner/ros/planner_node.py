@@ -63,11 +63,12 @@ from rrg_planner.ros.graph_client import GraphClient, GraphError
 from rrg_planner.ros.grasp_records import (
     decision_record,
     done_record,
+    goal_check_record,
     infeasible_record,
     interrupted_record,
     resumed_record,
 )
-from rrg_sim.config import WORLD
+from rrg_sim.config import WORLD, WORLD_PROFILES, world_profile
 from rrg_sim.ros_common.futures import WaitInterrupted, wait_for
 from rrg_sim.ros_common.liveliness import announce
 from rrg_sim.ros_common.msg_conversions import planar_to_msg
@@ -153,6 +154,16 @@ class PlannerNode(Node):
             ),
         )
         self.declare_parameter(
+            "world_profile",
+            "nominal",
+            ParameterDescriptor(
+                description="World profile the planner assumes the robot acts in "
+                f"(rrg_sim.config.world_profile: {', '.join(WORLD_PROFILES)}, …): its calibration "
+                "error values a goal grasp from a belief in another posture's frame",
+                read_only=True,
+            ),
+        )
+        self.declare_parameter(
             "state_file",
             "",
             ParameterDescriptor(
@@ -164,6 +175,7 @@ class PlannerNode(Node):
         state_file = self.get_parameter("state_file").value
         self.state_file = Path(state_file) if state_file else None
         self.levels = tuple(self.get_parameter("levels").value)
+        self.world_profile = world_profile(self.get_parameter("world_profile").value)
         unknown = [lv for lv in self.levels if lv not in LEVELS]
         if unknown:
             raise ValueError(f"unknown levels {unknown}; valid: {sorted(LEVELS)}")
@@ -215,7 +227,11 @@ class PlannerNode(Node):
                 # workers=1: forking a table-building pool from a process running DDS threads can
                 # deadlock; rrg-launch builds missing tables in parallel before it starts the nodes.
                 self._models[object_name] = PlanningModel(
-                    object_name, levels=self.levels, workers=1, progress=False
+                    object_name,
+                    levels=self.levels,
+                    workers=1,
+                    progress=False,
+                    world=self.world_profile,
                 )
                 self.get_logger().info(
                     f"model of {object_name} loaded in {time.monotonic() - t0:.1f} s: "
@@ -368,7 +384,10 @@ class PlannerNode(Node):
                     "restarted planner could not resume this grasp"
                 )
 
+        decisions: list[Decision] = []
+
         def on_decision(d: Decision) -> None:
+            decisions.append(d)
             handle.publish_feedback(
                 RobustGrasp.Feedback(
                     step=d.number,
@@ -398,6 +417,14 @@ class PlannerNode(Node):
         def on_step(step, belief) -> None:
             result.actions_taken.append(step.wrt)
             result.final_p_goal = step.p_goal
+            if step.kind == "goal":
+                d = decisions[-1]
+                self.step_pub.publish(goal_check_record(goal, d, step, belief.frame, self.now()))
+                self.get_logger().info(
+                    f"goal grasp {d.number} checked: P(goal) = {step.p_goal:.3f} (belief "
+                    f"{step.p_goal_belief:.3f} from frame {belief.frame or 'prior'!r}"
+                    + (f"; rejected: {'; '.join(step.mismatches)})" if step.mismatches else ")")
+                )
             save(loop)
 
         loop = ClosedLoop(

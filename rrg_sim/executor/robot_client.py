@@ -76,6 +76,8 @@ class RosRobot:
         #: the interface's liveliness: a wait for it ends with RobotFault as soon as it dies
         self.interface = PeerWatch(node, INTERFACE_PEER, callback_group, self._on_interface)
         self.interrupted: Callable[[], bool] = lambda: False
+        #: lone pad trips the interface did not confirm, summed over its guarded moves
+        self.unconfirmed_stops = 0
         self._lock = threading.Lock()
         self._joints: dict[str, float] = {}
         self._stamp = -1
@@ -166,6 +168,7 @@ class RosRobot:
         if res.error_code != GuardedMove.Result.NONE:
             raise MotionFailed(f"guarded_move failed ({res.error_code}): {res.error_msg}")
         self._sensed(res.final_joint_state, res.sensors, res.tip_contacts)
+        self.unconfirmed_stops += int(res.unconfirmed_stops)
         return res.path_fraction * (len(q) - 1) if res.stopped_on_contact else None
 
     def _hand(self, mode: int, spread: float, proximal) -> HandCommand.Response:

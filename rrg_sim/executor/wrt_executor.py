@@ -93,6 +93,11 @@ class Robot(Protocol):
     def reading(self) -> Reading:
         """The hand's sensors now."""
 
+    @property
+    def unconfirmed_stops(self) -> int:
+        """Lone pad trips of the guarded moves so far that the next pad sample did not
+        confirm (a running count)."""
+
 
 @dataclass
 class Execution:
@@ -268,7 +273,16 @@ class WrtExecutor:
             self._check_reorient(wrt, e, path)
         report("approach", PHASES["approach"])
         self.robot.move_hand(wrt.spread, wrt.preclose)  # preshape at home, clear of everything
+        unconfirmed = self.robot.unconfirmed_stops
         stop = self._follow(path, guard=True, speeds={k: FREE_SPEEDS for k in (0, -1, -2)})
+        unconfirmed = self.robot.unconfirmed_stops - unconfirmed
+        if unconfirmed:
+            log.info(
+                "%s: %d lone pad trip%s not confirmed by the next sample; the move went on",
+                wrt.name,
+                unconfirmed,
+                "s" * (unconfirmed != 1),
+            )
         index = stop if stop is not None else float(len(path.poses) - 1)
         at_stop = self.robot.reading()
         motion_dir = self._motion_dir(path, index, at_stop)
@@ -297,6 +311,7 @@ class WrtExecutor:
             tip_points=closed.tip_points,
             tip_normals=closed.tip_normals,
             motion_dir=motion_dir,
+            unconfirmed_stops=unconfirmed,
         )
         self.last = Execution(wrt, e, path.upto(int(np.floor(index))), obs, self.robot.arm_q())
         if wrt.kind == "reorient" and holds_object(obs.contact, obs.sensors, REORIENT_MIN_FINGERS):

@@ -7,9 +7,10 @@ After a goal WRT has closed the hand, the grasp succeeds iff
   profile's calibration error puts the hand elsewhere than the robot measures, e_used is
   first moved with the hand (PhysicsWorld.hand_pose_error), so Δ is relative to the hand,
 * at least ``goal.min_fingers`` fingers truly touch the object once the hand has closed
-  (MuJoCo's contacts, not the sensors: a pad that missed does not fail a grasp, a pad that
-  fired falsely does not make one), the hand touches each of ``goal.required_contacts`` (the
-  object parts, e.g. the drill's trigger, that the fingers must reach), and
+  (MuJoCo's contacts over TOUCH_WINDOW before the lift, not the sensors: a pad that missed
+  does not fail a grasp, a pad that fired falsely does not make one), the hand touches each
+  of ``goal.required_contacts`` (the object parts, e.g. the drill's trigger, that the
+  fingers must reach) in that window, and
 * the object stays in the hand while the arm lifts it PHYSICS.lift_height and holds it
   PHYSICS.hold_time: still touching the hand and risen by at least HELD_FRACTION of the lift.
 
@@ -40,6 +41,11 @@ from .world import PhysicsWorld
 #: grasp that lets it slide half-way out has failed).
 HELD_FRACTION = 0.5
 
+#: The closed hand is held this long [s] before the lift, and a finger touches what it touches
+#: at any period of it (chosen: 25 control periods; contacts of a finger closed on the object
+#: come and go between periods).
+TOUCH_WINDOW = 0.05
+
 
 def _object_in_hand_frame(world: PhysicsWorld) -> np.ndarray:
     return invert(world.true_hand_pose()) @ world.object_pose()
@@ -63,12 +69,12 @@ def judge_grasp(
     obs = world.last_observation if observation is None else observation
     if obs is None:
         raise RuntimeError("judge_grasp needs a WRT execution first")
+    touching = world.touching_while_held(TOUCH_WINDOW)
     w_true = world.true_object_pose()
     hand_error = world.hand_pose_error()
     e_hand = compose_planar(hand_error, np.asarray(e_used, dtype=float))
     delta = relative_planar(e_hand, w_true)
     in_region = bool(obj.goal.contains(delta))
-    touching = world.touching()
     fingers = sum(1 for f in (1, 2, 3) if touching.get(f))
     required = {rc.name: rc.met(touching) for rc in obj.goal.required_contacts}
     required_ok = all(required.values())

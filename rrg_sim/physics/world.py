@@ -32,7 +32,7 @@ from rrg_sim.executor.trajectory import (
 from rrg_sim.executor.wrt_executor import Reading, WrtExecutor
 
 from .. import wam
-from ..config import HAND, NOMINAL, PHYSICS, WORLD, WORLD_PROFILES, WorldProfile
+from ..config import HAND, NOMINAL, PHYSICS, WORLD, WorldProfile, world_profile
 from ..hand_sensing import CLOSE_START_TIME, FingerClosing, StopConfirmation
 from ..objects import ObjectModel, get_object
 from ..observation import Observation
@@ -61,7 +61,7 @@ class PhysicsWorld:
 
     object_name: a catalogue name (rrg_sim.objects). seed: seeds the sensor noise and the
     world profile's draws. sensor_noise: scale of every sensor's noise σ (1 = the profile's
-    values, 0 = noiseless). profile: a config.WorldProfile or its name (config.WORLD_PROFILES).
+    values, 0 = noiseless). profile: a config.WorldProfile or its spec (config.world_profile).
     confirm_stops: a guarded move stops on a lone pad only once the next pad sample agrees
     (hand_sensing.StopConfirmation); off only to measure what the confirmation gains.
     """
@@ -77,8 +77,9 @@ class PhysicsWorld:
         self.obj: ObjectModel = get_object(object_name)
         self.confirm_stops = confirm_stops
         #: lone pad trips that the next pad sample did not confirm, since the world was made
-        self.rejected_trips = 0
-        self.profile = WORLD_PROFILES[profile] if isinstance(profile, str) else profile
+        #: (the executor's Robot.unconfirmed_stops)
+        self.unconfirmed_stops = 0
+        self.profile = world_profile(profile)
         self.model = build_model(object_name)
         self.data = mujoco.MjData(self.model)
         self.rng = np.random.default_rng(seed)
@@ -244,6 +245,18 @@ class PhysicsWorld:
                     out.setdefault(int(finger), set()).add(int(part))
         return out
 
+    def touching_while_held(self, seconds: float) -> dict[int, set[int]]:
+        """``touching`` gathered over ``seconds`` of simulated time with every servo target
+        kept: a finger closed on the object touches it in most periods, but its contact comes
+        and goes between them (MuJoCo: a box pinched by three fingertips showed one, two or
+        three fingers in contact from one period to the next)."""
+        out: dict[int, set[int]] = {}
+        for _ in range(max(1, int(round(seconds / PHYSICS.timestep)))):
+            mujoco.mj_step(self.model, self.data)
+            for finger, parts in self.touching().items():
+                out.setdefault(finger, set()).update(parts)
+        return out
+
     def object_in_hand(self) -> bool:
         """True while any hand or arm geom touches the object."""
         n = self.data.ncon
@@ -317,7 +330,7 @@ class PhysicsWorld:
                     return k
             return None
         finally:
-            self.rejected_trips += trip.rejected
+            self.unconfirmed_stops += trip.rejected
 
     def hold(self, seconds: float) -> None:
         """Keep every servo target for ``seconds`` of simulated time."""

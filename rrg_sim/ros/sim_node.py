@@ -58,7 +58,7 @@ from rrg_sim.ros_common.msg_conversions import (
 from rrg_sim.ros_common.node_main import keep_serving, run_node
 
 from .. import wam
-from ..config import SENSING, WORLD_PROFILES
+from ..config import SENSING, WORLD_PROFILES, world_profile
 from ..physics.mjcf_robot import TIP_BODIES
 from ..physics.sensing import HandSensors
 from ..physics.world import PhysicsWorld, WorldsByObject
@@ -138,8 +138,7 @@ class SimNode(Node):
         self._lock = threading.Lock()
         self._move_active = False
         profile = self.get_parameter("world_profile").value
-        if profile not in WORLD_PROFILES:
-            raise ValueError(f"world_profile {profile!r} is not one of {sorted(WORLD_PROFILES)}")
+        world_profile(profile)  # ValueError for an unknown spec
         self._worlds = WorldsByObject(
             seed=self.get_parameter("seed").value,
             sensor_noise=self.get_parameter("sensor_noise").value,
@@ -309,9 +308,11 @@ class SimNode(Node):
                     )
 
                 interrupted = lambda: handle.is_cancel_requested or not self.context.ok()
+                unconfirmed = self.world.unconfirmed_stops
                 stop = self.world.follow(
                     q, t, guard=goal.stop_on_contact, monitor=self.monitor(interrupted, feedback)
                 )
+                result.unconfirmed_stops = self.world.unconfirmed_stops - unconfirmed
                 canceled = stop is not None and interrupted()
                 result.path_fraction = client_fraction(len(q) - 1.0 if stop is None else stop, n)
                 result.stopped_on_contact = stop is not None and not canceled

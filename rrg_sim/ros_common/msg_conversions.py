@@ -136,6 +136,7 @@ def observation_to_msg(
     msg.tip_points = [point_to_msg(p) if v else Point() for p, v in zip(obs.tip_points, valid)]
     msg.tip_normals = [vector_to_msg(n) if v else Vector3() for n, v in zip(obs.tip_normals, valid)]
     msg.motion_dir = vector_to_msg(obs.motion_dir)
+    msg.unconfirmed_stops = int(obs.unconfirmed_stops)
     return msg
 
 
@@ -158,4 +159,5 @@ def observation_from_msg(msg: ObservationMsg) -> Observation:
         tip_points=points,
         tip_normals=normals,
         motion_dir=xyz(msg.motion_dir),
+        unconfirmed_stops=int(msg.unconfirmed_stops),
     )
