@@ -48,9 +48,10 @@ def roundtrip(msg):
 @pytest.mark.parametrize("level", [HIGH, LOW])
 def test_belief_round_trip_is_exact(level):
     b = random_belief(3, level)
+    b = type(b)(b.grid, b.weights, "info1")  # held in a posture frame
     msg = roundtrip(belief_to_msg(b, Time(sec=12, nanosec=5)))
     back = belief_from_msg(msg)
-    assert back.grid == b.grid
+    assert back.grid == b.grid and back.frame == "info1" == msg.posture_frame
     np.testing.assert_array_equal(back.weights, b.weights)
     assert msg.header.frame_id == "world" and msg.header.stamp == Time(sec=12, nanosec=5)
     assert msg.metadata.update_time == msg.header.stamp
@@ -131,8 +132,10 @@ def test_observation_round_trip_keeps_nan_rows():
         tip_points=points,
         tip_normals=normals,
         motion_dir=[0.0, 0.6, -0.8],
+        unconfirmed_stops=2,
     )
     msg = roundtrip(observation_to_msg(obs, "powerdrill", "info2", [0.62, 0.01, -0.2], Time(sec=4)))
+    assert msg.unconfirmed_stops == 2 and observation_from_msg(msg).unconfirmed_stops == 2
     assert (msg.object_name, msg.wrt_name, list(msg.tip_valid)) == (
         "powerdrill",
         "info2",

@@ -222,9 +222,10 @@ def test_an_unknown_world_profile_is_a_usage_error():
 
 @pytest.mark.slow  # the launcher's node processes
 def test_the_graph_runs_a_judged_grasp_in_the_realistic_world(tmp_path, ros_domain):
-    """--world realistic reaches the simulator node: the grasp runs and is judged by the test
-    with required contacts, and the joint states it publishes are the encoders' readings,
-    which start at home whatever the trial's joint offsets."""
+    """--world realistic reaches the simulator node, the estimator and the planner: the grasp
+    runs and is judged by the test with required contacts, the joint states the simulator
+    publishes are the encoders' readings, which start at home whatever the trial's joint
+    offsets, and every goal grasp has its check on record, with the belief's posture frame."""
     args = launch_args(tmp_path, "realistic", ros_domain, "--world", "realistic", "--json")
     out = subprocess.run(
         args, env=ros_env(ros_domain), cwd=ROOT, capture_output=True, text=True, timeout=300
@@ -237,8 +238,19 @@ def test_the_graph_runs_a_judged_grasp_in_the_realistic_world(tmp_path, ros_doma
         conns = [c for c in reader.connections if c.topic == "/rrg/joint_states"]
         first = next(reader.messages(connections=conns))
         msg = reader.deserialize(first[2], first[0].msgtype)
+        conns = [c for c in reader.connections if c.topic == "/rrg/grasp_step"]
+        steps = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(conns)]
     arm = [msg.position[list(msg.name).index(n)] for n in ARM_JOINT_NAMES]
     assert arm == pytest.approx(wam.HOME_Q, abs=1e-4)  # the encoders read home
+    goals = [s.step for s in steps if s.event == 0 and s.wrt_kind == "goal"]  # EVENT_DECISION
+    checks = [s for s in steps if s.event == 5]  # EVENT_GOAL_CHECKED
+    assert goals and [c.step for c in checks] == goals
+    last = checks[-1]
+    assert last.p_goal == (0.0 if last.mismatches else last.p_goal_belief)
+    # the box's WRTs all share the goal's posture frame, and a goal grasp leaves the belief's
+    # frame as it was: the prior's, unless an information grasp ran first
+    read = any(s.event == 0 and s.wrt_kind != "goal" and s.step < last.step for s in steps)
+    assert last.posture_frame == ("goal" if read else "")
 
 
 @pytest.mark.slow  # the launcher's node processes and an in-process MuJoCo run
