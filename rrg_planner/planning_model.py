@@ -21,6 +21,7 @@ from rrg_planner.config import GOAL_AIM_FRACTION, GOAL_MIN_PROBABILITY
 from rrg_sim.config import NOMINAL, REORIENT_MIN_FINGERS, WorldProfile, world_profile
 from rrg_sim.executor.wrt_executor import executed_poses
 from rrg_sim.objects import ObjectModel, get_object
+from rrg_sim.objects.object_model import Settling
 from rrg_sim.observation import holds_object
 from rrg_sim.posture_calibration import PostureCalibration
 from rrg_sim.wam_feasibility import FeasibilityMap
@@ -51,6 +52,7 @@ def goal_weights(
     sensors: np.ndarray,
     cell: tuple[float, float, float] | np.ndarray | None = None,
     start_sigma: np.ndarray | None = None,
+    settling: Settling | None = None,
 ) -> np.ndarray:
     """P(G | Δ) (N,) for a goal grasp executed relative to an estimate, the object really at
     offset delta (N,3): the grasp made (as in goal_holds), the object, moved by the
@@ -70,7 +72,10 @@ def goal_weights(
     start_sigma: (3,) σ [m, m, rad] of an unknown offset of the grasp's start, added to the
     spread in the same way: the calibration error between the frame the belief is held in and
     the goal grasp's posture (rrg_sim.posture_calibration; world axes, taken as the
-    estimate's, whose θ is near 0 at the nominal pose)."""
+    estimate's, whose θ is near 0 at the nominal pose).
+
+    settling: the settling study to use (default: the object's, measured in the nominal world;
+    ObjectModel.settling_in gives another world's)."""
     delta = np.asarray(delta, dtype=float)
     made = _grasp_made(obj, contact, sensors)
     spread2 = np.zeros(3)
@@ -82,7 +87,7 @@ def goal_weights(
         p = (obj.goal.contains(delta) & made).astype(np.float64)
     else:
         p = made * obj.goal.probability(delta, np.sqrt(spread2))
-    settling = obj.grasp_settling
+    settling = obj.grasp_settling if settling is None else settling
     if settling is not None:
         near = np.flatnonzero(settling.inside(delta))
         mean, sigma = settling.outcome(delta[near], "closed")
@@ -96,7 +101,10 @@ def goal_weights(
 
 
 def goal_indicator(
-    obj: ObjectModel, table: ObservationTable, start_sigma: np.ndarray | None = None
+    obj: ObjectModel,
+    table: ObservationTable,
+    start_sigma: np.ndarray | None = None,
+    settling: Settling | None = None,
 ) -> np.ndarray:
     """P(G | Δ) over the goal WRT's table offsets (the static evaluation's precomputed weights),
     for a belief held ``start_sigma`` away from the goal's frame (goal_weights; None: in it).
@@ -109,6 +117,7 @@ def goal_indicator(
         table.sensors,
         cell=table.grid.spacing,
         start_sigma=start_sigma,
+        settling=settling,
     )
     shape = table.grid.shape
     edge = np.zeros(shape, dtype=bool)
@@ -188,6 +197,9 @@ class PlanningModel:
         self.world = world_profile(world)
         self.calibration = PostureCalibration.for_object(self.obj, self.world)
         frames = sorted(set(self.calibration.frames.values()) | {""})
+        #: the goal grasp's settling and hold, as measured in this world (the nominal world's
+        #: where its own study is missing)
+        settling = self.obj.settling_in(self.world.name)
         resolved = [LEVELS[n] if isinstance(n, str) else n for n in levels]
         self.levels: dict[str, UncertaintyLevel] = {lv.name: lv for lv in resolved}
         wrts = [
@@ -205,12 +217,12 @@ class PlanningModel:
                 act.tables[name] = table
                 act.clusters[name] = cluster_table(table, level, params=likelihood_params(wrt))
                 if wrt.kind == "goal":
-                    act.goal[name] = goal_indicator(self.obj, table)
+                    act.goal[name] = goal_indicator(self.obj, table, settling=settling)
                     own = self.calibration.frame_of(wrt.name)
                     for frame in frames:
                         if self.calibration.distinct(frame, own):
                             act.goal_from.setdefault(frame, {})[name] = goal_indicator(
-                                self.obj, table, self.calibration.sigma(frame, own)
+                                self.obj, table, self.calibration.sigma(frame, own), settling
                             )
                 if wrt.kind == "reorient":
                     rep = act.clusters[name].representatives

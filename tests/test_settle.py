@@ -41,6 +41,27 @@ def test_every_object_has_a_committed_settling_fit(name):
     assert (get_object(name).settling is None) == (not get_object(name).track_settling)
 
 
+@pytest.mark.parametrize("name", PAPER_OBJECTS)
+def test_every_object_has_a_realistic_settling_study_that_the_realistic_planner_reads(name):
+    """The study measured in the realistic world (settle --world realistic) is committed, and
+    a profile spec of that world reads it; the nominal world keeps its own."""
+    from rrg_sim.objects.object_model import settling_file
+
+    obj = get_object(name)
+    assert settling_file("realistic") == "settling.realistic.json"
+    s = obj.settling_in("realistic")
+    assert s is not None and "--world realistic" in s.source and s is not obj.grasp_settling
+    assert obj.settling_in("realistic:joint_offset_sigma=0.0025") is s
+    assert obj.settling_in("nominal") is obj.grasp_settling
+
+
+def test_a_missing_realistic_study_falls_back_to_the_nominal_one(tmp_path, monkeypatch):
+    import dataclasses
+
+    box = dataclasses.replace(get_object("box"), folder=tmp_path)  # a folder without studies
+    assert box.settling_in("realistic") is None is box.grasp_settling
+
+
 def test_a_firm_goal_grasp_moves_the_belief_and_an_early_contact_does_not():
     obj = get_object("powerdrill")  # its grasp turns a centred drill by about -0.03 rad
     e = np.array([0.62, 0.0, 0.0])

@@ -21,6 +21,14 @@ from .wrt_generation import goal_probe_wrt, info_wrts, sweep_wrt
 
 #: An object folder's measured grasp-settling fit (rrg_sim.physics.settle writes it).
 SETTLING_FILE = "settling.json"
+
+
+def settling_file(profile: str = "nominal") -> str:
+    """The file of the settling study measured in world ``profile`` (the nominal world's is
+    SETTLING_FILE; another's, e.g. settling.realistic.json)."""
+    return SETTLING_FILE if profile == "nominal" else f"settling.{profile}.json"
+
+
 #: An object folder's measured reorientation outcomes (rrg_sim.physics.reorient_study).
 REORIENTATION_FILE = "reorientation.json"
 #: Half-width [rad] of the θ range of start offsets the settling study samples, at most
@@ -336,6 +344,25 @@ class ObjectModel:
         return load_settling(
             path, bandwidth=SETTLING_KERNEL_BANDWIDTH * np.asarray(self.goal.tol, dtype=float)
         )
+
+    @cached_property
+    def _settling_by_profile(self) -> dict[str, Settling]:
+        """The settling studies of other world profiles, loaded on first use."""
+        return {}
+
+    def settling_in(self, profile: str) -> Settling | None:
+        """How the firm goal grasp moves the object and holds it in world ``profile`` (a
+        profile spec's base name, config.world_profile): its own study where one was measured
+        (settling_file), else the nominal world's."""
+        base = profile.partition(":")[0]
+        path = self._artefact(settling_file(base))
+        if base == "nominal" or path is None or not path.exists():
+            return self.grasp_settling
+        if base not in self._settling_by_profile:
+            self._settling_by_profile[base] = load_settling(
+                path, bandwidth=SETTLING_KERNEL_BANDWIDTH * np.asarray(self.goal.tol, dtype=float)
+            )
+        return self._settling_by_profile[base]
 
     def _artefact(self, filename: str) -> Path | None:
         """Where the object's measured ``filename`` lives (None: the object has no folder)."""

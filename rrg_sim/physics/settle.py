@@ -16,7 +16,13 @@ the result is the object's ``objects.Settling`` model.
 
 ``python -m rrg_sim.physics.settle [objects…] [--grasps N] [--workers W]`` measures and
 writes each object's ``settling.json`` into its folder (rrg_sim.objects.catalogue), where
-the object loads it.
+the object loads it. ``--world realistic`` measures in that world profile instead, each grasp
+with a trial's draws of its own (friction, centre of mass, table height, pads, the joint
+offsets' vertical error), and writes ``settling.realistic.json`` (settling_file), which the
+planner's goal model reads in that world (ObjectModel.settling_in). The offsets are then
+taken from where the hand truly is at the grasp (PhysicsWorld.hand_pose_error, as the judge
+takes them): the planar calibration error between postures is the posture frames' to model
+(rrg_sim.posture_calibration), not the study's.
 """
 
 from __future__ import annotations
@@ -35,9 +41,9 @@ import numpy as np
 from tqdm import tqdm
 
 from rrg_sim.executor.trajectory import InfeasiblePath
-from rrg_sim.objects.object_model import SETTLING_FILE, SETTLING_THETA_BOX
+from rrg_sim.objects.object_model import SETTLING_THETA_BOX, settling_file
 
-from ..config import WORLD
+from ..config import WORLD, WORLD_PROFILES
 from ..objects import PAPER_OBJECTS, get_object, object_folders
 from ..observation import fingers_in_contact
 from ..poses import compose_planar, relative_planar, wrap_angle
@@ -58,28 +64,34 @@ def start_box(object_name: str) -> np.ndarray:
     return np.array([BOX_TOLERANCES * goal.tol[0], BOX_TOLERANCES * goal.tol[1], theta])
 
 
-def measure(object_name: str, grasps: int, seed: int = 0) -> list[dict]:
-    """Run the goal WRT from ``grasps`` seeded starts; one record per start (see module doc)."""
-    world = PhysicsWorld(object_name, seed=seed)
+def measure(object_name: str, grasps: int, seed: int = 0, profile: str = "nominal") -> list[dict]:
+    """Run the goal WRT from ``grasps`` seeded starts in world ``profile``; one record per
+    start (see module doc)."""
+    world = PhysicsWorld(object_name, seed=seed, profile=profile)
     rng = np.random.default_rng(seed)
     e = np.asarray(WORLD.nominal_pose, dtype=float)
     box = start_box(object_name)
     records = []
-    for delta in rng.uniform(-1.0, 1.0, (grasps, 3)) * box:
-        world.reset(compose_planar(e, delta))
+    for i, delta in enumerate(rng.uniform(-1.0, 1.0, (grasps, 3)) * box):
+        if world.profile.name != "nominal":  # a trial's draws of its own for every grasp
+            world.reseed(int(np.random.SeedSequence([seed, i]).generate_state(1)[0]))
+        w = compose_planar(e, delta)
+        world.reset(w)
         try:
             obs = world.execute_wrt(world.obj.goal_wrt, e)
         except InfeasiblePath:
             continue
-        closed = relative_planar(e, world.true_object_pose())
+        e_hand = compose_planar(world.hand_pose_error(), e)  # e itself in the nominal world
+        start = relative_planar(e_hand, w)
+        closed = relative_planar(e_hand, world.true_object_pose())
         state = copy.copy(world.data)
         _, judged = judge_grasp(world, world.obj, e, obs)
         mujoco.mj_copyData(world.data, world.model, state)  # back to the closed hand
         world.retreat()
-        after = relative_planar(e, world.true_object_pose())
+        after = relative_planar(e_hand, world.true_object_pose())
         records.append(
             dict(
-                start=delta.tolist(),
+                start=start.tolist(),
                 closed=closed.tolist(),
                 retreated=after.tolist(),
                 contact=bool(obs.contact),
@@ -147,9 +159,9 @@ def _dumps(fits: dict) -> str:
     )
 
 
-def _measure_job(args: tuple[str, int, int]) -> tuple[str, list[dict]]:
-    name, grasps, seed = args
-    return name, measure(name, grasps, seed)
+def _measure_job(args: tuple[str, int, int, str]) -> tuple[str, list[dict]]:
+    name, grasps, seed, profile = args
+    return name, measure(name, grasps, seed, profile)
 
 
 def run_study(
@@ -164,14 +176,15 @@ def run_study(
     desc: str,
     source: str,
     out_dir: Path | None = None,
+    extra: tuple = (),
 ) -> None:
-    """Measure ``objects`` in parallel (measure_job((name, count, seed)) → (name, records)), fit
-    each (fit_fn(name, records)), print report(name, fit, records), and write each fit with
-    its ``source`` to ``filename`` in the object's folder (or in out_dir/<name>/). Shared by
-    this study and physics.reorient_study."""
+    """Measure ``objects`` in parallel (measure_job((name, count, seed, *extra)) → (name,
+    records)), fit each (fit_fn(name, records)), print report(name, fit, records), and write
+    each fit with its ``source`` to ``filename`` in the object's folder (or in
+    out_dir/<name>/). Shared by this study and physics.reorient_study."""
     folders = object_folders()
     t0 = time.perf_counter()
-    jobs = [(name, count, seed) for name in objects]
+    jobs = [(name, count, seed, *extra) for name in objects]
     with mp.get_context("fork").Pool(workers) as pool:
         for name, records in tqdm(
             pool.imap_unordered(measure_job, jobs), total=len(jobs), desc=desc
@@ -201,8 +214,10 @@ def study_args(
     count: str,
     count_default: int,
     count_help: str,
+    worlds: tuple[str, ...] = (),
 ) -> argparse.Namespace:
-    """The command line of a study: objects, --<count>, --seed, --workers, --out-dir."""
+    """The command line of a study: objects, --<count>, --seed, --workers, --out-dir, and
+    --world when ``worlds`` names the profiles it can run in."""
     parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     parser.add_argument(
         "objects", nargs="*", default=objects, help="objects (default: %(default)s)"
@@ -215,32 +230,49 @@ def study_args(
         type=Path,
         help="write <out-dir>/<object>/<fit file> (default: into each object's folder)",
     )
+    if worlds:
+        parser.add_argument("--world", choices=worlds, default="nominal", help="world profile")
     return parser.parse_args(argv)
 
 
 def study(
-    objects: list[str], grasps: int, seed: int = 0, workers: int = 2, out_dir: Path | None = None
+    objects: list[str],
+    grasps: int,
+    seed: int = 0,
+    workers: int = 2,
+    out_dir: Path | None = None,
+    profile: str = "nominal",
 ) -> None:
-    """Measure and write each object's settling fit (``SETTLING_FILE`` in its folder)."""
+    """Measure and write each object's settling fit (settling_file(profile) in its folder)."""
     run_study(
         objects,
         grasps,
         seed,
         workers,
-        SETTLING_FILE,
+        settling_file(profile),
         _measure_job,
         fit,
         _report,
         "settling",
-        f"python -m rrg_sim.physics.settle --grasps {grasps} --seed {seed} "
-        "(MuJoCo, goal WRT at the nominal pose)",
+        f"python -m rrg_sim.physics.settle --grasps {grasps} --seed {seed}"
+        + ("" if profile == "nominal" else f" --world {profile}")
+        + " (MuJoCo, goal WRT at the nominal pose)",
         out_dir,
+        extra=(profile,),
     )
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = study_args(argv, __doc__, list(PAPER_OBJECTS), "grasps", 60, "goal grasps per object")
-    study(args.objects, args.grasps, args.seed, args.workers, args.out_dir)
+    args = study_args(
+        argv,
+        __doc__,
+        list(PAPER_OBJECTS),
+        "grasps",
+        60,
+        "goal grasps per object",
+        worlds=tuple(WORLD_PROFILES),
+    )
+    study(args.objects, args.grasps, args.seed, args.workers, args.out_dir, args.world)
 
 
 if __name__ == "__main__":
