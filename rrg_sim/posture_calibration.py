@@ -35,7 +35,7 @@ from .config import WORLD, WorldProfile
 from .executor.trajectory import InfeasiblePath
 from .executor.wrt_executor import wrt_path
 from .objects import ObjectModel
-from .poses import compose_planar, planar_map, relative_planar
+from .poses import compose_planar, planar_map, relative_planar, wrap_angle
 
 #: Two postures whose offset's σ is within this (x [m], y [m], θ [rad]) share a frame (chosen:
 #: a fifth of the tightest goal tolerance, 1 cm and 0.14 rad; the top-down grasps of the ten
@@ -75,7 +75,7 @@ def seen_offset_jacobian(q: np.ndarray, w: np.ndarray) -> np.ndarray:
             seen.append(relative_planar(c, np.zeros(3)))  # c⁻¹
         a, b = (compose_planar(s, w) for s in seen)
         d = a - b
-        d[2] = (d[2] + np.pi) % (2 * np.pi) - np.pi
+        d[2] = wrap_angle(d[2])
         K[:, k] = d / (2 * JACOBIAN_STEP)
     return K
 

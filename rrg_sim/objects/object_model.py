@@ -339,8 +339,11 @@ class ObjectModel:
     def grasp_settling(self) -> Settling | None:
         """How the firm goal grasp moves the object (measured), or None if not measured."""
         path = self._artefact(SETTLING_FILE)
-        if path is None:
-            return None
+        return None if path is None else self._load_settling(path)
+
+    def _load_settling(self, path: Path) -> Settling | None:
+        """A settling study of this object's goal grasp (load_settling, with its kernel
+        bandwidth of SETTLING_KERNEL_BANDWIDTH goal tolerances)."""
         return load_settling(
             path, bandwidth=SETTLING_KERNEL_BANDWIDTH * np.asarray(self.goal.tol, dtype=float)
         )
@@ -359,9 +362,7 @@ class ObjectModel:
         if base == "nominal" or path is None or not path.exists():
             return self.grasp_settling
         if base not in self._settling_by_profile:
-            self._settling_by_profile[base] = load_settling(
-                path, bandwidth=SETTLING_KERNEL_BANDWIDTH * np.asarray(self.goal.tol, dtype=float)
-            )
+            self._settling_by_profile[base] = self._load_settling(path)
         return self._settling_by_profile[base]
 
     def _artefact(self, filename: str) -> Path | None:
