@@ -358,3 +358,43 @@ def test_fig9_pairs_h2_with_h1_by_trial_with_a_bootstrap_interval():
     # unpaired trials are left out
     records.append(dict(records[-1], trial=99))
     assert fig9_paired(records)["0.3"]["pairs"] == 10
+
+
+def test_calibration_counts_declared_grasps_bins_and_leaves_out_other_cells():
+    """P(goal) against the verdicts of hand-made records: the declared share that succeeded,
+    the Brier score, failures observed against predicted per bin; Fig. 9's and the ablation's
+    cells are not main cells."""
+    from rrg_planner.experiment.calibration import calibration, main_rrg_info
+
+    def rec(obj, p, declared, success, **cell):
+        base = dict(strategy="rrg-info", horizon=2, delta=0.1, without=[])
+        return dict(
+            base,
+            **cell,
+            object=obj,
+            p_goal=p,
+            declared=declared,
+            success=success,
+            judge={"in_region": success},
+        )
+
+    records = [
+        rec("box", 0.95, True, True),
+        rec("box", 0.95, True, False),
+        rec("cup", 0.99, True, True),
+        rec("cup", 0.2, False, False),
+        rec("cup", float("nan"), False, False) | {"judge": {}},  # no goal grasp ran
+        rec("box", 0.95, True, False, delta=0.3),  # Fig. 9
+        rec("box", 0.95, True, False, without=["verify"]),  # an ablation cell
+    ]
+    main = main_rrg_info(records)
+    assert len(main) == 5
+    cal = calibration(main)
+    assert cal["declared"]["n"] == 3 and cal["declared"]["k"] == 2
+    assert cal["undeclared_share"] == pytest.approx(2 / 5)
+    p, ok = np.array([0.95, 0.95, 0.99, 0.2]), np.array([1, 0, 1, 0])
+    assert cal["brier"] == pytest.approx(np.mean((p - ok) ** 2))
+    bins = {(b["lo"], b["hi"]): b for b in cal["bins"]}
+    assert bins[0.95, 0.99]["observed_failures"] == 1
+    assert bins[0.95, 0.99]["predicted_failures"] == pytest.approx(0.1)
+    assert cal["objects"]["box"]["declared"]["k"] == 1 and cal["objects"]["cup"]["undeclared"] == 2

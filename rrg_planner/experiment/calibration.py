@@ -39,13 +39,15 @@ def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
 
 
 def main_rrg_info(records: list[dict]) -> list[dict]:
-    """The RRG-Info records of the main cells (H and δ the defaults, not Fig. 9's sweep)."""
+    """The RRG-Info records of the main cells (H and δ the defaults, not Fig. 9's sweep, and
+    every capability on, not an ablation's cell)."""
     return [
         r
         for r in records
         if r["strategy"] == "rrg-info"
         and r["horizon"] == SEARCH.horizon
         and r["delta"] == SEARCH.delta
+        and not r.get("without")
     ]
 
 
