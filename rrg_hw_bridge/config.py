@@ -40,6 +40,13 @@ class BridgeParams:
     #: Extra time [s] the controller may take past the trajectory's end (JTC's
     #: goal_time_tolerance; the notes: "goal_time 0 means wait forever, so set it").
     goal_time_tolerance: float = 1.0
+    #: A controller that has not ended a canceled goal after this long [s] gets a hold and the
+    #: robot is declared faulty until reset (chosen: a JTC or wam_node cancel takes effect
+    #: within a control period, 2 ms; a WAM at the guarded speed has stopped in ~ 0.05 s) ...
+    cancel_escalation: float = 0.5
+    #: ... the hold: a one-point trajectory to the measured configuration this long [s] ahead
+    #: (chosen: a few of JTC's control periods, so the interpolation is a stop, not a jump).
+    hold_time: float = 0.05
     #: Largest uniform slow-down [×] the bridge applies to a trajectory over the arm's velocity
     #: or acceleration limits before it refuses it instead (chosen: the executor's transits run
     #: J5-J7 at up to 2× Barrett's 1.5 rad/s, and one powerdrill retreat reaches 18.8× the

@@ -47,8 +47,9 @@ class FakeNetFtBox:
 
     ``wrench_source()`` returns the load on the sensor now, (6,) [N, N m]. The box answers
     START_REALTIME by streaming records at ``rate_hz`` to the requester's address (count 0 =
-    forever, N = N records), STOP, SET_SOFTWARE_BIAS (stores the current raw counts and
-    subtracts them from then on) and RESET_THRESHOLD_LATCH (clears the status word);
+    forever, N = N records), STOP, SET_SOFTWARE_BIAS (stores the current raw counts, the
+    ``zero_offset`` included, and subtracts them from the records generated after it) and
+    RESET_THRESHOLD_LATCH (clears the status word);
     START_BUFFERED and malformed requests are ignored. rdt_sequence restarts at 1 with every
     START and counts every record generated, also those dropped or silenced, so a loss shows as
     a gap; ft_sequence counts internal samples at ``rate_hz`` since the box was created.
@@ -65,6 +66,7 @@ class FakeNetFtBox:
         noise_n: float = 0.0,
         noise_nm: float = 0.0,
         seed: int = 0,
+        zero_offset=(0.0,) * 6,
     ):
         if rate_hz <= 0:
             raise ValueError(f"rate_hz must be positive, got {rate_hz}")
@@ -77,6 +79,9 @@ class FakeNetFtBox:
             [calibration.counts_per_force] * 3 + [calibration.counts_per_torque] * 3
         )
         self._noise = np.array([noise_n] * 3 + [noise_nm] * 3, dtype=float)
+        #: What the sensor reads unloaded [N, N m] until a bias removes it (a strain gauge's
+        #: zero drifts with temperature and mounting; ATI's manual: bias before use).
+        self.zero_offset = np.asarray(zero_offset, dtype=float).reshape(6)
         self._rng = np.random.default_rng(seed)
         self._lock = threading.Lock()
         # stream state (box thread)
@@ -178,7 +183,7 @@ class FakeNetFtBox:
     # -------------------------------------------------------------- box thread
     def _raw_counts(self) -> np.ndarray:
         """(6,) int64 readings [counts] of the load now, noise included, before the bias."""
-        w = np.asarray(self.wrench_source(), dtype=float)
+        w = np.asarray(self.wrench_source(), dtype=float) + self.zero_offset
         if self._noise.any():
             w = w + self._rng.normal(size=6) * self._noise
         return np.rint(w * self._per_unit).astype(np.int64)

@@ -22,9 +22,12 @@ segment), the worst joint (or point) there, its value and the limit, with units.
 from __future__ import annotations
 
 import threading
-from collections.abc import Iterable
+import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from enum import IntEnum
+from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
@@ -46,6 +49,7 @@ WORKSPACE_POINTS = (
     "wrist centre",
 )
 _AXES = ("x", "y", "z")
+T = TypeVar("T")
 
 
 class SafetyCode(IntEnum):
@@ -263,6 +267,54 @@ def check_trajectory(q, t, limits: ArmLimits) -> Refusal | None:
     )
 
 
+#: A recovery move (a measured joint outside its limits, moved back toward them) runs at most
+#: at this fraction of the velocity limits (chosen: 10 %, a crawl an operator can watch) ...
+RECOVERY_SPEED_FRACTION = 0.1
+#: ... and every joint inside its limits stays within this of where it is [rad] (chosen).
+RECOVERY_STILL_TOL = 1e-3
+
+
+def limit_excess(q, limits: ArmLimits) -> np.ndarray:
+    """(...,7) how far each joint of q [rad] is past its nearer limit (0 inside) [rad]."""
+    q = np.asarray(q, dtype=float)
+    return np.maximum(np.maximum(limits.lower - q, q - limits.upper), 0.0)
+
+
+def check_recovery(q, t, limits: ArmLimits) -> Refusal | None:
+    """None when via-points q (M,7) [rad] at times t (M,) [s], from a measured q[0] with joints
+    outside their limits, only bring those joints back toward their limits, slowly: each one
+    never farther outside than at the via-point before, no joint faster than
+    RECOVERY_SPEED_FRACTION of its velocity limit, every other joint still
+    (RECOVERY_STILL_TOL), the accelerations and the workspace box kept; otherwise the
+    JOINT_LIMITS refusal that says why. The move may end inside the limits."""
+    refusal = check_shape(q, t, limits)
+    if refusal is not None:
+        return refusal
+    q, t = np.asarray(q, dtype=float), np.asarray(t, dtype=float)
+    excess = limit_excess(q, limits)
+    outside = excess[0] > POSITION_TOL
+    names = lambda mask: ", ".join(n for n, m in zip(limits.joint_names, mask) if m)
+    refuse = lambda msg: Refusal(SafetyCode.JOINT_LIMITS, "joint_limits", f"recovery: {msg}")
+    if not outside.any():
+        return refuse("no measured joint is outside its limits")
+    moved = np.abs(q - q[0]).max(axis=0) > RECOVERY_STILL_TOL
+    if (moved & ~outside).any():
+        return refuse(f"only {names(outside)} may move, not {names(moved & ~outside)}")
+    farther = np.diff(excess[:, outside], axis=0) > POSITION_TOL
+    if farther.any():
+        k = int(np.nonzero(farther.any(axis=1))[0][0]) + 1
+        return refuse(f"via-point {k} takes {names(outside)} farther outside its limits")
+    speed = np.abs(segment_velocities(q, t)) / (RECOVERY_SPEED_FRACTION * limits.max_velocity)
+    if speed.max() > 1.0 + RATE_REL_TOL:
+        k, j = np.unravel_index(int(np.argmax(speed)), speed.shape)
+        share, cap = 100 * RECOVERY_SPEED_FRACTION * speed[k, j], 100 * RECOVERY_SPEED_FRACTION
+        return refuse(
+            f"segment {k}: {limits.joint_names[j]} at {share:.0f} % of its velocity limit, over "
+            f"the {cap:.0f} % a recovery may use"
+        )
+    return check_accelerations(q, t, limits) or check_workspace(q, limits)
+
+
 def scale_time(t, speed_scale: float) -> np.ndarray:
     """Via-point times t [s] stretched by the speed-scaling cap speed_scale in (0, 1]: t /
     speed_scale (velocities scale by speed_scale, accelerations by its square)."""
@@ -349,6 +401,11 @@ class Watchdog:
                 raise KeyError(f"unknown stream {stream!r}; watched: {', '.join(self.streams)}")
             self._last[stream] = max(self._last[stream], float(now_s))
 
+    def newest(self, stream: str) -> float:
+        """Monotonic time [s] of ``stream``'s newest sample (-inf when never fed)."""
+        with self._lock:
+            return self._last[stream]
+
     def age(self, stream: str, now_s: float) -> float:
         """Seconds since ``stream``'s newest sample (inf when never fed)."""
         with self._lock:
@@ -363,34 +420,125 @@ class Watchdog:
 
 # ------------------------------------------------------------------ E-stop
 class EStop:
-    """Latched E-stop: an engaged message latches it; it stays engaged, whatever later
-    messages say, until ``reset``, which is refused while the last message said engaged.
-    Starts released. Thread-safe."""
+    """Fail-safe latched E-stop. Thread-safe.
 
-    def __init__(self) -> None:
-        self._engaged = False
-        self._message_engaged = False
+    It starts latched ("not armed"): only ``reset`` arms it. An engaged message latches it; it
+    stays latched, whatever later messages say, until ``reset``, which is refused while the
+    last message said engaged, or while the heartbeat is silent. With ``heartbeat_timeout_s``
+    > 0 the E-stop topic is a deadman: no message for that long latches it. With
+    ``latch_file``, a latch by a message or the heartbeat is written there and survives a
+    restart (a new EStop over that file starts latched for that reason, and only ``reset``
+    removes the file). ``run_if_released`` runs a command under the latch's lock, so an
+    engaged message either comes before it (the command is not run) or after it (the command
+    went out first and is stopped by the caller).
+    """
+
+    NOT_ARMED = "not armed: reset the E-stop to arm the bridge"
+    #: A latch's reason starts so when the bridge latched it for a robot fault.
+    ROBOT_FAULT = "robot fault: "
+
+    def __init__(
+        self,
+        heartbeat_timeout_s: float = 0.0,
+        latch_file: str | Path | None = None,
+        now_s: float = 0.0,
+    ) -> None:
+        if not (np.isfinite(heartbeat_timeout_s) and heartbeat_timeout_s >= 0.0):
+            raise ValueError(f"heartbeat_timeout_s must be >= 0, got {heartbeat_timeout_s!r}")
+        self.heartbeat_timeout_s = float(heartbeat_timeout_s)
+        self.latch_file = Path(latch_file).expanduser() if latch_file else None
         self._lock = threading.Lock()
+        self._engaged = True
+        self._reason = self.NOT_ARMED
+        self._message_engaged = False
+        self._last_message_s = float(now_s)  # the heartbeat's grace starts at construction
+        self.latched_s = -np.inf  # monotonic time of the newest latch by a message or silence
+        if self.latch_file is not None and self.latch_file.exists():
+            text = self.latch_file.read_text(encoding="utf-8", errors="replace").strip()
+            text = text or "no reason recorded"
+            self._reason = f"latched before this start ({text}): {self.NOT_ARMED}"
 
-    def on_message(self, engaged: bool) -> None:
-        """An E-stop topic message (True: engaged)."""
+    # ------------------------------------------------------------------ inputs
+    def on_message(self, engaged: bool, now_s: float = 0.0) -> bool:
+        """An E-stop topic message (True: engaged) at now_s [s, monotonic]; True when this
+        message latched a released E-stop."""
         with self._lock:
             self._message_engaged = bool(engaged)
+            self._last_message_s = max(self._last_message_s, float(now_s))
             if engaged:
-                self._engaged = True
+                return self._latch("the E-stop topic said engaged", now_s)
+            return False
 
+    def check_heartbeat(self, now_s: float) -> bool:
+        """Latch when the topic has been silent longer than the heartbeat timeout; True when
+        this call latched it."""
+        if self.heartbeat_timeout_s <= 0.0:
+            return False
+        with self._lock:
+            silent = now_s - self._last_message_s
+            if silent > self.heartbeat_timeout_s:
+                return self._latch(f"no E-stop heartbeat for {silent:.2f} s", now_s)
+            return False
+
+    def latch_fault(self, what: str, now_s: float) -> bool:
+        """Latch for a robot fault (``what`` for people; e.g. a controller that ignored a
+        cancel); only ``reset`` clears it. True when this call latched it."""
+        with self._lock:
+            was = self._engaged
+            self._engaged = False  # the fault's reason replaces any other
+            self._latch(self.ROBOT_FAULT + what, now_s)
+            return not was
+
+    def _latch(self, reason: str, now_s: float) -> bool:
+        was = self._engaged
+        self._engaged, self.latched_s = True, float(now_s)
+        if not was or self._reason == self.NOT_ARMED or self._reason.startswith("latched before"):
+            self._reason = reason
+        if self.latch_file is not None:
+            try:
+                self.latch_file.parent.mkdir(parents=True, exist_ok=True)
+                self.latch_file.write_text(f"{reason}, {time.strftime('%Y-%m-%d %H:%M:%S')}\n")
+            except OSError:
+                pass  # the latch itself holds; the file only carries it over a restart
+        return not was
+
+    # ------------------------------------------------------------------ state
     @property
     def engaged(self) -> bool:
-        """True while latched."""
+        """True while latched (also before the first reset: not armed)."""
         with self._lock:
             return self._engaged
 
-    def reset(self) -> tuple[bool, str]:
-        """Release the latch → (done, message for people)."""
+    @property
+    def reason(self) -> str:
+        """Why it is latched ("" when armed)."""
+        with self._lock:
+            return self._reason if self._engaged else ""
+
+    def run_if_released(self, command: Callable[[], T]) -> tuple[bool, T | None]:
+        """(True, command()) when the E-stop is released, run under its lock so that no
+        message latches it meanwhile; (False, None) when it is latched."""
+        with self._lock:
+            if self._engaged:
+                return False, None
+            return True, command()
+
+    def reset(self, now_s: float = 0.0) -> tuple[bool, str]:
+        """Release the latch (arm) → (done, message for people)."""
         with self._lock:
             if self._message_engaged:
                 return False, "the E-stop topic still says engaged: release the E-stop first"
+            silent = now_s - self._last_message_s
+            if self.heartbeat_timeout_s > 0.0 and silent > self.heartbeat_timeout_s:
+                return False, (
+                    f"no E-stop heartbeat for {silent:.2f} s: start the E-stop's publisher first"
+                )
             if not self._engaged:
                 return True, "the E-stop was not engaged"
-            self._engaged = False
+            self._engaged, self._reason = False, ""
+            if self.latch_file is not None:
+                try:
+                    self.latch_file.unlink(missing_ok=True)
+                except OSError as exc:
+                    return True, f"armed, but the latch file stays: {exc}"
             return True, "E-stop released: commands are accepted again"

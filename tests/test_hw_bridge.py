@@ -22,6 +22,7 @@ import pytest
 from action_msgs.msg import GoalStatus
 from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import WrenchStamped
 from rcl_interfaces.srv import SetParameters
 from rclpy.action import ActionClient
 from rclpy.parameter import Parameter
@@ -62,6 +63,8 @@ WAIT = 15.0
 #: cancels a running move within 50 ms.
 SILENCE_HOLD_S = 0.150
 ESTOP_CANCEL_S = 0.050
+#: Every emulated Net F/T box's unloaded reading [N, N m] until bridge/bias removes it.
+TIP_ZERO_OFFSET = (3.0, -1.0, 2.0, 0.0, 0.0, 0.0)
 
 
 def fmt_list(values) -> str:
@@ -75,8 +78,19 @@ class Rig:
     def __init__(self, env: dict, domain_id: int, log_dir: Path):
         self.env, self.log_dir = env, log_dir
         hosts = fmt_list(rdt_addresses(domain_id))
-        self.fake_params = {"object_name": "box", "seed": 0, "rdt_hosts": hosts}
-        self.bridge_params = {"rdt_hosts": hosts, "retime": "false"}
+        self.fake_params = {
+            "object_name": "box",
+            "seed": 0,
+            "rdt_hosts": hosts,
+            "tip_zero_offset": fmt_list(TIP_ZERO_OFFSET),
+        }
+        self.latch_file = log_dir / "estop.latched"
+        self.bridge_params = {
+            "rdt_hosts": hosts,
+            "retime": "false",
+            "arm_on_start": "true",
+            "estop_latch_file": str(self.latch_file),
+        }
         self.procs: dict[str, object] = {}
         self.bridge_runs = 0
         self.client = RosClient(env, "hw_bridge_test")
@@ -97,7 +111,10 @@ class Rig:
         self.params = n.create_client(SetParameters, "/fake_hw/set_parameters")
         self.reset_sim = n.create_client(ResetSim, "/rrg/reset_sim")
         self.estop_pub = n.create_publisher(Bool, "/rrg/estop", 10)
-        self.seen: dict[str, list] = {k: [] for k in ("events", "safety", "plan", "status", "js")}
+        self.bias = n.create_client(Trigger, "/rrg/bridge/bias")
+        self.seen: dict[str, list] = {
+            k: [] for k in ("events", "safety", "plan", "status", "js", "tip1")
+        }
 
         def keep(key: str, limit: int = 2000):
             def store(msg) -> None:
@@ -111,12 +128,14 @@ class Rig:
         n.create_subscription(JointTrajectory, "/rrg/bridge/plan", keep("plan"), 10)
         n.create_subscription(DiagnosticStatus, "/rrg/bridge/status", keep("status"), 10)
         n.create_subscription(JointState, "/rrg/joint_states", keep("js", 200), 10)
+        n.create_subscription(WrenchStamped, "/rrg/fingertip1/wrench", keep("tip1", 200), 10)
         self.start_bridge()
         assert self.client.spin_until(lambda: self.estop_pub.get_subscription_count() > 0, WAIT)
 
     # ------------------------------------------------------------------ processes
-    def start_bridge(self, **extra: str) -> None:
-        """Start the bridge (with ``extra`` parameters) and wait until it is ready."""
+    def start_bridge(self, ready: bool = True, **extra: str) -> None:
+        """Start the bridge (with ``extra`` parameters) and wait until it serves, and until it
+        is ready when ``ready``."""
         self.bridge_runs += 1
         log = self.log_dir / f"hw_bridge_{self.bridge_runs}.log"
         self.procs["bridge"] = start_node(BRIDGE, self.env, log, {**self.bridge_params, **extra})
@@ -124,20 +143,43 @@ class Rig:
         services = [self.hand, self.reset_estop, self.params, self.reset_sim]
         self.client.wait_for_services(services, procs, timeout_s=60.0)
         assert self.move.wait_for_server(timeout_sec=30.0)
-        self.wait_ready(60.0, dry_run=str(extra.get("dry_run", "false")).capitalize())
+        if ready:
+            self.wait_ready(60.0, dry_run=str(extra.get("dry_run", "false")).capitalize())
 
     def stop_bridge(self) -> None:
         stop_process(self.procs.pop("bridge"))
 
     @contextmanager
-    def bridge_with(self, **extra: str):
-        """The bridge restarted with ``extra`` parameters for the block, then as before."""
+    def bridge_with(self, ready: bool = True, **extra: str):
+        """The bridge restarted with ``extra`` parameters for the block (waiting until it is
+        ready when ``ready``), then as before."""
         self.stop_bridge()
-        self.start_bridge(**extra)
+        self.start_bridge(ready, **extra)
         try:
             yield
         finally:
             self.stop_bridge()
+            self.latch_file.unlink(missing_ok=True)
+            self.start_bridge()
+
+    @contextmanager
+    def fake_with(self, **extra: str):
+        """The emulated drivers (and the bridge) restarted with ``extra`` fake parameters for
+        the block, then as before."""
+        self.stop_bridge()
+        stop_process(self.procs.pop("fake"))
+        self.procs["fake"] = start_node(
+            FAKE, self.env, self.log_dir / "fake_hw_2.log", {**self.fake_params, **extra}
+        )
+        try:
+            self.start_bridge()
+            yield
+        finally:
+            self.stop_bridge()
+            stop_process(self.procs.pop("fake"))
+            self.procs["fake"] = start_node(
+                FAKE, self.env, self.log_dir / "fake_hw_3.log", self.fake_params
+            )
             self.start_bridge()
 
     def close(self) -> list[str]:
@@ -246,6 +288,8 @@ class Rig:
         req = ResetSim.Request(object_name="box", pose=planar_to_msg(BOX_POSE))
         assert self.client.call(self.reset_sim, req).error_code == ResetSim.Response.NONE
         self.wait_ready()
+        answer = self.client.call(self.bias, Trigger.Request())  # the hand is open, unloaded
+        assert answer.success, answer.message
         for stored in self.seen.values():
             stored.clear()
 
@@ -435,8 +479,8 @@ def test_a_measured_joint_past_its_limit_stops_the_arm_and_refuses_goals(hw):
     since = time.monotonic()
     hw.set_fault("fault.joint_limit", True)  # J4 reads 0.2 rad past its upper limit
     assert_stopped(hw, handle, R.JOINT_LIMITS, since)
-    res = assert_refused(hw, short_move(hw), R.JOINT_LIMITS)
-    assert "joint 4" in res.error_msg
+    res = assert_refused(hw, joint_move(hw.arm_q(), 0, 0.05, 0.5), R.JOINT_LIMITS)
+    assert "joint 4" in res.error_msg and "only wam_j4_joint may move" in res.error_msg
     hw.set_fault("fault.joint_limit", False)
     hw.wait_ready()
     assert_runs(hw)
@@ -501,3 +545,283 @@ def test_closing_the_hand_stops_each_finger_and_a_stuck_finger_does_not_hang_it(
     q = proximal(answer)
     assert q[1] == pytest.approx(0.0, abs=0.05)
     np.testing.assert_allclose(q[[0, 2]], limit, atol=0.15)
+
+
+# ---------------------------------------------------------------------- the E-stop, fail-safe
+#: Guarded moves of the E-stop stress test, their joint 4 travel [rad] and duration [s] (back
+#: and forth), and the latest instant [s] after the goal's send at which the E-stop fires: half
+#: the presses land within RACE_WINDOW_S, where the bridge checks the latch and sends the goal.
+STRESS_MOVES, STRESS_TRAVEL, STRESS_TIME = 200, 0.02, 0.2
+RACE_WINDOW_S, MOVE_WINDOW_S = 0.03, 0.3
+
+
+def arm_bridge(rig: Rig) -> None:
+    """Release the E-stop topic and reset the latch (arm)."""
+    rig.estop(False)
+    reset = lambda: rig.client.call(rig.reset_estop, Trigger.Request()).success
+    assert rig.client.spin_until(reset, WAIT)
+
+
+def test_estops_at_random_instants_never_let_a_goal_run_after_the_latch(hw):
+    """Across STRESS_MOVES guarded moves an E-stop fires at a random instant: every goal the
+    controller accepted after the press is canceled, none runs to its end after it, and every
+    move ends with ESTOP unless it had finished before the press."""
+    rng = np.random.default_rng(38)
+    q0 = hw.arm_q()
+    latencies, refused, canceled, finished_before = [], 0, 0, 0
+    for k in range(STRESS_MOVES):
+        arm_bridge(hw)
+        q = q0.copy()
+        q[3] += STRESS_TRAVEL * (k % 2 == 0)
+        g = goal([(q, STRESS_TIME)])
+        window = RACE_WINDOW_S if k % 2 == 0 else MOVE_WINDOW_S
+        since = time.monotonic()
+        future = hw.move.send_goal_async(g)
+        hw.spin(float(rng.uniform(0.0, window)))
+        pressed = hw.estop(True)
+        handle = hw.client.result(future)
+        assert handle.accepted
+        status, res = hw.result(handle)
+        hw.spin(0.05)  # the fake's last events
+        accepted = hw.events("goal_accepted", since)
+        ended = hw.events("goal_finished", since)
+        assert len(ended) == len(accepted), f"move {k}: a goal is left running"
+        if res.error_code == R.NONE:  # it ran to its end: only if that was before the press
+            assert ended and ended[-1] < pressed, f"move {k}: a goal ran on after the latch"
+            finished_before += 1
+            continue
+        assert res.error_code == R.ESTOP, f"move {k}: {res.error_code} {res.error_msg}"
+        if not accepted:
+            refused += 1
+            continue
+        cancels = hw.events("cancel_received", since)
+        if not cancels:  # the goal ended by itself as the press arrived
+            assert ended[-1] - pressed < ESTOP_CANCEL_S, f"move {k}: ran on after the press"
+            finished_before += 1
+            continue
+        latencies.append(cancels[0] - pressed)
+        canceled += 1
+    worst = max(latencies) if latencies else float("nan")
+    print(
+        f"E-stop stress: {STRESS_MOVES} moves, {refused} refused, {canceled} canceled "
+        f"(press to cancel median {np.median(latencies) * 1e3:.1f} ms, worst {worst * 1e3:.1f} "
+        f"ms), {finished_before} finished by themselves before or as the press arrived"
+    )
+    assert refused > 0 and canceled > 0  # both sides of the race were exercised
+    assert worst < ESTOP_CANCEL_S * 4
+
+
+def test_a_bridge_that_joins_after_an_estop_engaged_starts_latched(hw):
+    """A transient-local E-stop publisher engaged before the bridge starts: the new bridge
+    sees it, refuses goals and cannot be armed until the E-stop is released."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    qos = QoSProfile(
+        depth=1,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
+    held = hw.client.node.create_publisher(Bool, "/rrg/estop", qos)
+    try:
+        hw.stop_bridge()
+        held.publish(Bool(data=True))
+        hw.start_bridge(ready=False)
+        assert_refused(hw, short_move(hw), R.ESTOP, reported=False)
+        answer = hw.client.call(hw.reset_estop, Trigger.Request())
+        assert not answer.success and "still says engaged" in answer.message
+        held.publish(Bool(data=False))
+        arm_bridge(hw)
+        hw.wait_ready()
+        assert_runs(hw)
+    finally:
+        hw.client.node.destroy_publisher(held)
+
+
+def test_a_restarted_bridge_keeps_the_latch_and_starts_not_armed(hw):
+    hw.estop(True)
+    hw.spin(0.2)
+    hw.estop(False)  # released, not reset
+    hw.spin(0.2)
+    hw.stop_bridge()
+    hw.start_bridge(ready=False)  # arm_on_start: but the latch file holds the E-stop
+    res = assert_refused(hw, short_move(hw), R.ESTOP, reported=False)
+    assert "latched before this start" in res.error_msg
+    arm_bridge(hw)
+    hw.wait_ready()
+    assert_runs(hw)
+    started = time.monotonic()
+    with hw.bridge_with(ready=False, arm_on_start="false"):  # a clean start on a real arm
+        res = assert_refused(hw, short_move(hw), R.ESTOP, reported=False)
+        assert "not armed" in res.error_msg
+        said = lambda: [m for t, m in hw.seen["status"] if t > started and "not armed" in m.message]
+        assert hw.client.spin_until(said, 5.0)
+        arm_bridge(hw)
+        hw.wait_ready()
+        assert_runs(hw)
+
+
+def test_a_silent_estop_heartbeat_latches_and_stops_the_arm(hw):
+    with hw.bridge_with(ready=False, estop_heartbeat_timeout="0.3"):
+        beat = hw.client.node.create_timer(0.05, lambda: hw.estop_pub.publish(Bool(data=False)))
+        arm_bridge(hw)
+        hw.wait_ready()
+        handle = hw.started(slow_move(hw))
+        hw.client.node.destroy_timer(beat)
+        silent = time.monotonic()
+        cancel = assert_stopped(hw, handle, R.ESTOP, silent)
+        assert cancel - silent < 0.3 + 0.1
+        assert any("heartbeat" in m.message for m in hw.safety(silent))
+
+
+# ---------------------------------------------------------------------- the hand's guards
+def hand_command_async(rig: Rig, mode: int, spread: float = 0.0):
+    return rig.hand.call_async(HandCommand.Request(mode=mode, spread=spread))
+
+
+def proximal_now(rig: Rig) -> np.ndarray:
+    js = rig.joints()
+    return np.array([js.position[js.name.index(n)] for n in PROXIMAL_JOINT_NAMES])
+
+
+def spread_of(rig: Rig) -> float:
+    js = rig.joints()
+    return js.position[js.name.index("bh_f1_spread")]
+
+
+def test_the_force_ceiling_and_the_watchdog_stop_a_closing_hand(hw):
+    for fault, value, code in (
+        ("fault.extra_force", 25.0, R.FORCE_LIMIT),  # N on fingertip 1; the ceiling is 20 N
+        ("fault.silent_box", 0, R.STALE_DATA),
+    ):
+        future = hand_command_async(hw, Q.MODE_CLOSE)
+        hw.spin(0.3)
+        since = time.monotonic()
+        hw.set_fault(fault, value)
+        answer = hw.client.result(future, WAIT)
+        assert answer.error_code == H.STOPPED, (fault, answer.error_msg)
+        q = proximal(answer)
+        assert np.all(q < HAND.proximal_range[1] - 0.3), q  # stopped on the way
+        reports = [m for m in hw.safety(since) if m.values[0].value == str(code)]
+        assert any("hand command" in m.message for m in reports), fault
+        hw.spin(0.3)
+        np.testing.assert_allclose(proximal_now(hw), q, atol=0.05)  # held
+        hw.set_fault(fault, FAULTS[fault].default)
+        hw.wait_ready()
+        assert hw.hand_command(Q.MODE_OPEN).error_code == H.NONE
+
+
+def test_the_estop_stops_every_hand_motor_the_spread_too(hw):
+    future = hand_command_async(hw, Q.MODE_OPEN, spread=np.pi)  # a spread move of ~3 s
+    hw.spin(0.5)
+    hw.estop(True)
+    answer = hw.client.result(future, WAIT)
+    assert answer.error_code == H.STOPPED, answer.error_msg
+    hw.spin(0.5)  # the spread returns to where it was measured at the stop
+    stopped = spread_of(hw)
+    assert 0.1 < stopped < np.pi - 0.3
+    hw.spin(0.5)
+    assert spread_of(hw) == pytest.approx(stopped, abs=0.01)  # and stays there
+    arm_bridge(hw)
+    hw.wait_ready()
+    assert hw.hand_command(Q.MODE_OPEN).error_code == H.NONE
+
+
+# ---------------------------------------------------------------------- bias
+def test_bias_tares_on_records_taken_after_the_box_applied_it(hw):
+    """The boxes' unloaded reading drifts by 3 N after the last bias: after bridge/bias the
+    upward fingertip wrench reads about zero, not the drift's negative."""
+    force = lambda m: np.array([m.wrench.force.x, m.wrench.force.y, m.wrench.force.z])
+    hw.set_fault("fault.zero_drift", 3.0)
+    since = time.monotonic() + 0.1
+    hw.spin(0.3)
+    drifted = [force(m) for t, m in hw.seen["tip1"] if t > since]
+    assert drifted and np.allclose(drifted[-1], [3.0, 0.0, 0.0], atol=0.3), drifted[-1:]
+    answer = hw.client.call(hw.bias, Trigger.Request())
+    assert answer.success, answer.message
+    since = time.monotonic()
+    hw.spin(0.3)
+    readings = [force(m) for t, m in hw.seen["tip1"] if t > since]
+    assert readings
+    assert np.abs(readings).max() < SENSING.tip_force_threshold, np.abs(readings).max()
+
+
+# ---------------------------------------------------------------------- recovery, escalation
+def test_a_joint_outside_its_limits_allows_only_a_slow_move_back(hw, tmp_path):
+    """Limits whose J4 upper bound lies below the arm's J4: every goal is refused but a slow
+    move of J4 back toward its limits, which runs; then the arm is ready again."""
+    import yaml
+
+    from rrg_hw_bridge.arm_limits import DEFAULT_ARM_LIMITS
+    from rrg_hw_bridge.safety import RECOVERY_SPEED_FRACTION
+
+    q0 = hw.arm_q()
+    data = yaml.safe_load(Path(DEFAULT_ARM_LIMITS).read_text())
+    data["joints"]["wam_j4_joint"]["upper"] = round(float(q0[3]) - 0.1, 3)
+    limits = tmp_path / "tight_j4.yaml"
+    limits.write_text(yaml.safe_dump(data))
+    started = time.monotonic()
+    with hw.bridge_with(ready=False, limits_file=str(limits)):
+        said = lambda: [m for t, m in hw.seen["status"] if t > started and "outside" in m.message]
+        assert hw.client.spin_until(said, WAIT)  # up, with nothing but the limits in the way
+        slow = 0.2 / (RECOVERY_SPEED_FRACTION * 1.5)  # s for 0.2 rad at the recovery speed
+        for g, why in (
+            (joint_move(q0, 0, 0.05, 2.0), "only wam_j4_joint may move"),
+            (joint_move(q0, 3, 0.05, 2.0), "farther outside"),
+            (joint_move(q0, 3, -0.2, 0.5), "velocity limit"),
+        ):
+            res = assert_refused(hw, g, R.JOINT_LIMITS)
+            assert why in res.error_msg, res.error_msg
+        status, res = hw.run(joint_move(q0, 3, -0.2, slow * 1.05), timeout_s=WAIT + slow)
+        assert status == GoalStatus.STATUS_SUCCEEDED and res.error_code == R.NONE, res.error_msg
+        assert hw.arm_q()[3] == pytest.approx(q0[3] - 0.2, abs=0.02)
+        hw.wait_ready()
+        assert_runs(hw)
+
+
+def test_a_cancel_the_controller_ignores_is_escalated_to_a_hold_and_a_robot_fault(hw):
+    from rrg_hw_bridge.config import BRIDGE as BRIDGE_DEFAULTS
+
+    hw.set_fault("fault.ignore_cancel", True)
+    handle = hw.started(slow_move(hw))
+    pressed = hw.estop(True)
+    status, res = hw.result(handle)
+    assert status == GoalStatus.STATUS_ABORTED and res.error_code == R.ESTOP, res.error_msg
+    assert "ignored a cancel" in res.error_msg
+    ignored = hw.wait_event("cancel_ignored", pressed)
+    hold = hw.wait_event("goal_accepted", ignored)  # the hold preempts the running goal
+    assert BRIDGE_DEFAULTS.cancel_escalation - 0.05 < hold - pressed < 1.0
+    q = hw.arm_q()
+    hw.spin(0.3)
+    np.testing.assert_allclose(hw.arm_q(), q, atol=5e-3)  # holding
+    hw.estop(False)
+    hw.set_fault("fault.ignore_cancel", False)
+    res = assert_refused(hw, short_move(hw), R.CONTROLLER_FAILED)
+    assert "robot fault" in res.error_msg
+    arm_bridge(hw)
+    hw.wait_ready()
+    assert_runs(hw)
+
+
+def test_nan_interfaces_are_detected_and_a_guard_that_cannot_run_refuses_its_moves(hw):
+    """joint_state_broadcaster publishes NaN for an interface a joint lacks: without arm
+    efforts a guarded move whose effort guard is on is refused; with it off the move runs and
+    settles; without hand velocities the stall detection still ends a close on a stuck
+    finger."""
+    with hw.fake_with(unmeasured_interfaces="['arm_effort','hand_velocity']"):
+        hw.reset()
+        g = slow_move(hw, stop_on_contact=True)
+        res = assert_refused(hw, g, R.SENSOR_FAULT)
+        assert "effort guard" in res.error_msg and "effort_threshold:=0.0" in res.error_msg
+        assert_runs(hw)  # a move without contact guarding needs no effort
+        with hw.bridge_with(effort_threshold="0.0"):
+            hw.reset()
+            g = joint_move(hw.arm_q(), 3, -0.05, 0.5)
+            g.stop_on_contact = True
+            status, res = hw.run(g)
+            assert status == GoalStatus.STATUS_SUCCEEDED and res.error_code == R.NONE
+            hw.set_fault("fault.stuck_finger", 1)
+            since = time.monotonic()
+            answer = hw.hand_command(Q.MODE_CLOSE)
+            assert answer.error_code == H.NONE, answer.error_msg
+            assert time.monotonic() - since < 10.0
+            np.testing.assert_allclose(proximal(answer)[[0, 2]], HAND.proximal_range[1], atol=0.15)

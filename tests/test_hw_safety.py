@@ -6,6 +6,7 @@ point trajectories the executor really sends (MuJoCo world, every WRT of two obj
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -505,14 +506,18 @@ def test_watchdog_threads():
 
 
 # ------------------------------------------------------------------ E-stop
-def test_estop_latches_until_reset_after_release():
+def test_estop_starts_latched_not_armed_and_latches_until_reset_after_release():
     stop = EStop()
-    assert not stop.engaged
-    assert stop.reset() == (True, "the E-stop was not engaged")
+    assert stop.engaged and stop.reason == EStop.NOT_ARMED  # fail-safe: not armed at start
+    assert stop.run_if_released(lambda: "sent") == (False, None)
+    assert stop.reset() == (True, "E-stop released: commands are accepted again")
+    assert not stop.engaged and stop.reason == ""
+    assert stop.run_if_released(lambda: "sent") == (True, "sent")
     stop.on_message(False)
     assert not stop.engaged
-    stop.on_message(True)
-    assert stop.engaged
+    assert stop.on_message(True)  # latched just now
+    assert stop.engaged and "said engaged" in stop.reason
+    assert not stop.on_message(True)  # already latched
     ok, message = stop.reset()
     assert not ok and "still says engaged" in message and stop.engaged
     stop.on_message(False)  # released: still latched
@@ -544,6 +549,70 @@ def test_estop_threads():
     stop.on_message(True)
     stop.on_message(False)
     assert stop.engaged and stop.reset()[0] and not stop.engaged
+
+
+def race_a_latch(delay_s: float) -> list[str]:
+    """Fifty commands through run_if_released on one thread and a latch after ``delay_s`` [s]
+    on another; the log of both, in order."""
+    stop = EStop()
+    stop.reset()
+    log: list[str] = []
+    go = threading.Barrier(2)
+
+    def commands() -> None:
+        go.wait()
+        for _ in range(50):
+            stop.run_if_released(lambda: log.append("command"))
+
+    def press() -> None:
+        go.wait()
+        time.sleep(delay_s)
+        stop.on_message(True)
+        log.append("latched")
+
+    threads = [threading.Thread(target=commands), threading.Thread(target=press)]
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join()
+    return log
+
+
+def test_no_command_runs_after_a_latch_that_races_it():
+    """Latches at random instants against a stream of commands: none runs after the latch."""
+    rng = np.random.default_rng(5)
+    for trial in range(200):
+        log = race_a_latch(float(rng.uniform(0.0, 2e-4)))
+        assert "command" not in log[log.index("latched") :], f"trial {trial}: {log}"
+
+
+def test_a_silent_heartbeat_latches_and_blocks_the_reset():
+    stop = EStop(heartbeat_timeout_s=0.5, now_s=10.0)
+    assert stop.reset(10.1)[0]
+    stop.on_message(False, 10.3)
+    assert not stop.check_heartbeat(10.7) and not stop.engaged  # 0.4 s since the last message
+    assert stop.check_heartbeat(10.9) and stop.engaged  # 0.6 s: the deadman latches
+    assert "no E-stop heartbeat" in stop.reason
+    ok, message = stop.reset(11.0)
+    assert not ok and "heartbeat" in message
+    stop.on_message(False, 11.1)  # the publisher is back
+    assert stop.reset(11.2)[0] and not stop.engaged
+    assert not EStop(heartbeat_timeout_s=0.0).check_heartbeat(1e9)  # off
+
+
+def test_a_latch_survives_a_restart_through_its_file(tmp_path):
+    path = tmp_path / "estop.latched"
+    first = EStop(latch_file=path)
+    first.reset()
+    assert not path.exists()
+    first.on_message(True)
+    assert path.exists() and "said engaged" in path.read_text()
+    second = EStop(latch_file=path)  # the bridge restarted
+    assert second.engaged and second.reason.startswith("latched before this start")
+    second.on_message(False)
+    assert second.reset()[0] and not path.exists()
+    third = EStop(latch_file=path)
+    assert third.reason == EStop.NOT_ARMED  # a clean start is only "not armed"
 
 
 # ------------------------------------------------------------------ the executor's moves

@@ -153,10 +153,12 @@ def wam_bridge(tmp_path_factory, ros_domain):
         "effort_threshold": 0.0,
         "watchdog_timeout": 0.5,
     }
+    logs = tmp_path_factory.mktemp("logs")
+    bridge.update(arm_on_start="true", estop_latch_file=str(logs / "estop.latched"))
     with node_processes(
         [("rrg_hw_bridge.fake.fake_hw_node", fake), ("rrg_hw_bridge.ros.bridge_node", bridge)],
         env,
-        tmp_path_factory.mktemp("logs"),
+        logs,
     ) as procs:
         client = RosClient(env)
         n = client.node

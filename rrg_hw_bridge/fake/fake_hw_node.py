@@ -123,6 +123,12 @@ FAULTS: dict[str, _Fault] = {
     "fault.status_word": _Fault(0, "Status word in every RDT record (0: healthy)", 0, 2**32 - 1),
     "fault.wrong_length": _Fault(False, "Send 35-byte datagrams instead of RDT records"),
     "fault.joint_limit": _Fault(False, "Report joint 4 past its upper limit (encoder glitch)"),
+    "fault.zero_drift": _Fault(
+        0.0, "Drift [N] of every Net F/T box's unloaded Fx (temperature)", -20.0, 20.0
+    ),
+    "fault.ignore_cancel": _Fault(
+        False, "The trajectory controller accepts a cancel and keeps the goal running"
+    ),
     "fault.stuck_finger": _Fault(-1, "Finger (0-2) that ignores every command; -1: none", -1, 2),
     "fault.extra_force": _Fault(
         0.0, "Force [N] added to fingertip 1's load along its z (synthetic contact)", -100.0, 100.0
@@ -193,6 +199,9 @@ class FakeHwNode(Node):
         if self.arm_interface not in ARM_INTERFACES:
             raise ValueError(f"arm_interface must be one of {ARM_INTERFACES}")
         self._js_msg = JointState(name=list(self._joint_names()))
+        self.unmeasured = set(p("unmeasured_interfaces")) - {""}
+        if not self.unmeasured <= {"arm_effort", "hand_velocity"}:
+            raise ValueError(f"unmeasured_interfaces: unknown {self.unmeasured}")
         self.pads_pub = self.create_publisher(ContactPads, "/bhand/contact_pads", 10)
         action = f"/{p('controller_name')}/follow_joint_trajectory"
         if self.arm_interface != "wam_node":
@@ -247,6 +256,7 @@ class FakeHwNode(Node):
                         noise_n=SENSING.nano17_force_noise * noise,
                         noise_nm=PHYSICS.nano17_torque_noise * noise,
                         seed=p("seed") + 1 + i,
+                        zero_offset=p("tip_zero_offset"),
                     )
                 )
         except OSError:
@@ -329,6 +339,25 @@ class FakeHwNode(Node):
             ),
         )
         d(
+            "unmeasured_interfaces",
+            [""],
+            ParameterDescriptor(
+                description="Interfaces the trajectory controller's joint states publish as NaN, "
+                "as joint_state_broadcaster does for a joint without them: arm_effort, "
+                "hand_velocity",
+                **ro,
+            ),
+        )
+        d(
+            "tip_zero_offset",
+            [0.0] * 6,
+            ParameterDescriptor(
+                description="Every Net F/T box's unloaded reading [N, N m] (Fx Fy Fz Tx Ty Tz) "
+                "until bridge/bias removes it",
+                **ro,
+            ),
+        )
+        d(
             "controller_name",
             "arm_controller",
             ParameterDescriptor(description="Name of the emulated trajectory controller", **ro),
@@ -395,6 +424,12 @@ class FakeHwNode(Node):
                 self.robot.set_joint_limit_fault(v)
             elif name == "fault.stuck_finger":
                 self.robot.set_stuck_finger(None if v < 0 else v)
+            elif name == "fault.zero_drift":
+                base = np.asarray(self.get_parameter("tip_zero_offset").value, dtype=float)
+                for box in self.boxes:
+                    box.zero_offset = base + np.array([v, 0.0, 0.0, 0.0, 0.0, 0.0])
+            elif name == "fault.ignore_cancel":
+                pass  # read by the action server's cancel callback
             elif name == "fault.extra_force":
                 self.robot.set_extra_force(v)
             elif name == "bench.crossing_threshold":
@@ -496,10 +531,15 @@ class FakeHwNode(Node):
         msg.header.stamp = stamp
         hand_q = (s.spread, s.proximal, s.distal)
         hand_v = (s.spread_velocity, s.proximal_velocity, s.distal_velocity)
+        arm_effort = s.arm_effort
+        if "hand_velocity" in self.unmeasured:
+            hand_v = (np.full(8, np.nan),)
+        if "arm_effort" in self.unmeasured:
+            arm_effort = np.full(7, np.nan)
         if self.arm_interface == "follow_joint_trajectory":
             msg.position = doubles(s.arm_q, *hand_q)
             msg.velocity = doubles(s.arm_qd, *hand_v)
-            msg.effort = doubles(s.arm_effort, UNMEASURED_EFFORT)
+            msg.effort = doubles(arm_effort, UNMEASURED_EFFORT)
         elif self.arm_interface == "wam_node":
             msg.position = doubles(s.arm_q, *hand_q)
             msg.velocity = array.array("d")
@@ -507,7 +547,7 @@ class FakeHwNode(Node):
         else:
             msg.position = doubles(s.arm_q, s.arm_q, *hand_q)
             msg.velocity = doubles(s.arm_qd, s.arm_qd, *hand_v)
-            msg.effort = doubles(s.arm_effort, s.arm_torque, UNMEASURED_EFFORT)
+            msg.effort = doubles(arm_effort, s.arm_torque, UNMEASURED_EFFORT)
         return msg
 
     # ------------------------------------------------------------------ trajectory controller
@@ -530,7 +570,9 @@ class FakeHwNode(Node):
     def _on_cancel(self, handle: ServerGoalHandle) -> CancelResponse:
         with self._map_lock:
             goal_id = self._goal_ids.get(bytes(handle.goal_id.uuid))
-        if goal_id is not None:
+        if self.get_parameter("fault.ignore_cancel").value:
+            self._publish_event(Event("cancel_ignored", time.monotonic(), {"goal_id": goal_id}))
+        elif goal_id is not None:
             self.robot.cancel(goal_id)
         return CancelResponse.ACCEPT
 
@@ -563,7 +605,8 @@ class FakeHwNode(Node):
         try:
             while not done.wait(FEEDBACK_PERIOD):
                 if handle.is_cancel_requested:  # a cancel that raced the goal's start
-                    self.robot.cancel(goal_id)
+                    if not self.get_parameter("fault.ignore_cancel").value:
+                        self.robot.cancel(goal_id)
                     continue
                 self._feedback(handle, goal_id)
             status = self.robot.goal_status(goal_id)

@@ -37,6 +37,7 @@ from rclpy.action.server import ServerGoalHandle
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
@@ -82,13 +83,16 @@ from ..safety import (
     Refusal,
     SafetyCode,
     Watchdog,
+    check_recovery,
     check_trajectory,
+    limit_excess,
     slowdown_to_limits,
 )
 from ..safety import scale_time as scaled_times
 from .drivers import (
     BarrettHandServices,
     DriverError,
+    Latched,
     RdtSensors,
     TrajectoryArm,
     WamNodeArm,
@@ -117,6 +121,21 @@ EFFORT_BASELINE_SAMPLES = 25
 #: 2-core machine under load during a grasp: the bridge's receive threads saw records 0.14 s
 #: apart whose boxes had sent them 1 ms apart.
 WATCHDOG_SELF_STALL = 0.5
+#: After a bias request the bridge tares on records that arrived this long [s] after it (chosen:
+#: ten records at the boxes' 1 kHz, far beyond a LAN's sub-millisecond latency; a box applies
+#: the bias to the samples after the request, so the records before it still carry the offset).
+BIAS_SETTLE_S = 0.01
+#: Longest wait [s] for those records before the bias is reported as failed.
+BIAS_TIMEOUT_S = 1.0
+#: QoS of the E-stop's second subscription: a publisher that keeps its last message
+#: (transient local) hands an E-stop engaged before the bridge started to the bridge as it
+#: joins. A volatile publisher (``ros2 topic pub`` by default) reaches the first, volatile one.
+ESTOP_LATCHED_QOS = QoSProfile(
+    depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
+)
+#: A recovery move is stopped when a joint gets this much farther outside its limits than at
+#: its start [rad] (chosen: above the WAM's encoder noise, well below a visible motion).
+RECOVERY_SLACK = 0.01
 #: Upward hand joint names (the simulator's): both spread joints, proximal, distal.
 HAND_JOINT_NAMES = (
     SPREAD_JOINT_NAME,
@@ -157,6 +176,22 @@ class Measured:
 
 
 @dataclass
+class HandMotion:
+    """A hand command being executed, and why the safety layer stopped it (set once)."""
+
+    code: int | None = None
+    message: str = ""
+
+
+class HandStopped(RuntimeError):
+    """The safety layer stopped a hand motion (its code and message)."""
+
+    def __init__(self, code: int, message: str):
+        super().__init__(message)
+        self.code = code
+
+
+@dataclass
 class ActiveMove:
     """The guarded move being executed, and why it stops (set once)."""
 
@@ -166,6 +201,9 @@ class ActiveMove:
     message: str = ""
     trip: Trip | None = None
     stopped_s: float = np.nan
+    #: a recovery move (joints outside their limits, brought back): how far outside they were
+    #: at its start [rad]; None for any other move
+    recovery_excess: float | None = None
 
 
 def _float_param(node: Node, name: str, value: float, text: str, lo: float, hi: float) -> None:
@@ -203,7 +241,11 @@ class BridgeNode(Node):
         derive = p("pad_source") == "derived"
         self.hand = HandState(derive_pads=derive)
         self.ceiling = ForceCeiling(p("force_ceiling"), p("torque_ceiling"))
-        self.estop = EStop()
+        self.estop = EStop(
+            p("estop_heartbeat_timeout"), p("estop_latch_file") or None, time.monotonic()
+        )
+        if p("arm_on_start") and self.estop.reason == EStop.NOT_ARMED:
+            self.estop.reset(time.monotonic())
         self.watchdog = Watchdog(
             self.watchdog_timeout, ("joint_states", "fingertip1", "fingertip2", "fingertip3")
         )
@@ -214,6 +256,11 @@ class BridgeNode(Node):
         #: per joint-name list, for drivers whose joint states carry no velocities
         self._velocity: dict[tuple[str, ...], VelocityEstimate] = {}
         self._move: ActiveMove | None = None
+        self._hand_motion: HandMotion | None = None
+        #: which interfaces the driver's joint states carry (finite values); what is missing is
+        #: derived (velocities) or disables its guard (efforts)
+        self.interfaces = {"arm_velocity": False, "arm_effort": False, "hand_velocity": False}
+        self._interfaces_logged: dict = {}
         self._move_busy = threading.Lock()
         self._hand_busy = threading.Lock()
         self._sensor_fault_s = -np.inf
@@ -241,8 +288,9 @@ class BridgeNode(Node):
                 lambda: self.measured().arm_q,
                 p("wam_rt_joint_topic"),
                 p("wam_hold_service"),
+                self.estop.run_if_released,
             )
-            arm_text = self.arm.describe()
+            self.arm_text = self.arm.describe()
             if p("effort_threshold") > 0.0:
                 self.get_logger().warn(
                     "wam_node's joint efforts are its commanded torques, gravity included, not "
@@ -250,9 +298,13 @@ class BridgeNode(Node):
                     "the arm's own motion"
                 )
         else:
-            self.arm = TrajectoryArm(self, p("arm_action"), self.arm_driver_joints, group)
-            arm_text = p("arm_action")
-        self.hand_driver = BarrettHandServices(self, p("hand_service_prefix"), group)
+            self.arm = TrajectoryArm(
+                self, p("arm_action"), self.arm_driver_joints, group, self.estop.run_if_released
+            )
+            self.arm_text = p("arm_action")
+        self.hand_driver = BarrettHandServices(
+            self, p("hand_service_prefix"), group, self.estop.run_if_released
+        )
         self.io.create_subscription(JointState, p("driver_joint_states"), self.on_driver_joints, 50)
         if p("wrench_source") == "rdt":
             self.sensors = RdtSensors(
@@ -274,6 +326,7 @@ class BridgeNode(Node):
         else:
             self.io.create_subscription(ContactPads, p("pads_topic"), self.on_driver_pads, 10)
         self.io.create_subscription(Bool, p("estop_topic"), self.on_estop, 10)
+        self.io.create_subscription(Bool, p("estop_topic"), self.on_estop, ESTOP_LATCHED_QOS)
 
         # -------------------------------------------------------------- upward: RRG
         self.state_pubs = StatePublishers.create(self)
@@ -297,10 +350,17 @@ class BridgeNode(Node):
         self.sensors.start()
         self.get_logger().info(
             f"bridge up{' (DRY RUN: nothing will be commanded)' if self.dry_run else ''}: arm "
-            f"{arm_text}, hand {p('hand_service_prefix')}/*, fingertips "
+            f"{self.arm_text}, hand {p('hand_service_prefix')}/*, fingertips "
             f"{self.sensors.describe()}, limits {self.limits.name}, speed scale "
             f"{self.speed_scale}, watchdog {self.watchdog_timeout * 1e3:.0f} ms"
         )
+        if self.estop.engaged:
+            self.get_logger().warn(
+                f"E-stop latched, {self.estop.reason} (ros2 service call "
+                f"/{NAMESPACE}/bridge/reset_estop std_srvs/srv/Trigger); nothing moves until then"
+            )
+        else:
+            self.get_logger().info("armed at start (arm_on_start)")
 
     def _declare_parameters(self) -> None:
         def text(name, value, description, choices=None):
@@ -382,6 +442,28 @@ class BridgeNode(Node):
         )
         text("pads_topic", "/bhand/contact_pads", "rrg_msgs/ContactPads topic of the hand's pads")
         text("estop_topic", "/rrg/estop", "Latched E-stop (std_msgs/Bool, true = stop)")
+        text(
+            "estop_latch_file",
+            "~/.ros/rrg_hw_bridge_estop.latched",
+            "File that carries a latched E-stop over a restart of the bridge (empty: none)",
+        )
+        _float_param(
+            self,
+            "estop_heartbeat_timeout",
+            0.0,
+            "Silence [s] of the E-stop topic that latches the E-stop (a deadman; 0: off)",
+            0.0,
+            60.0,
+        )
+        self.declare_parameter(
+            "arm_on_start",
+            False,
+            ParameterDescriptor(
+                description="Arm at start, unless the latch file holds an E-stop (the emulated "
+                "drivers; on a real arm, arm with bridge/reset_estop)",
+                read_only=True,
+            ),
+        )
         text("limits_file", "", "Per-arm limits YAML (empty: Barrett's published WAM limits)")
         self.declare_parameter(
             "confirm_stops",
@@ -481,11 +563,21 @@ class BridgeNode(Node):
         )
 
     def gate(self) -> Refusal | None:
-        """Why no command may start now (E-stop, a sensor fault, stale data, a joint-limit
-        fault). A recent sensor fault comes before stale data: a box reporting a status error
-        also goes stale (its records are not used), and the status error is the cause."""
-        if self.estop.engaged:
-            return Refusal(SafetyCode.ESTOP, "estop", "the E-stop is engaged; reset it first")
+        """Why no command may start now (the E-stop or a robot fault, the arm's driver missing,
+        a sensor fault, stale data, a joint-limit fault). A recent sensor fault comes before
+        stale data: a box reporting a status error also goes stale (its records are not used),
+        and the status error is the cause."""
+        reason = self.estop.reason
+        if reason.startswith(EStop.ROBOT_FAULT):
+            return Refusal(SafetyCode.CONTROLLER_FAILED, "controller", f"{reason}; reset first")
+        if reason:
+            return Refusal(SafetyCode.ESTOP, "estop", f"the E-stop is latched ({reason})")
+        if not self.dry_run and not self.arm.ready():
+            return Refusal(
+                SafetyCode.CONTROLLER_FAILED,
+                "controller",
+                f"the arm's driver ({self.arm_text}) is not available (yet)",
+            )
         if time.monotonic() - self._sensor_fault_s < BRIDGE.sensor_fault_hold:
             return Refusal(SafetyCode.SENSOR_FAULT, "sensor", self._sensor_fault)
         stale = self.watchdog.stale(time.monotonic())
@@ -498,6 +590,25 @@ class BridgeNode(Node):
         if self._limit_fault:
             return Refusal(SafetyCode.JOINT_LIMITS, "joint_limits", self._limit_fault)
         return None
+
+    def describe_interfaces(self) -> str:
+        """What the driver's joint states carry, and what the missing interfaces disable."""
+        i, effort = self.interfaces, self.get_parameter("effort_threshold").value
+        parts = [
+            "arm velocities " + ("measured" if i["arm_velocity"] else "derived from positions"),
+            "hand velocities "
+            + ("measured" if i["hand_velocity"] else "derived from positions (stall detection)"),
+        ]
+        if i["arm_effort"]:
+            parts.append("arm efforts measured")
+        elif effort > 0.0:
+            parts.append(
+                f"NO arm efforts (missing or NaN): the effort guard ({effort} N m) cannot run, "
+                "and guarded moves are refused until effort_threshold:=0.0"
+            )
+        else:
+            parts.append("no arm efforts (the effort guard is off)")
+        return "; ".join(parts)
 
     def stale_message(self, stale: list[str]) -> str:
         return f"no fresh data from {', '.join(stale)} within {self.watchdog_timeout * 1e3:.0f} ms"
@@ -516,6 +627,21 @@ class BridgeNode(Node):
         if trip is None and code != R.CANCELED:
             self.report(code, check, message, refused=False)
 
+    def stop_hand(self, code: int, check: str, message: str) -> None:
+        """Stop the running hand command (once): every hand motor stops at once."""
+        with self._lock:
+            motion = self._hand_motion
+            if motion is None or motion.code is not None:
+                return
+            motion.code, motion.message = code, message
+        self.hand_driver.stop(self.measured().hand_q[0])
+        self.report(code, check, f"hand command: {message}", refused=False)
+
+    def stop_all(self, code: int, check: str, message: str) -> None:
+        """Stop the arm's move and the hand's motion."""
+        self.stop_move(code, check, message)
+        self.stop_hand(code, check, message)
+
     # ------------------------------------------------------------------ driver callbacks
     def on_driver_joints(self, msg: JointState) -> None:
         now = time.monotonic()
@@ -525,27 +651,43 @@ class BridgeNode(Node):
         except KeyError:
             arm = None
         hand = [index.get(n) for n in self.hand_driver_joints]
-        pos, vel, eff = np.asarray(msg.position), np.asarray(msg.velocity), msg.effort
-        if len(vel) != len(pos):  # a driver without velocities (wam_node): differentiate
+        pos = np.asarray(msg.position, dtype=float)
+        vel, eff = np.asarray(msg.velocity, dtype=float), np.asarray(msg.effort, dtype=float)
+        # A driver without velocities (wam_node), or with NaN for a joint that lacks the
+        # interface (ros2_control's joint_state_broadcaster): differentiate the positions.
+        measured_v = len(vel) == len(pos)
+        if not measured_v or not np.isfinite(vel).all():
             estimate = self._velocity.setdefault(tuple(msg.name), VelocityEstimate(len(pos)))
-            vel = estimate.update(pos, now)
+            derived = estimate.update(pos, now)
+            vel = np.where(np.isfinite(vel), vel, derived) if measured_v else derived
+        has_effort = len(eff) == len(pos)
+        if arm is not None:
+            self.interfaces.update(
+                arm_velocity=measured_v and bool(np.isfinite(msg.velocity[arm[0]])),
+                arm_effort=has_effort and bool(np.isfinite(eff[arm]).all()),
+                hand_velocity=measured_v
+                and all(np.isfinite(msg.velocity[i]) for i in hand if i is not None),
+            )
         with self._lock:
             m = self._measured
             if arm is not None:
                 m.arm_q = pos[arm]
-                m.arm_v = vel[arm] if len(vel) == len(pos) else np.zeros(7)
-                m.arm_effort = np.asarray(eff)[arm] if len(eff) == len(pos) else None
+                m.arm_v = vel[arm]
+                m.arm_effort = eff[arm] if self.interfaces["arm_effort"] else None
                 if m.arm_effort is not None:
                     self._efforts.append(m.arm_effort)
             for k, i in enumerate(hand):
                 if i is not None:
                     m.hand_q[k] = pos[i]
-                    m.hand_v[k] = vel[i] if len(vel) == len(pos) else 0.0
+                    m.hand_v[k] = vel[i]
             m.received_s = now
             move = self._move
             arm_q, effort, hand_q = m.arm_q.copy(), m.arm_effort, m.hand_q.copy()
         if arm is None:
             return
+        if self.interfaces != self._interfaces_logged:
+            self._interfaces_logged = dict(self.interfaces)
+            self.get_logger().info(f"driver joint states: {self.describe_interfaces()}")
         self._joint_count += 1
         self.watchdog.feed("joint_states", now)
         self.hand.set_hand_joints(hand_q[0], hand_q[2:5])
@@ -556,7 +698,14 @@ class BridgeNode(Node):
                 f"measured joint {j + 1} at {arm_q[j]:.3f} rad is outside its limits "
                 f"[{self.limits.lower[j]}, {self.limits.upper[j]}] rad"
             )
-            self.stop_move(SafetyCode.JOINT_LIMITS, "joint_limits", self._limit_fault)
+            excess = float(limit_excess(arm_q, self.limits).max())
+            recovering = (
+                move is not None
+                and move.recovery_excess is not None
+                and excess <= move.recovery_excess + RECOVERY_SLACK
+            )
+            if not recovering:
+                self.stop_all(SafetyCode.JOINT_LIMITS, "joint_limits", self._limit_fault)
         else:
             self._limit_fault = ""
         if move is not None and move.guard is not None and effort is not None:
@@ -571,12 +720,12 @@ class BridgeNode(Node):
         tips = self.hand.set_tip(finger, wrench)
         self.watchdog.feed(f"fingertip{finger + 1}", received_s)
         move = self._move
-        if move is None:
+        if move is None and self._hand_motion is None:
             return
         over = self.ceiling.check(tips)
         if over is not None:
-            self.stop_move(over.code, over.check, over.message)
-        elif move.guard is not None:  # derived pads are read afresh with every fingertip sample
+            self.stop_all(over.code, over.check, over.message)
+        elif move is not None and move.guard is not None:  # derived pads: read afresh per sample
             trip = move.guard.check_sensors(self.hand.pads(), tips, self.hand.derive_pads)
             if trip is not None:
                 self.stop_move(R.NONE, "contact", trip.describe(SENSOR_NAMES), trip)
@@ -585,7 +734,7 @@ class BridgeNode(Node):
         self._sensor_fault_s = time.monotonic()
         self._sensor_fault = f"fingertip{finger + 1} Net F/T {kind}: {detail}"
         self.get_logger().warn(self._sensor_fault, throttle_duration_sec=1.0)
-        self.stop_move(SafetyCode.SENSOR_FAULT, "sensor", self._sensor_fault)
+        self.stop_all(SafetyCode.SENSOR_FAULT, "sensor", self._sensor_fault)
 
     def on_driver_pads(self, msg: ContactPads) -> None:
         self.hand.set_pads(np.asarray(msg.force, dtype=float))
@@ -596,13 +745,18 @@ class BridgeNode(Node):
                 self.stop_move(R.NONE, "contact", trip.describe(SENSOR_NAMES), trip)
 
     def on_estop(self, msg: Bool) -> None:
-        was = self.estop.engaged
-        self.estop.on_message(bool(msg.data))
-        if self.estop.engaged:
-            self.stop_move(SafetyCode.ESTOP, "estop", "E-stop engaged")
-            if not was:
-                self.hand_driver.finger_velocities(np.zeros(3), wait=False)
-                self.report(SafetyCode.ESTOP, "estop", "E-stop engaged: holding", refused=False)
+        latched = self.estop.on_message(bool(msg.data), time.monotonic())
+        if msg.data:
+            self.emergency_stop("E-stop engaged", latched)
+
+    def emergency_stop(self, why: str, latched: bool) -> None:
+        """The E-stop latched (``latched``: just now): the arm holds and every hand motor
+        stops, whether or not a command runs."""
+        self.stop_move(SafetyCode.ESTOP, "estop", why)
+        if latched:
+            self.hand_driver.stop(self.measured().hand_q[0])
+            self.stop_hand(SafetyCode.ESTOP, "estop", why)
+            self.report(SafetyCode.ESTOP, "estop", f"{why}: holding", refused=False)
 
     def on_watchdog(self) -> None:
         now = time.monotonic()
@@ -612,6 +766,8 @@ class BridgeNode(Node):
             self._watchdog_skipped = True
             return
         self._watchdog_skipped = False
+        if self.estop.check_heartbeat(now):
+            self.emergency_stop(self.estop.reason, True)
         stale = self.watchdog.stale(now)
         if stale and stale != self._stale:
             self.get_logger().error(f"watchdog: no fresh data from {', '.join(stale)}")
@@ -619,11 +775,7 @@ class BridgeNode(Node):
             self.get_logger().info("watchdog: every stream is fresh again")
         self._stale = stale
         if stale:
-            self.stop_move(
-                SafetyCode.STALE_DATA,
-                "watchdog",
-                self.stale_message(stale),
-            )
+            self.stop_all(SafetyCode.STALE_DATA, "watchdog", self.stale_message(stale))
 
     # ------------------------------------------------------------------ upward state
     def measured(self) -> Measured:
@@ -688,7 +840,7 @@ class BridgeNode(Node):
         values = {
             "joint_states": f"{(count - before) / (now - then):.0f} Hz",
             **self.sensors.status(),
-            "estop": "engaged" if self.estop.engaged else "released",
+            "estop": self.estop.reason or "armed",
             "stale": ", ".join(self.watchdog.stale(now)) or "none",
             "dry_run": str(self.dry_run),
         }
@@ -766,16 +918,25 @@ class BridgeNode(Node):
 
         with self._move_busy:
             refusal = self.gate()
-            if refusal is not None:
+            # a measured joint outside its limits refuses every goal but a slow recovery
+            recovery = refusal is not None and refusal.check == "joint_limits"
+            if refusal is not None and not recovery:
                 return fail(refusal.code, refusal.message, refusal.check)
             try:
                 q, t, keep, n_client = self.plan(goal)
             except GoalError as exc:
                 return fail(exc.code, str(exc), "goal")
-            t = self.retime(q, t)
-            refusal = check_trajectory(q, t, self.limits)
-            if refusal is not None:
-                return fail(refusal.code, refusal.message, refusal.check)
+            if recovery:
+                refusal = check_recovery(q, t, self.limits)
+                if refusal is not None:
+                    message = f"{self._limit_fault}; {refusal.message}"
+                    return fail(refusal.code, message, refusal.check)
+                self.get_logger().warn(f"recovery move: {self._limit_fault}; moving it back")
+            else:
+                t = self.retime(q, t)
+                refusal = check_trajectory(q, t, self.limits)
+                if refusal is not None:
+                    return fail(refusal.code, refusal.message, refusal.check)
             self.publish_plan(q, t)
             if self.dry_run:
                 return fail(
@@ -786,6 +947,16 @@ class BridgeNode(Node):
                     refused=False,
                 )
             guard = None
+            effort_threshold = self.get_parameter("effort_threshold").value
+            no_effort = not self.interfaces["arm_effort"]
+            if goal.stop_on_contact and effort_threshold > 0.0 and no_effort:
+                return fail(
+                    SafetyCode.SENSOR_FAULT,
+                    f"the effort guard ({effort_threshold} N m) cannot run: the driver's joint "
+                    "states carry no arm efforts (missing or NaN); set effort_threshold:=0.0 "
+                    "to guard on the fingertips and pads alone",
+                    "effort_guard",
+                )
             if goal.stop_on_contact:
                 self.hand.tare()
                 guard = ContactGuard(
@@ -800,6 +971,8 @@ class BridgeNode(Node):
                 )
                 guard.start(self.effort_baseline())
             move = ActiveMove(guard)
+            if recovery:
+                move.recovery_excess = float(limit_excess(q[0], self.limits).max())
             with self._lock:
                 self._move = move
             try:
@@ -809,13 +982,23 @@ class BridgeNode(Node):
                     self._move = None
 
     def _run_move(self, handle, move, q, t, keep, n_client, result) -> GuardedMove.Result:
+        # The move is registered before the goal goes out, and the goal goes out through the
+        # E-stop's gate: a latch either comes first (nothing is sent) or finds this move and
+        # marks it, and the goal is canceled as soon as the controller has accepted it.
         try:
             arm_handle = self.arm.send(self.arm.goal(q[1:], t[1:], BRIDGE.goal_time_tolerance))
+        except Latched as exc:
+            result.error_code, result.error_msg = R.ESTOP, f"the E-stop is latched ({exc})"
+            self.report(R.ESTOP, "estop", result.error_msg, refused=True)
+            handle.abort()
+            return result
         except DriverError as exc:
             result.error_code, result.error_msg = R.CONTROLLER_FAILED, str(exc)
             self.report(R.CONTROLLER_FAILED, "controller", str(exc), refused=True)
             handle.abort()
             return result
+        if self.estop.engaged:  # latched while the controller accepted the goal
+            self.stop_move(SafetyCode.ESTOP, "estop", "E-stop engaged")
         with self._lock:
             move.handle = arm_handle
             stopped = move.code is not None
@@ -823,14 +1006,19 @@ class BridgeNode(Node):
             arm_handle.cancel_goal_async()
         answer = arm_handle.get_result_async()
         deadline = time.monotonic() + t[-1] + BRIDGE.goal_time_tolerance + 5.0
+        escalated = False
         while not answer.done():
             if handle.is_cancel_requested or not self.context.ok():
                 self.stop_move(R.CANCELED, "canceled", "canceled by the client")
             if time.monotonic() > deadline:
                 self.stop_move(R.TIMEOUT, "timeout", "the controller did not finish in time")
             self.wait_joint_state(0.01)
-            if move.code is not None and time.monotonic() - move.stopped_s > 2.0:
-                break  # the controller does not answer its cancel: report what we know
+            since_stop = time.monotonic() - move.stopped_s
+            if move.code is not None and since_stop > BRIDGE.cancel_escalation and not escalated:
+                escalated = True
+                self.escalate(move)
+            if move.code is not None and since_stop > BRIDGE.cancel_escalation + 2.0:
+                break  # the controller answers neither its cancel nor the hold
         self.settle()
         m = self.measured()
         index = path_index(q, m.arm_q)
@@ -868,6 +1056,18 @@ class BridgeNode(Node):
             handle.abort()
         return result
 
+    def escalate(self, move: ActiveMove) -> None:
+        """The controller has not ended a canceled goal in time: hold the arm where it is
+        measured, and declare a robot fault that refuses every command until reset."""
+        self.arm.hold(self.measured().arm_q, BRIDGE.hold_time)
+        what = (
+            f"the controller ignored a cancel ({move.message}) for "
+            f"{BRIDGE.cancel_escalation:.1f} s; a hold was sent"
+        )
+        self.estop.latch_fault(what, time.monotonic())
+        move.message = f"{move.message}; {what}: robot fault, reset to go on"
+        self.report(SafetyCode.CONTROLLER_FAILED, "controller", what, refused=False)
+
     def settle(self) -> None:
         """Wait until the arm has stopped (every joint slower than BRIDGE.settle_speed)."""
         deadline = time.monotonic() + BRIDGE.settle_timeout
@@ -894,6 +1094,9 @@ class BridgeNode(Node):
             self.get_logger().warn(f"hand_command refused: {resp.error_msg}")
             return resp
         with self._hand_busy:
+            motion = HandMotion()
+            with self._lock:
+                self._hand_motion = motion
             try:
                 if req.mode == Q.MODE_POSITION:
                     self.move_hand(req.spread, proximal)
@@ -905,6 +1108,12 @@ class BridgeNode(Node):
                         self.move_hand(req.spread, m.hand_q[2:5])
                     touched = self.close_hand(req.mode == Q.MODE_CLOSE_GUARDED)
                     resp.touched = [bool(f) for f in touched]
+            except HandStopped as exc:  # the answer still says where the hand stopped
+                resp.error_code, resp.error_msg = H.STOPPED, str(exc)
+            except Latched as exc:
+                resp.error_code, resp.error_msg = H.REFUSED, str(exc)
+                self.report(SafetyCode.ESTOP, "estop", f"hand command: {exc}", refused=True)
+                return resp
             except DriverError as exc:
                 resp.error_code, resp.error_msg = H.DRIVER_FAILED, str(exc)
                 self.get_logger().error(f"hand_command failed: {exc}")
@@ -912,6 +1121,9 @@ class BridgeNode(Node):
             except TimeoutError as exc:
                 resp.error_code, resp.error_msg = H.TIMEOUT, str(exc)
                 return resp
+            finally:
+                with self._lock:
+                    self._hand_motion = None
         reading = self.hand.reading()
         resp.sensors = [bool(f) for f in reading.fired]
         resp.tip_contacts = tip_contacts_to_msg(
@@ -932,8 +1144,7 @@ class BridgeNode(Node):
         still_since = None
         while time.monotonic() < deadline:
             self.wait_joint_state(0.02)
-            if self.estop.engaged:
-                raise DriverError("E-stop engaged during a hand move")
+            self.check_hand_motion()
             m = self.measured()
             q, v = m.hand_q[[0, 2, 3, 4]], m.hand_v[[0, 2, 3, 4]]
             if np.all(np.abs(q - target) < BRIDGE.hand_position_tolerance):
@@ -957,8 +1168,7 @@ class BridgeNode(Node):
             while not closing.done and closing.elapsed < closing.timeout:
                 self.wait_joint_state(0.02)
                 now = time.monotonic()
-                if self.estop.engaged:
-                    raise DriverError("E-stop engaged while closing")
+                self.check_hand_motion()
                 m = self.measured()
                 new = closing.update(now - last, m.hand_v[2:5], self.hand.fired())
                 last = now
@@ -972,6 +1182,16 @@ class BridgeNode(Node):
         finally:
             self.hand_driver.finger_velocities(np.zeros(3))
         return closing.touched
+
+    def check_hand_motion(self) -> None:
+        """HandStopped when the safety layer stopped the running hand command (the E-stop, the
+        force ceiling, the watchdog, a sensor fault or a joint-limit fault)."""
+        motion = self._hand_motion
+        if motion is not None and motion.code is not None:
+            raise HandStopped(motion.code, f"stopped by the safety layer: {motion.message}")
+        if self.estop.engaged:  # a latch that came before this motion registered
+            self.stop_hand(SafetyCode.ESTOP, "estop", f"E-stop latched ({self.estop.reason})")
+            raise HandStopped(SafetyCode.ESTOP, f"the E-stop is latched ({self.estop.reason})")
 
     # ------------------------------------------------------------------ services
     @keep_serving
@@ -990,9 +1210,26 @@ class BridgeNode(Node):
         if self._move is not None:
             resp.success, resp.message = False, "a move is running; bias only an unloaded hand"
         else:
+            requested_s = time.monotonic()
             self.sensors.bias()
-            self.hand.tare()
-            resp.success, resp.message = True, f"biased {self.sensors.describe()}"
+            if self.sensors.biased_by_box:  # tare on records that carry the box's new bias
+                fresh_s = requested_s + BIAS_SETTLE_S
+                names = [f"fingertip{i + 1}" for i in range(3)]
+                deadline = time.monotonic() + BIAS_TIMEOUT_S
+                while time.monotonic() < deadline and any(
+                    self.watchdog.newest(n) < fresh_s for n in names
+                ):
+                    time.sleep(0.002)
+                late = [n for n in names if self.watchdog.newest(n) < fresh_s]
+                if late:
+                    resp.success = False
+                    resp.message = (
+                        f"biased, but no record from {', '.join(late)} within "
+                        f"{BIAS_TIMEOUT_S:.1f} s after it: not tared"
+                    )
+            if not resp.message:
+                self.hand.tare()
+                resp.success, resp.message = True, f"biased {self.sensors.describe()}"
         self.get_logger().info(f"bias: {resp.message}")
         return resp
 

@@ -41,6 +41,21 @@ class DriverError(RuntimeError):
     """A driver refused a request or did not answer in time."""
 
 
+class Latched(DriverError):
+    """The E-stop was latched, so the command was not sent."""
+
+
+#: Runs a motion command only while the E-stop is released, so that no latch lands between
+#: the check and the send: gate(command) → (ran, command's value)
+#: (rrg_hw_bridge.safety.EStop.run_if_released).
+Gate = Callable[[Callable[[], object]], tuple[bool, object]]
+
+
+def open_gate(command: Callable[[], object]) -> tuple[bool, object]:
+    """The gate of a driver without an E-stop: always runs the command."""
+    return True, command()
+
+
 def answer(future: Future, service: str):
     """The response of a service call, waiting at most DRIVER_TIMEOUT; DriverError when the
     driver does not answer."""
@@ -58,12 +73,20 @@ def duration(seconds: float) -> Duration:
 class TrajectoryArm:
     """The arm through ``control_msgs/action/FollowJointTrajectory`` (any ros2_control arm)."""
 
-    def __init__(self, node: Node, action_name: str, joint_names: tuple[str, ...], group):
+    def __init__(
+        self,
+        node: Node,
+        action_name: str,
+        joint_names: tuple[str, ...],
+        group,
+        gate: Gate = open_gate,
+    ):
         self.joint_names = joint_names
         self.client = ThreadSafeActionClient(
             node, FollowJointTrajectory, action_name, callback_group=group
         )
         self.action_name = action_name
+        self.gate = gate
 
     def ready(self) -> bool:
         return self.client.server_is_ready()
@@ -82,14 +105,23 @@ class TrajectoryArm:
         )
 
     def send(self, goal):
-        """Send a goal; returns its ClientGoalHandle once accepted (DriverError otherwise)."""
+        """Send a goal through the gate; returns its ClientGoalHandle once accepted (Latched
+        when the gate is shut, DriverError when the controller refuses or is silent)."""
+        sent, future = self.gate(lambda: self.client.send_goal_async(goal))
+        if not sent:
+            raise Latched(f"{self.action_name}: the E-stop is latched; the goal was not sent")
         try:
-            handle = wait_for(self.client.send_goal_async(goal), DRIVER_TIMEOUT)
+            handle = wait_for(future, DRIVER_TIMEOUT)
         except WaitTimeout as exc:
             raise DriverError(f"{self.action_name}: no answer to the goal") from exc
         if not handle.accepted:
             raise DriverError(f"{self.action_name} rejected the goal")
         return handle
+
+    def hold(self, q: np.ndarray, hold_time: float) -> None:
+        """Hold the arm at ``q`` (7,) [rad]: a one-point goal ``hold_time`` [s] ahead, which
+        replaces the running goal (JTC preempts by arrival). A stop: no gate, no wait."""
+        self.client.send_goal_async(self.goal(np.asarray(q)[None, :], np.array([hold_time]), 1.0))
 
 
 # ---------------------------------------------------------------------- Barrett's wam_node
@@ -214,8 +246,10 @@ class WamNodeArm:
         measured: Callable[[], np.ndarray],
         rt_topic: str = "/wam/RTJointPositionCMD",
         hold_service: str = "/wam/holdJointPosition",
+        gate: Gate = open_gate,
     ):
         self.node, self.joint_names, self.measured = node, joint_names, measured
+        self.gate = gate  # every streamed command passes it; a shut gate ends the stream
         self.rt_topic, self.hold_service = rt_topic, hold_service
         self.publisher = node.create_publisher(RTJointPositions, rt_topic, 10)
         self.hold_client = node.create_client(SetBool, hold_service, callback_group=group)
@@ -274,6 +308,11 @@ class WamNodeArm:
             daemon=True,
         ).start()
         return handle
+
+    def hold(self, q: np.ndarray, hold_time: float) -> None:
+        """Hold the arm where it is (holdJointPosition true; ``q`` and ``hold_time`` are
+        TrajectoryArm's). A stop: no gate, no wait."""
+        self._hold(wait=False)
 
     def _hold(self, wait: bool) -> Future:
         """holdJointPosition(true); waiting for the answer (DriverError if refused or missing)."""
@@ -356,7 +395,9 @@ class WamNodeArm:
             with self._lock:
                 if handle.canceled:
                     break
-                self.publisher.publish(msg)
+                sent, _ = self.gate(lambda: self.publisher.publish(msg))
+                if not sent:  # latched: the bridge cancels, which sends the hold
+                    break
                 self._last_sent, self._tracking = time.monotonic(), True
             measured = np.asarray(self.measured(), dtype=float)
             error = np.abs(measured - command)
@@ -410,7 +451,8 @@ class WamNodeArm:
 class BarrettHandServices:
     """The BarrettHand through Barrett's ROS 2 services (barrett-ros2-pkg's wam_node)."""
 
-    def __init__(self, node: Node, prefix: str, group):
+    def __init__(self, node: Node, prefix: str, group, gate: Gate = open_gate):
+        self.gate = gate  # every motion command passes it; stop() does not
         make = lambda srv, name: node.create_client(srv, f"{prefix}/{name}", callback_group=group)
         self.finger_position = make(FingerPosition, "moveToFingerPositions")
         self.spread_position = make(SpreadPosition, "moveToSpreadPosition")
@@ -423,8 +465,13 @@ class BarrettHandServices:
             for c in (self.finger_position, self.spread_position, self.finger_velocity)
         )
 
-    def _call(self, client, request, wait: bool = True):
-        future = client.call_async(request)
+    def _call(self, client, request, wait: bool = True, gated: bool = True):
+        if gated:
+            sent, future = self.gate(lambda: client.call_async(request))
+            if not sent:
+                raise Latched(f"{client.srv_name}: the E-stop is latched; not sent")
+        else:
+            future = client.call_async(request)
         if not wait:
             return future
         response = answer(future, client.srv_name)
@@ -445,12 +492,24 @@ class BarrettHandServices:
         )
 
     def finger_velocities(self, velocity: np.ndarray, wait: bool = True) -> None:
-        """Command proximal velocities (3,) [rad/s]; 0 stops (and holds) that finger."""
+        """Command proximal velocities (3,) [rad/s]; 0 stops (and holds) that finger. All zero
+        is a stop, which no gate holds back."""
+        velocity = np.asarray(velocity, dtype=float)
         self._call(
             self.finger_velocity,
-            FingerVelocity.Request(velocity=np.asarray(velocity, dtype=float).tolist()),
+            FingerVelocity.Request(velocity=velocity.tolist()),
             wait=wait,
+            gated=bool(np.any(velocity != 0.0)),
         )
+
+    def stop(self, spread: float) -> None:
+        """Stop every hand motor now, whatever the gate says: the fingers at zero velocity and
+        the spread told to stay at ``spread`` [rad] (its measured position; the services have
+        no spread velocity). Does not wait for the answers."""
+        self._call(self.finger_velocity, FingerVelocity.Request(velocity=[0.0] * 3), False, False)
+        if np.isfinite(spread):
+            request = SpreadPosition.Request(position=float(spread))
+            self._call(self.spread_position, request, wait=False, gated=False)
 
     def idle(self) -> None:
         self._call(self.idle_client, Trigger.Request(), wait=False)
@@ -458,6 +517,9 @@ class BarrettHandServices:
 
 class RdtSensors:
     """Three Net F/T boxes (one Nano17 each) through the built-in RDT client."""
+
+    #: bias() asks the boxes, which apply it to the records they send after the request.
+    biased_by_box = True
 
     def __init__(
         self,
@@ -523,6 +585,9 @@ class RdtSensors:
 
 class WrenchTopicSensors:
     """Fingertip wrenches from ``geometry_msgs/WrenchStamped`` topics of an existing driver."""
+
+    #: bias() leaves the driver alone: the bridge's tare is the whole bias.
+    biased_by_box = False
 
     def __init__(
         self,

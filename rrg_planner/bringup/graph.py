@@ -293,11 +293,17 @@ class Graph:
         """Start the arm/hand interface's processes (INTERFACE[self.interface])."""
         world = {"object_name": object_name, "seed": seed, "sensor_noise": sensor_noise}
         hosts = f"[{','.join(repr(h) for h in rdt_addresses(int(self.env['ROS_DOMAIN_ID'])))}]"
+        # The emulated robot's bridge arms itself at start; its latch lives as long as the run
+        # (a restarted bridge keeps an E-stop). On a real arm the operator arms it.
+        emulated_estop = {"arm_on_start": "true"}
+        run_dir = self.state_dir or self.log_dir
+        if run_dir is not None:
+            emulated_estop["estop_latch_file"] = str(Path(run_dir) / "estop.latched")
         params = {
             "sim": {**world, "real_time_factor": real_time_factor, "world_profile": world_profile},
             "fake_hw": {**world, "rdt_hosts": hosts},
             "hw_bridge": {
-                **({"rdt_hosts": hosts} if self.interface == "fake_hw" else {}),
+                **({"rdt_hosts": hosts, **emulated_estop} if self.interface == "fake_hw" else {}),
                 **(hw_params or {}),
             },
         }
@@ -464,6 +470,25 @@ class Graph:
     def result(self, future, timeout_s: float, what: str):
         self.spin_until(future.done, timeout_s, what)
         return future.result()
+
+    def wait_armed(self, timeout_s: float) -> None:
+        """On a real arm: wait until the bridge's status says ready, which needs an operator to
+        arm it (it starts not armed); says once what it waits for."""
+        from diagnostic_msgs.msg import DiagnosticStatus
+
+        status: list = []
+        self.node.create_subscription(
+            DiagnosticStatus, "/rrg/bridge/status", lambda m: status.append(m), 10
+        )
+        self.spin_until(lambda: status, timeout_s, "the bridge's status")
+        if status[-1].level != DiagnosticStatus.OK:
+            print(
+                f"[rrg-launch] the bridge is not ready: {status[-1].message}. Release the E-stop "
+                "and arm it: ros2 service call /rrg/bridge/reset_estop std_srvs/srv/Trigger",
+                flush=True,
+            )
+        ready = lambda: status[-1].level == DiagnosticStatus.OK
+        self.spin_until(ready, timeout_s, "an armed bridge with fresh data")
 
     def wait_ready(self, timeout_s: float) -> float:
         """Wait for every service and action server and for the recorder's subscriptions;

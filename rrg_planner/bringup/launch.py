@@ -339,6 +339,8 @@ def main(argv: list[str] | None = None) -> int:
             + (f", recording to {bag_dir}" if bag_dir else ""),
             flush=True,
         )
+        if interface == "hw" and (args.grasp or soak is not None):
+            graph.wait_armed(args.ready_timeout)
         if soak is not None:
             status = soak.run(graph)
         elif args.grasp:
