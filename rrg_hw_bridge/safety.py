@@ -346,6 +346,14 @@ class ForceCeiling:
         self.force_limit_n = float(force_limit_n)
         self.torque_limit_nm = float(torque_limit_nm)
 
+    def over(self, wrenches) -> np.ndarray:
+        """(fingers,) bool: which fingertips' wrenches (fingers,6) exceed the ceiling (a
+        non-finite reading counts as over)."""
+        w = np.asarray(wrenches, dtype=float)
+        force, torque = np.linalg.norm(w[:, :3], axis=1), np.linalg.norm(w[:, 3:], axis=1)
+        within = (force <= self.force_limit_n) & (torque <= self.torque_limit_nm)
+        return ~within  # NaN compares False: over
+
     def check(self, wrenches) -> Refusal | None:
         """Fingertip wrenches (3,6) (Fx, Fy, Fz [N], Tx, Ty, Tz [N m], fingers 1-3) → FORCE_LIMIT
         naming the fingertip most over its ceiling, SENSOR_FAULT for a non-finite reading, or

@@ -13,6 +13,7 @@ fake's event times, ``time.monotonic()`` stamps comparable across processes on t
 
 from __future__ import annotations
 
+import functools
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -586,8 +587,8 @@ def test_estops_at_random_instants_never_let_a_goal_run_after_the_latch(hw):
         accepted = hw.events("goal_accepted", since)
         ended = hw.events("goal_finished", since)
         assert len(ended) == len(accepted), f"move {k}: a goal is left running"
-        if res.error_code == R.NONE:  # it ran to its end: only if that was before the press
-            assert ended and ended[-1] < pressed, f"move {k}: a goal ran on after the latch"
+        if res.error_code == R.NONE:  # it ran to its end before the press could reach it
+            assert ended and ended[-1] - pressed < ESTOP_CANCEL_S, f"move {k}: ran on after it"
             finished_before += 1
             continue
         assert res.error_code == R.ESTOP, f"move {k}: {res.error_code} {res.error_msg}"
@@ -688,23 +689,43 @@ def spread_of(rig: Rig) -> float:
     return js.position[js.name.index("bh_f1_spread")]
 
 
-def test_the_force_ceiling_and_the_watchdog_stop_a_closing_hand(hw):
-    for fault, value, code in (
-        ("fault.extra_force", 25.0, R.FORCE_LIMIT),  # N on fingertip 1; the ceiling is 20 N
-        ("fault.silent_box", 0, R.STALE_DATA),
+def hand_stop_reports(rig: Rig, since: float, code: int) -> list[DiagnosticStatus]:
+    """bridge/safety reports of a hand command stopped with ``code`` since ``since``."""
+    return [
+        m
+        for m in rig.safety(since)
+        if m.values[0].value == str(code) and "hand command" in m.message
+    ]
+
+
+def test_the_force_ceiling_and_the_watchdog_guard_the_hand(hw):
+    """The ceiling stops every hand motor in a position move and limits a closing finger's
+    squeeze (that finger stops, the others close on); stale data stops a closing hand."""
+    limit = HAND.proximal_range[1]
+    for mode, fault, value, code in (
+        (Q.MODE_POSITION, "fault.extra_force", 25.0, R.FORCE_LIMIT),  # N on fingertip 1 > 20 N
+        (Q.MODE_CLOSE, "fault.silent_box", 0, R.STALE_DATA),
+        (Q.MODE_CLOSE, "fault.extra_force", 25.0, None),
     ):
-        future = hand_command_async(hw, Q.MODE_CLOSE)
+        request = HandCommand.Request(mode=mode, proximal=[limit] * 3)
+        future = hw.hand.call_async(request)
         hw.spin(0.3)
         since = time.monotonic()
         hw.set_fault(fault, value)
         answer = hw.client.result(future, WAIT)
-        assert answer.error_code == H.STOPPED, (fault, answer.error_msg)
         q = proximal(answer)
-        assert np.all(q < HAND.proximal_range[1] - 0.3), q  # stopped on the way
-        reports = [m for m in hw.safety(since) if m.values[0].value == str(code)]
-        assert any("hand command" in m.message for m in reports), fault
-        hw.spin(0.3)
-        np.testing.assert_allclose(proximal_now(hw), q, atol=0.05)  # held
+        if code is None:  # the squeeze's limit
+            assert answer.error_code == H.NONE, answer.error_msg
+            assert q[0] < limit - 0.3 and np.all(q[1:] > limit - 0.15), q
+        else:
+            assert answer.error_code == H.STOPPED, (fault, answer.error_msg)
+            reported = functools.partial(hand_stop_reports, hw, since, code)
+            assert hw.client.spin_until(reported, 5.0), fault
+            hw.spin(0.3)
+            q = proximal_now(hw)
+            assert np.all(q < limit - 0.3), q  # stopped on the way
+            hw.spin(0.3)
+            np.testing.assert_allclose(proximal_now(hw), q, atol=0.01)  # and held
         hw.set_fault(fault, FAULTS[fault].default)
         hw.wait_ready()
         assert hw.hand_command(Q.MODE_OPEN).error_code == H.NONE

@@ -177,10 +177,14 @@ class Measured:
 
 @dataclass
 class HandMotion:
-    """A hand command being executed, and why the safety layer stopped it (set once)."""
+    """A hand command being executed, and why the safety layer stopped it (set once). While
+    the hand closes, the force ceiling limits each finger's squeeze instead: a finger whose
+    fingertip crosses it stops (``squeezed``) and the others close on."""
 
+    closing: bool = False
     code: int | None = None
     message: str = ""
+    squeezed: np.ndarray = field(default_factory=lambda: np.zeros(3, bool))
 
 
 class HandStopped(RuntimeError):
@@ -719,11 +723,13 @@ class BridgeNode(Node):
         """A fingertip sample (load on the fingertip, sensor frame) from a box or a topic."""
         tips = self.hand.set_tip(finger, wrench)
         self.watchdog.feed(f"fingertip{finger + 1}", received_s)
-        move = self._move
-        if move is None and self._hand_motion is None:
+        move, motion = self._move, self._hand_motion
+        if move is None and motion is None:
             return
         over = self.ceiling.check(tips)
-        if over is not None:
+        if over is not None and move is None and motion.closing and np.isfinite(tips).all():
+            motion.squeezed |= self.ceiling.over(tips)  # the squeeze's limit: that finger stops
+        elif over is not None:
             self.stop_all(over.code, over.check, over.message)
         elif move is not None and move.guard is not None:  # derived pads: read afresh per sample
             trip = move.guard.check_sensors(self.hand.pads(), tips, self.hand.derive_pads)
@@ -1161,6 +1167,7 @@ class BridgeNode(Node):
         """Close every finger until it stops (rrg_sim.hand_sensing.FingerClosing, as the
         simulator's closing); returns the sensors (10,) fired at any time while closing."""
         closing = FingerClosing(guarded)
+        self._hand_motion.closing = True  # the ceiling now limits each finger's squeeze
         velocity = np.full(3, closing.speed)
         self.hand_driver.finger_velocities(velocity)
         sent = last = time.monotonic()
@@ -1171,6 +1178,14 @@ class BridgeNode(Node):
                 self.check_hand_motion()
                 m = self.measured()
                 new = closing.update(now - last, m.hand_v[2:5], self.hand.fired())
+                squeezed = self._hand_motion.squeezed & ~closing.stopped
+                if squeezed.any():
+                    self.get_logger().info(
+                        f"fingers {(np.nonzero(squeezed)[0] + 1).tolist()} stopped at the force "
+                        "ceiling while closing"
+                    )
+                    closing.stopped |= squeezed
+                    new = new | squeezed
                 last = now
                 if new.any():
                     velocity[closing.stopped] = 0.0
