@@ -22,8 +22,9 @@ import numpy as np
 import pytest
 from action_msgs.msg import GoalStatus
 from builtin_interfaces.msg import Duration
-from diagnostic_msgs.msg import DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import WrenchStamped
+from rcl_interfaces.msg import SetParametersResult
 from rcl_interfaces.srv import SetParameters
 from rclpy.action import ActionClient
 from rclpy.parameter import Parameter
@@ -114,7 +115,7 @@ class Rig:
         self.estop_pub = n.create_publisher(Bool, "/rrg/estop", 10)
         self.bias = n.create_client(Trigger, "/rrg/bridge/bias")
         self.seen: dict[str, list] = {
-            k: [] for k in ("events", "safety", "plan", "status", "js", "tip1")
+            k: [] for k in ("events", "safety", "plan", "status", "js", "tip1", "diagnostics")
         }
 
         def keep(key: str, limit: int = 2000):
@@ -130,16 +131,23 @@ class Rig:
         n.create_subscription(DiagnosticStatus, "/rrg/bridge/status", keep("status"), 10)
         n.create_subscription(JointState, "/rrg/joint_states", keep("js", 200), 10)
         n.create_subscription(WrenchStamped, "/rrg/fingertip1/wrench", keep("tip1", 200), 10)
+        n.create_subscription(DiagnosticArray, "/diagnostics", keep("diagnostics", 200), 10)
+        self.bridge_params_client = n.create_client(SetParameters, "/rrg/hw_bridge/set_parameters")
         self.start_bridge()
         assert self.client.spin_until(lambda: self.estop_pub.get_subscription_count() > 0, WAIT)
 
     # ------------------------------------------------------------------ processes
-    def start_bridge(self, ready: bool = True, **extra: str) -> None:
-        """Start the bridge (with ``extra`` parameters) and wait until it serves, and until it
-        is ready when ``ready``."""
+    def start_bridge(
+        self, ready: bool = True, params_file: Path | None = None, **extra: str
+    ) -> None:
+        """Start the bridge (with a parameters file and ``extra`` parameters) and wait until it
+        serves, and until it is ready when ``ready``."""
         self.bridge_runs += 1
         log = self.log_dir / f"hw_bridge_{self.bridge_runs}.log"
-        self.procs["bridge"] = start_node(BRIDGE, self.env, log, {**self.bridge_params, **extra})
+        options = ["--ros-args", "--params-file", str(params_file), "--"] if params_file else []
+        self.procs["bridge"] = start_node(
+            BRIDGE, self.env, log, {**self.bridge_params, **extra}, options
+        )
         procs = list(self.procs.values())
         services = [self.hand, self.reset_estop, self.params, self.reset_sim]
         self.client.wait_for_services(services, procs, timeout_s=60.0)
@@ -151,11 +159,11 @@ class Rig:
         stop_process(self.procs.pop("bridge"))
 
     @contextmanager
-    def bridge_with(self, ready: bool = True, **extra: str):
-        """The bridge restarted with ``extra`` parameters for the block (waiting until it is
-        ready when ``ready``), then as before."""
+    def bridge_with(self, ready: bool = True, params_file: Path | None = None, **extra: str):
+        """The bridge restarted with a parameters file and ``extra`` parameters for the block
+        (waiting until it is ready when ``ready``), then as before."""
         self.stop_bridge()
-        self.start_bridge(ready, **extra)
+        self.start_bridge(ready, params_file, **extra)
         try:
             yield
         finally:
@@ -846,3 +854,51 @@ def test_nan_interfaces_are_detected_and_a_guard_that_cannot_run_refuses_its_mov
             assert answer.error_code == H.NONE, answer.error_msg
             assert time.monotonic() - since < 10.0
             np.testing.assert_allclose(proximal(answer)[[0, 2]], HAND.proximal_range[1], atol=0.15)
+
+
+# ---------------------------------------------------------------------- operations
+def test_a_params_file_a_lowered_speed_scale_the_spread_sign_and_diagnostics(hw, tmp_path):
+    """Parameters from a YAML file; speed_scale lowered at run time, never raised above the
+    file's; spread_sign flips bhand_j11's reading; status and refusals on /diagnostics."""
+    params = tmp_path / "bridge.yaml"
+    params.write_text("/**:\n  ros__parameters:\n    speed_scale: 0.5\n    spread_sign: -1\n")
+    started = time.monotonic()
+    with hw.bridge_with(params_file=params):
+        statuses = lambda: [
+            {v.key: v.value for v in st.values}
+            for t, a in hw.seen["diagnostics"]
+            if t > started
+            for st in a.status
+            if st.name == "hw_bridge/status"
+        ]
+        assert hw.client.spin_until(statuses, WAIT)
+        assert statuses()[-1]["speed_scale"] == "0.5"
+
+        def set_scale(value: float) -> SetParametersResult:
+            prm = Parameter("speed_scale", value=value).to_parameter_msg()
+            req = SetParameters.Request(parameters=[prm])
+            return hw.client.call(hw.bridge_params_client, req).results[0]
+
+        raised = set_scale(0.8)
+        assert not raised.successful and "only be lowered" in raised.reason
+        assert set_scale(0.25).successful
+        hw.seen["plan"].clear()
+        since = time.monotonic()
+        status, res = hw.run(short_move(hw))  # 0.5 s at full speed
+        assert status == GoalStatus.STATUS_SUCCEEDED, res.error_msg
+        plan = hw.seen["plan"][-1][1]
+        last = plan.points[-1].time_from_start
+        assert last.sec + last.nanosec * 1e-9 == pytest.approx(0.5 / 0.25, rel=1e-6)
+        answer = hw.hand_command(Q.MODE_OPEN, spread=0.5)
+        js = answer.joint_state
+        assert js.position[js.name.index("bh_f1_spread")] == pytest.approx(-0.5, abs=0.05)
+        hw.estop(True)
+        refused = lambda: [
+            st
+            for t, a in hw.seen["diagnostics"]
+            if t > since
+            for st in a.status
+            if st.name == "hw_bridge/estop" and st.level == DiagnosticStatus.ERROR
+        ]
+        assert hw.client.spin_until(refused, 5.0)
+        arm_bridge(hw)

@@ -29,9 +29,14 @@ from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import WrenchStamped
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
 from rclpy.action import GoalResponse
 from rclpy.action.server import ServerGoalHandle
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -210,13 +215,15 @@ class ActiveMove:
     recovery_excess: float | None = None
 
 
-def _float_param(node: Node, name: str, value: float, text: str, lo: float, hi: float) -> None:
+def _float_param(
+    node: Node, name: str, value: float, text: str, lo: float, hi: float, read_only: bool = True
+) -> None:
     node.declare_parameter(
         name,
         value,
         ParameterDescriptor(
             description=text,
-            read_only=True,
+            read_only=read_only,
             floating_point_range=[FloatingPointRange(from_value=lo, to_value=hi)],
         ),
     )
@@ -241,6 +248,9 @@ class BridgeNode(Node):
             raise ValueError("arm_joint_names needs 7 names and hand_joint_names 8")
         self.dry_run = bool(p("dry_run"))
         self.speed_scale = float(p("speed_scale"))
+        self.speed_scale_cap = self.speed_scale  # run-time changes may only lower it
+        self.spread_sign = float(p("spread_sign"))
+        self.add_on_set_parameters_callback(self.on_set_parameters)
         self.watchdog_timeout = float(p("watchdog_timeout"))
         derive = p("pad_source") == "derived"
         self.hand = HandState(derive_pads=derive)
@@ -336,6 +346,9 @@ class BridgeNode(Node):
         self.state_pubs = StatePublishers.create(self)
         self.plan_pub = self.create_publisher(JointTrajectory, "bridge/plan", 10)
         self.safety_pub = self.create_publisher(DiagnosticStatus, "bridge/safety", 10)
+        #: every status and safety event also goes on /diagnostics, as ROS drivers publish
+        #: theirs (rqt_robot_monitor, Foxglove)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         serve_arm_hand_interface(
             self, self.execute_guarded_move, self.on_move_goal, self.on_hand_command, group
         )
@@ -489,9 +502,21 @@ class BridgeNode(Node):
             self,
             "speed_scale",
             1.0,
-            "Speed-scaling cap: every trajectory runs at this fraction of its speed",
+            "Speed-scaling cap: every trajectory runs at this fraction of its speed; may be "
+            "lowered at run time, never raised above its start value",
             0.01,
             1.0,
+            read_only=False,
+        )
+        self.declare_parameter(
+            "spread_sign",
+            1,
+            ParameterDescriptor(
+                description="Sign of the driver's bhand_j11 (finger 1 spread) reading: 1, or -1 "
+                "where it is flipped (the hand run without the WAM)",
+                read_only=True,
+                integer_range=[IntegerRange(from_value=-1, to_value=1, step=2)],
+            ),
         )
         self.declare_parameter(
             "retime",
@@ -551,20 +576,43 @@ class BridgeNode(Node):
             1000.0,
         )
 
+    def on_set_parameters(self, params) -> SetParametersResult:
+        """Run-time changes: ``speed_scale`` may be lowered, never raised above its start
+        value (the descriptors refuse every read-only parameter)."""
+        for prm in params:
+            if prm.name != "speed_scale":
+                continue
+            value = float(prm.value)
+            if not 0.0 < value <= self.speed_scale_cap:
+                return SetParametersResult(
+                    successful=False,
+                    reason=f"speed_scale may only be lowered: {value} is not in "
+                    f"(0, {self.speed_scale_cap}] (its start value)",
+                )
+            self.speed_scale = value
+            self.get_logger().warn(f"speed_scale set to {value} (at most {self.speed_scale_cap})")
+        return SetParametersResult(successful=True)
+
     # ------------------------------------------------------------------ safety reports
     def report(self, code: int, check: str, message: str, refused: bool) -> None:
         """Log a refusal or a safety stop and publish it on bridge/safety."""
         what = "refused" if refused else "stopped"
         self.get_logger().error(f"{what} [{check}, code {code}]: {message}")
-        self.safety_pub.publish(
-            DiagnosticStatus(
-                level=DiagnosticStatus.ERROR,
-                name=f"{NODE_NAME}/{check}",
-                message=f"{what}: {message}",
-                hardware_id="wam",
-                values=[KeyValue(key="code", value=str(code)), KeyValue(key="what", value=what)],
-            )
+        status = DiagnosticStatus(
+            level=DiagnosticStatus.ERROR,
+            name=f"{NODE_NAME}/{check}",
+            message=f"{what}: {message}",
+            hardware_id="wam",
+            values=[KeyValue(key="code", value=str(code)), KeyValue(key="what", value=what)],
         )
+        self.safety_pub.publish(status)
+        self.publish_diagnostics(status)
+
+    def publish_diagnostics(self, status: DiagnosticStatus) -> None:
+        """One status on /diagnostics (diagnostic_msgs/DiagnosticArray)."""
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.diagnostics_pub.publish(array)
 
     def gate(self) -> Refusal | None:
         """Why no command may start now (the E-stop or a robot fault, the arm's driver missing,
@@ -682,8 +730,9 @@ class BridgeNode(Node):
                     self._efforts.append(m.arm_effort)
             for k, i in enumerate(hand):
                 if i is not None:
-                    m.hand_q[k] = pos[i]
-                    m.hand_v[k] = vel[i]
+                    sign = self.spread_sign if k == 0 else 1.0  # bhand_j11's reading
+                    m.hand_q[k] = sign * pos[i]
+                    m.hand_v[k] = sign * vel[i]
             m.received_s = now
             move = self._move
             arm_q, effort, hand_q = m.arm_q.copy(), m.arm_effort, m.hand_q.copy()
@@ -849,17 +898,19 @@ class BridgeNode(Node):
             "estop": self.estop.reason or "armed",
             "stale": ", ".join(self.watchdog.stale(now)) or "none",
             "dry_run": str(self.dry_run),
+            "speed_scale": f"{self.speed_scale:g}",
+            "interfaces": self.describe_interfaces(),
         }
         refusal = self.gate()
-        self.status_pub.publish(
-            DiagnosticStatus(
-                level=DiagnosticStatus.OK if refusal is None else DiagnosticStatus.WARN,
-                name=f"{NODE_NAME}/status",
-                message="ready" if refusal is None else refusal.message,
-                hardware_id="wam",
-                values=[KeyValue(key=k, value=v) for k, v in values.items()],
-            )
+        status = DiagnosticStatus(
+            level=DiagnosticStatus.OK if refusal is None else DiagnosticStatus.WARN,
+            name=f"{NODE_NAME}/status",
+            message="ready" if refusal is None else refusal.message,
+            hardware_id="wam",
+            values=[KeyValue(key=k, value=v) for k, v in values.items()],
         )
+        self.status_pub.publish(status)
+        self.publish_diagnostics(status)
 
     def wait_joint_state(self, timeout: float) -> None:
         with self._joint_event:

@@ -143,12 +143,23 @@ def respawn_delay(attempt: int, first_s: float, max_s: float = RESPAWN_DELAY_MAX
     return min(first_s * 2.0 ** (attempt - 1), max_s)
 
 
-def ros_environment(domain_id: int) -> dict[str, str]:
-    """The children's environment: loopback discovery in the given DDS domain."""
+#: ROS 2's automatic discovery ranges (ROS_AUTOMATIC_DISCOVERY_RANGE, Jazzy).
+DISCOVERY_RANGES = ("LOCALHOST", "SUBNET", "SYSTEM_DEFAULT", "OFF")
+
+
+def ros_environment(
+    domain_id: int, discovery_range: str = "LOCALHOST", static_peers: str = ""
+) -> dict[str, str]:
+    """The children's environment in the given DDS domain: loopback discovery by default (a
+    real robot's drivers on another host need SUBNET, or OFF with ``static_peers``, the
+    ``;``-separated addresses of ROS_STATIC_PEERS)."""
+    if discovery_range not in DISCOVERY_RANGES:
+        raise ValueError(f"discovery range must be one of {DISCOVERY_RANGES}")
     env = dict(
         os.environ,
         ROS_DOMAIN_ID=str(domain_id),
-        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+        ROS_AUTOMATIC_DISCOVERY_RANGE=discovery_range,
+        ROS_STATIC_PEERS=static_peers,
         PYTHONUNBUFFERED="1",
     )
     env.pop("ROS_LOCALHOST_ONLY", None)  # deprecated; the discovery range replaces it
@@ -156,8 +167,11 @@ def ros_environment(domain_id: int) -> dict[str, str]:
     return env
 
 
-def ros_args(params: dict[str, object]) -> list[str]:
+def ros_args(params: dict[str, object], params_file: Path | None = None) -> list[str]:
+    """``--ros-args [--params-file FILE] -p k:=v ...`` (the -p values override the file's)."""
     args = ["--ros-args"]
+    if params_file is not None:
+        args += ["--params-file", str(params_file)]
     for k, v in params.items():
         args += ["-p", f"{k}:={v}"]
     return args
@@ -230,13 +244,15 @@ class Graph:
         hw_params: dict[str, str] | None = None,
         world_profile: str = "nominal",
         preload: list[str] | None = None,
+        hw_params_file: Path | None = None,
     ) -> None:
         """Start the recorder (if recording), the arm/hand interface and the executor, estimator
         and planner (the launch time counts from here). ``hw_params``: the bridge's parameters;
         ``world_profile``: the simulator's (rrg_sim.config.WORLD_PROFILES), which the estimator
         and the planner assume too (on hardware they assume "realistic": a real robot's
         calibration error); ``preload``: the objects whose planning models the planner loads
-        first (default: ``object_name``)."""
+        first (default: ``object_name``); ``hw_params_file``: a ROS 2 parameters YAML for the
+        bridge, which ``hw_params`` override."""
         self.started = time.monotonic()
         if self.bag_dir is not None:
             self.spawn(
@@ -260,7 +276,13 @@ class Graph:
                 restart_args=["--append"],  # the next split of the bag
             )
         self.start_interface(
-            object_name, seed, real_time_factor, sensor_noise, hw_params, world_profile
+            object_name,
+            seed,
+            real_time_factor,
+            sensor_noise,
+            hw_params,
+            world_profile,
+            hw_params_file,
         )
         state = {}
         if self.state_dir is not None:  # a fresh run: no state of an earlier one
@@ -289,6 +311,7 @@ class Graph:
         sensor_noise: float = 1.0,
         hw_params: dict[str, str] | None = None,
         world_profile: str = "nominal",
+        hw_params_file: Path | None = None,
     ) -> None:
         """Start the arm/hand interface's processes (INTERFACE[self.interface])."""
         world = {"object_name": object_name, "seed": seed, "sensor_noise": sensor_noise}
@@ -308,7 +331,8 @@ class Graph:
             },
         }
         for name in INTERFACE[self.interface]:
-            self.spawn(name, ["-m", NODES[name], *ros_args(params[name])])
+            params_file = hw_params_file if name == "hw_bridge" else None
+            self.spawn(name, ["-m", NODES[name], *ros_args(params[name], params_file)])
 
     def supervise(self) -> None:
         """Restart the children that died, each after its backoff; LaunchError when one has died
@@ -420,7 +444,11 @@ class Graph:
         from rrg_sim.ros_common.liveliness import PeerWatch
 
         os.environ.update(
-            {k: self.env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
+            {
+                k: self.env[k]
+                for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS")
+                if k in self.env
+            }
         )
         self._context = rclpy.Context()
         # The launcher handles SIGINT itself (it must stop the children in order).

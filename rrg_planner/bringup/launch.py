@@ -50,6 +50,7 @@ import numpy as np
 
 from rrg_estimator.config import LEVELS
 from rrg_planner.bringup.graph import (
+    DISCOVERY_RANGES,
     GRASP_TIMEOUT_S,
     RESPAWN_DELAY_MAX_S,
     RESPAWN_DELAY_S,
@@ -107,6 +108,27 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NAME:=VALUE",
         help="a parameter of the hardware bridge (repeatable), e.g. dry_run:=true, "
         "limits_file:=my_wam.yaml, speed_scale:=0.5",
+    )
+    p.add_argument(
+        "--hw-params",
+        type=Path,
+        metavar="FILE",
+        help="a ROS 2 parameters YAML of the hardware bridge (node /rrg/hw_bridge, or /**); "
+        "--hw-param values override it",
+    )
+    p.add_argument(
+        "--discovery-range",
+        choices=DISCOVERY_RANGES,
+        default="LOCALHOST",
+        help="ROS_AUTOMATIC_DISCOVERY_RANGE of the graph: LOCALHOST (default) keeps it on this "
+        "host; a robot's drivers on another host need SUBNET, or OFF with --static-peers. DDS "
+        "is unauthenticated: use a dedicated network (or SROS2)",
+    )
+    p.add_argument(
+        "--static-peers",
+        default="",
+        metavar="HOSTS",
+        help="ROS_STATIC_PEERS: ';'-separated addresses of the hosts to discover (the WAM's PC)",
     )
     p.add_argument(
         "--domain-id",
@@ -252,9 +274,20 @@ def bags_writable(folder: Path, low_space_bytes: int | None = None) -> bool:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if args.mode == "sim" and (args.fake_hw or args.hw_param):
+    if args.mode == "sim" and (args.fake_hw or args.hw_param or args.hw_params):
         print("rrg-launch: --fake-hw and --hw-param need --mode hw", file=sys.stderr)
         return 2
+    if args.hw_params is not None and not args.hw_params.is_file():
+        print(f"rrg-launch: --hw-params: no such file: {args.hw_params}", file=sys.stderr)
+        return 2
+    if args.discovery_range != "LOCALHOST" or args.static_peers:
+        print(
+            f"[rrg-launch] discovery range {args.discovery_range}"
+            + (f", static peers {args.static_peers}" if args.static_peers else "")
+            + ": the graph is reachable beyond this host, and DDS is unauthenticated; use a "
+            "dedicated network, or SROS2",
+            flush=True,
+        )
     if not 0 <= args.domain_id <= 101:
         print(f"rrg-launch: --domain-id must be 0-101, got {args.domain_id}", file=sys.stderr)
         return 2
@@ -289,7 +322,7 @@ def main(argv: list[str] | None = None) -> int:
     interface = "sim" if args.mode == "sim" else ("fake_hw" if args.fake_hw else "hw")
     state_dir = STATE_ROOT / f"{name}_{os.getpid()}"
     graph = Graph(
-        ros_environment(args.domain_id),
+        ros_environment(args.domain_id, args.discovery_range, args.static_peers),
         bag_dir,
         args.log_dir,
         interface,
@@ -323,6 +356,7 @@ def main(argv: list[str] | None = None) -> int:
             dict(args.hw_param),
             args.world,
             objects,
+            args.hw_params.resolve() if args.hw_params else None,
         )
         graph.connect()
         if soak is not None:
