@@ -93,6 +93,34 @@ def ros_settings(env: dict) -> dict[str, str | None]:
     }
 
 
+#: Sets up a network namespace's links: loopback, and a veth pair on 10.77.0.0/24 that carries
+#: multicast, so DDS discovery beyond loopback (SUBNET) has a network to find its peers on.
+NETNS_SETUP = """set -e
+ip link set lo up
+ip link add rrg0 type veth peer name rrg1
+ip addr add 10.77.0.1/24 dev rrg0
+ip addr add 10.77.0.2/24 dev rrg1
+ip link set rrg0 up
+ip link set rrg1 up
+ip route add 224.0.0.0/4 dev rrg0
+exec "$@"
+"""
+
+
+def network_namespace(tmp_path: Path) -> list[str] | None:
+    """A command prefix that runs a command in a new network namespace of its own (an
+    unprivileged user namespace) with a veth pair (NETNS_SETUP), or None where this machine
+    cannot make one."""
+    script = tmp_path / "netns_setup.sh"
+    script.write_text(NETNS_SETUP)
+    prefix = ["unshare", "-rn", "bash", str(script)]
+    try:
+        ok = subprocess.run([*prefix, "true"], capture_output=True, timeout=10).returncode == 0
+    except (OSError, subprocess.TimeoutExpired):
+        ok = False
+    return prefix if ok else None
+
+
 def start_node(
     module: str, env: dict, log_path: Path, params: dict | None = None, options: list[str] = ()
 ) -> subprocess.Popen:

@@ -9,12 +9,18 @@ import signal
 import subprocess
 
 import pytest
-from ros_testing import ROOT, exclusive_domain_id, ros_env
+from ros_testing import ROOT, exclusive_domain_id, network_namespace, ros_env
 from rosbags.highlevel import AnyReader
 
 from rrg_planner.bags.bag_cli import bag_info
 
 NODE_MODULES = ROOT / ".cache" / "npm" / "node_modules"
+#: The bridge's parameters file (a lab's would name its drivers and limits).
+HW_PARAMS = """/**:
+  ros__parameters:
+    watchdog_timeout: 0.15
+    confirm_stops: true
+"""
 #: Longest run of the launcher [s] (a grasp takes ~ 1.5 min in real time).
 E2E_TIMEOUT_S = 600
 
@@ -22,15 +28,23 @@ pytestmark = pytest.mark.slow
 
 
 def test_a_robust_grasp_runs_end_to_end_through_the_bridge(tmp_path):
-    """rrg-launch in hw mode on the emulated drivers, in a DDS domain of its own."""
+    """rrg-launch in hw mode on the emulated drivers, in a DDS domain of its own, the bridge's
+    parameters from a file, discovering its peers beyond loopback (SUBNET) inside a network
+    namespace of its own (on this host's network where none can be made)."""
     logs = tmp_path / "logs"
+    params = tmp_path / "bridge.yaml"
+    params.write_text(HW_PARAMS)
+    netns = network_namespace(tmp_path)
+    print("in a network namespace" if netns else "no network namespace: on this host's network")
     with exclusive_domain_id() as domain_id:
         proc = subprocess.Popen(
             [
+                *(netns or []),
                 str(ROOT / ".venv" / "bin" / "rrg-launch"),
                 *("--mode", "hw", "--fake-hw", "--grasp", "powerdrill", "--level", "high"),
                 *("--seed", "0", "--json", "--domain-id", str(domain_id)),
                 *("--bags", str(tmp_path), "--bag-name", "hw", "--log-dir", str(logs)),
+                *("--hw-params", str(params), "--discovery-range", "SUBNET"),
             ],
             env=ros_env(domain_id),
             cwd=ROOT,
@@ -77,5 +91,7 @@ def test_a_robust_grasp_runs_end_to_end_through_the_bridge(tmp_path):
 
     texts = {p.name: p.read_text() for p in logs.glob("*.log")}
     assert {"fake_hw.log", "hw_bridge.log"} <= set(texts)
+    assert "watchdog 150 ms" in texts["hw_bridge.log"]  # from the parameters file
+    assert "discovery range SUBNET" in stdout
     texts["stdout+stderr"] = stdout + stderr
     assert not [name for name, text in texts.items() if "Traceback" in text]
