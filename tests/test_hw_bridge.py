@@ -902,3 +902,17 @@ def test_a_params_file_a_lowered_speed_scale_the_spread_sign_and_diagnostics(hw,
         ]
         assert hw.client.spin_until(refused, 5.0)
         arm_bridge(hw)
+
+
+def test_a_latched_net_ft_status_is_reset_and_the_arm_is_ready_again(hw):
+    """A box's status word (a latched threshold bit) stops the arm; the bridge answers it with
+    RESET_THRESHOLD_LATCH, and once the stream is clean goals run again, with nobody
+    intervening."""
+    handle = hw.started(slow_move(hw))
+    since = time.monotonic()
+    hw.set_fault("fault.status_word", 0x20000)  # latched in the emulated box until reset
+    assert_stopped(hw, handle, R.SENSOR_FAULT, since)
+    reports = [m for m in hw.safety(since) if m.values[0].value == str(R.SENSOR_FAULT)]
+    assert any("RESET_THRESHOLD_LATCH sent" in m.message for m in reports)
+    hw.wait_ready(5.0)
+    assert_runs(hw)

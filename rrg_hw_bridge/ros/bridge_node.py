@@ -278,6 +278,7 @@ class BridgeNode(Node):
         self._move_busy = threading.Lock()
         self._hand_busy = threading.Lock()
         self._sensor_fault_s = -np.inf
+        self._latch_reset_s = np.full(3, -np.inf)  # per box: the last RESET_THRESHOLD_LATCH
         self._sensor_fault = ""
         self._stale: list[str] = []
         self._watchdog_tick_s = time.monotonic()
@@ -786,8 +787,24 @@ class BridgeNode(Node):
                 self.stop_move(R.NONE, "contact", trip.describe(SENSOR_NAMES), trip)
 
     def on_sensor_fault(self, finger: int, kind: str, detail: str) -> None:
-        self._sensor_fault_s = time.monotonic()
+        """A Net F/T fault: the arm holds and the hand stops. A status word is first answered
+        with RESET_THRESHOLD_LATCH (a latched threshold bit clears; goals run again once the
+        stream has been clean for BRIDGE.sensor_fault_hold); one that persists after the reset
+        is a real condition of the box, and the refusal says so."""
+        now = time.monotonic()
+        self._sensor_fault_s = now
         self._sensor_fault = f"fingertip{finger + 1} Net F/T {kind}: {detail}"
+        if kind == "status":
+            since_reset = now - self._latch_reset_s[finger]
+            if since_reset > BRIDGE.sensor_fault_hold:
+                self._latch_reset_s[finger] = now
+                self.sensors.reset_latch(finger)
+                self._sensor_fault += " (RESET_THRESHOLD_LATCH sent)"
+            else:
+                self._sensor_fault += (
+                    f", still there {since_reset:.2f} s after RESET_THRESHOLD_LATCH: a condition "
+                    "of the box, not a latched threshold (its status page says which)"
+                )
         self.get_logger().warn(self._sensor_fault, throttle_duration_sec=1.0)
         self.stop_all(SafetyCode.SENSOR_FAULT, "sensor", self._sensor_fault)
 

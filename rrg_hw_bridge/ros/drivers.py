@@ -564,6 +564,10 @@ class RdtSensors:
         for c in self.clients:
             c.bias()
 
+    def reset_latch(self, finger: int) -> None:
+        """Clear box ``finger``'s latched threshold status (RESET_THRESHOLD_LATCH)."""
+        self.clients[finger].reset_latch()
+
     def stop(self) -> None:
         for c in self.clients:
             c.stop()
@@ -616,6 +620,9 @@ class WrenchTopicSensors:
 
     def bias(self) -> None:
         """Topic drivers bias through their own services; the bridge tares in software."""
+
+    def reset_latch(self, finger: int) -> None:
+        """Topic drivers report no status word."""
 
     def stop(self) -> None:
         pass
