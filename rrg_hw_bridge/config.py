@@ -89,7 +89,7 @@ RDT_REQUEST_FORMAT = ">HHI"
 #: in counts, big-endian, 36 bytes (manual, RDT record structure).
 RDT_RECORD_FORMAT = ">III6i"
 #: Counts per N and per N m of a box configured to report N and N m (the box serves the values
-#: it uses as cfgcpf / cfgcpt in http://<box>/netftcalapi.xml; a parameter of the bridge).
+#: it uses as cfgcpf / cfgcpt in http://<box>/netftapi2.xml; a parameter of the bridge).
 RDT_DEFAULT_COUNTS_PER_FORCE = 1_000_000.0
 RDT_DEFAULT_COUNTS_PER_TORQUE = 1_000_000.0
 #: Receive timeout [s] of the RDT client's socket, so stop() returns within it (chosen).

@@ -148,7 +148,7 @@ def decode_record(data: bytes) -> RdtRecord:
 # ------------------------------------------------------------------------ calibration
 @dataclass(frozen=True)
 class Calibration:
-    """Counts per N and per N m of one box (its netftcalapi.xml cfgcpf / cfgcpt)."""
+    """Counts per N and per N m of one box (its netftapi2.xml cfgcpf / cfgcpt)."""
 
     counts_per_force: float = DEFAULT_COUNTS_PER_FORCE
     counts_per_torque: float = DEFAULT_COUNTS_PER_TORQUE

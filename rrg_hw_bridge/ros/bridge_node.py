@@ -434,7 +434,7 @@ class BridgeNode(Node):
             self,
             "counts_per_force",
             DEFAULT_COUNTS_PER_FORCE,
-            "Net F/T counts per N (netftcalapi.xml cfgcpf)",
+            "Net F/T counts per N (netftapi2.xml cfgcpf)",
             1.0,
             1e9,
         )
@@ -442,7 +442,7 @@ class BridgeNode(Node):
             self,
             "counts_per_torque",
             DEFAULT_COUNTS_PER_TORQUE,
-            "Net F/T counts per N m (netftcalapi.xml cfgcpt)",
+            "Net F/T counts per N m (netftapi2.xml cfgcpt)",
             1.0,
             1e9,
         )
