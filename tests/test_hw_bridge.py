@@ -35,6 +35,7 @@ from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from rrg_hw_bridge.fake.fake_hw_node import FAULTS
+from rrg_hw_bridge.ros.bridge_node import ARM_ON_START_DELAY_S
 from rrg_msgs.action import GuardedMove
 from rrg_msgs.srv import HandCommand, ResetSim
 from rrg_planner.bringup.graph import rdt_addresses
@@ -634,7 +635,11 @@ def test_a_bridge_that_joins_after_an_estop_engaged_starts_latched(hw):
     try:
         hw.stop_bridge()
         held.publish(Bool(data=True))
+        started = time.monotonic()
         hw.start_bridge(ready=False)
+        said = lambda: [m for t, m in hw.seen["status"] if t > started and "said" in m.message]
+        assert hw.client.spin_until(said, WAIT)  # the late joiner got the held E-stop
+        hw.spin(ARM_ON_START_DELAY_S)  # and arm_on_start did not arm it
         assert_refused(hw, short_move(hw), R.ESTOP, reported=False)
         answer = hw.client.call(hw.reset_estop, Trigger.Request())
         assert not answer.success and "still says engaged" in answer.message

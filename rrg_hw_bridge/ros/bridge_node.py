@@ -105,6 +105,10 @@ from .drivers import (
 )
 
 NODE_NAME = "hw_bridge"
+#: arm_on_start arms the bridge this long [s] after its start, so that an E-stop a
+#: transient-local publisher holds reaches it first (chosen: DDS discovery on one host takes
+#: 0.1-0.5 s, measured by the bridge tests' startup; the message follows the match at once).
+ARM_ON_START_DELAY_S = 1.0
 NAMESPACE = "rrg"
 R = GuardedMove.Result
 H = HandCommand.Response
@@ -258,8 +262,8 @@ class BridgeNode(Node):
         self.estop = EStop(
             p("estop_heartbeat_timeout"), p("estop_latch_file") or None, time.monotonic()
         )
-        if p("arm_on_start") and self.estop.reason == EStop.NOT_ARMED:
-            self.estop.reset(time.monotonic())
+        #: when arm_on_start arms the bridge: after a transient-local E-stop could have arrived
+        self._arm_at = time.monotonic() + ARM_ON_START_DELAY_S if p("arm_on_start") else None
         self.watchdog = Watchdog(
             self.watchdog_timeout, ("joint_states", "fingertip1", "fingertip2", "fingertip3")
         )
@@ -372,13 +376,15 @@ class BridgeNode(Node):
             f"{self.sensors.describe()}, limits {self.limits.name}, speed scale "
             f"{self.speed_scale}, watchdog {self.watchdog_timeout * 1e3:.0f} ms"
         )
-        if self.estop.engaged:
-            self.get_logger().warn(
-                f"E-stop latched, {self.estop.reason} (ros2 service call "
-                f"/{NAMESPACE}/bridge/reset_estop std_srvs/srv/Trigger); nothing moves until then"
+        self.get_logger().warn(
+            f"E-stop latched, {self.estop.reason} (ros2 service call "
+            f"/{NAMESPACE}/bridge/reset_estop std_srvs/srv/Trigger); nothing moves until then"
+            + (
+                f"; arm_on_start arms it in {ARM_ON_START_DELAY_S:.0f} s unless an E-stop comes"
+                if self._arm_at is not None and self.estop.reason == EStop.NOT_ARMED
+                else ""
             )
-        else:
-            self.get_logger().info("armed at start (arm_on_start)")
+        )
 
     def _declare_parameters(self) -> None:
         def text(name, value, description, choices=None):
@@ -838,6 +844,14 @@ class BridgeNode(Node):
             self._watchdog_skipped = True
             return
         self._watchdog_skipped = False
+        if self._arm_at is not None and now >= self._arm_at:
+            self._arm_at = None
+            if self.estop.reason == EStop.NOT_ARMED:  # no E-stop came meanwhile
+                armed, message = self.estop.reset(now)
+                if armed:
+                    self.get_logger().info("armed (arm_on_start)")
+                else:
+                    self.get_logger().warn(f"arm_on_start did not arm: {message}")
         if self.estop.check_heartbeat(now):
             self.emergency_stop(self.estop.reason, True)
         stale = self.watchdog.stale(now)
