@@ -93,6 +93,12 @@ class HandState:
         with self._lock:
             self._tare = self._tips.copy()
 
+    def loads(self) -> np.ndarray:
+        """(3,6) fingertip loads as the sensors measure them, not tared: what the force
+        ceiling limits (a guarded move's tare only shifts where a contact is detected)."""
+        with self._lock:
+            return self._tips.copy()
+
     def tips(self) -> np.ndarray:
         """(3,6) tared fingertip loads."""
         with self._lock:

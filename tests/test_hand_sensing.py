@@ -179,3 +179,21 @@ def test_velocity_estimate_follows_a_ramp_and_settles_at_rest():
     for k in range(100, 150):  # stopped
         v = est.update(np.array([0.5 * 99 * dt, 1.0]), k * dt)
     assert abs(v[0]) < PHYSICS.stall_speed
+
+
+def test_the_ceilings_loads_are_untared_so_a_tare_under_load_neither_hides_nor_fakes_one():
+    """A guarded move tared while a fingertip carried 15 N: its contact detection sees the
+    change, the force ceiling the load itself (a tared 30 N would read 15 N, and the load's
+    release -15 N)."""
+    from rrg_hw_bridge.safety import ForceCeiling
+
+    hand = HandState(derive_pads=False)
+    hand.set_tip(0, np.array([0.0, 0.0, 15.0, 0.0, 0.0, 0.0]))
+    hand.tare()
+    ceiling = ForceCeiling(20.0, 0.2)
+    hand.set_tip(0, np.array([0.0, 0.0, 30.0, 0.0, 0.0, 0.0]))
+    assert ceiling.check(hand.tips()) is None  # what the old check saw: 15 N
+    assert ceiling.check(hand.loads()) is not None  # the load: 30 N
+    hand.set_tip(0, np.zeros(6))  # released
+    assert ceiling.check(hand.loads()) is None
+    assert hand.tips()[0, 2] == -15.0

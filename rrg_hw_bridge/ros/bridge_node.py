@@ -782,9 +782,10 @@ class BridgeNode(Node):
         move, motion = self._move, self._hand_motion
         if move is None and motion is None:
             return
-        over = self.ceiling.check(tips)
-        if over is not None and move is None and motion.closing and np.isfinite(tips).all():
-            motion.squeezed |= self.ceiling.over(tips)  # the squeeze's limit: that finger stops
+        loads = self.hand.loads()  # the ceiling limits the load itself, whatever the tare
+        over = self.ceiling.check(loads)
+        if over is not None and move is None and motion.closing and np.isfinite(loads).all():
+            motion.squeezed |= self.ceiling.over(loads)  # the squeeze's limit: that finger stops
         elif over is not None:
             self.stop_all(over.code, over.check, over.message)
         elif move is not None and move.guard is not None:  # derived pads: read afresh per sample
