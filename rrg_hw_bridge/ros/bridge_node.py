@@ -275,6 +275,7 @@ class BridgeNode(Node):
         self._velocity: dict[tuple[str, ...], VelocityEstimate] = {}
         self._move: ActiveMove | None = None
         self._hand_motion: HandMotion | None = None
+        self._hand_command_lock = threading.RLock()  # the closing loop's commands vs a stop
         #: which interfaces the driver's joint states carry (finite values); what is missing is
         #: derived (velocities) or disables its guard (efforts)
         self.interfaces = {"arm_velocity": False, "arm_effort": False, "hand_velocity": False}
@@ -693,7 +694,8 @@ class BridgeNode(Node):
             if motion is None or motion.code is not None:
                 return
             motion.code, motion.message = code, message
-        self.hand_driver.stop(self.measured().hand_q[0])
+        with self._hand_command_lock:  # no finger command of the closing loop follows it
+            self.hand_driver.stop(self.measured().hand_q[0])
         self.report(code, check, f"hand command: {message}", refused=False)
 
     def stop_all(self, code: int, check: str, message: str) -> None:
@@ -1252,7 +1254,7 @@ class BridgeNode(Node):
         closing = FingerClosing(guarded)
         self._hand_motion.closing = True  # the ceiling now limits each finger's squeeze
         velocity = np.full(3, closing.speed)
-        self.hand_driver.finger_velocities(velocity)
+        self.command_fingers(velocity, wait=True)
         sent = last = time.monotonic()
         try:
             while not closing.done and closing.elapsed < closing.timeout:
@@ -1272,14 +1274,21 @@ class BridgeNode(Node):
                 last = now
                 if new.any():
                     velocity[closing.stopped] = 0.0
-                    self.hand_driver.finger_velocities(velocity, wait=False)
+                    self.command_fingers(velocity, wait=False)
                     sent = now
                 elif now - sent > BRIDGE.finger_command_period:
-                    self.hand_driver.finger_velocities(velocity, wait=False)
+                    self.command_fingers(velocity, wait=False)
                     sent = now
         finally:
             self.hand_driver.finger_velocities(np.zeros(3))
         return closing.touched
+
+    def command_fingers(self, velocity: np.ndarray, wait: bool) -> None:
+        """Send the closing loop's finger velocities, unless the safety layer has stopped the
+        hand: checked and sent under the lock a stop takes, so no command follows a stop."""
+        with self._hand_command_lock:
+            self.check_hand_motion()
+            self.hand_driver.finger_velocities(velocity, wait=wait)
 
     def check_hand_motion(self) -> None:
         """HandStopped when the safety layer stopped the running hand command (the E-stop, the
