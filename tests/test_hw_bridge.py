@@ -14,6 +14,7 @@ fake's event times, ``time.monotonic()`` stamps comparable across processes on t
 from __future__ import annotations
 
 import functools
+import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -676,11 +677,22 @@ def test_a_restarted_bridge_keeps_the_latch_and_starts_not_armed(hw):
 
 def test_a_silent_estop_heartbeat_latches_and_stops_the_arm(hw):
     with hw.bridge_with(ready=False, estop_heartbeat_timeout="0.3"):
-        beat = hw.client.node.create_timer(0.05, lambda: hw.estop_pub.publish(Bool(data=False)))
+        # a thread of its own beats every 50 ms, whatever the test's executor is doing
+        beating = threading.Event()
+        beating.set()
+
+        def beat() -> None:
+            while beating.is_set():
+                hw.estop_pub.publish(Bool(data=False))
+                time.sleep(0.05)
+
+        beater = threading.Thread(target=beat, daemon=True)
+        beater.start()
         arm_bridge(hw)
         hw.wait_ready()
         handle = hw.started(slow_move(hw))
-        hw.client.node.destroy_timer(beat)
+        beating.clear()
+        beater.join()
         silent = time.monotonic()
         cancel = assert_stopped(hw, handle, R.ESTOP, silent)
         assert cancel - silent < 0.3 + 0.1

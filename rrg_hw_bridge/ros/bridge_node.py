@@ -673,11 +673,23 @@ class BridgeNode(Node):
     def stale_message(self, stale: list[str]) -> str:
         return f"no fresh data from {', '.join(stale)} within {self.watchdog_timeout * 1e3:.0f} ms"
 
-    def stop_move(self, code: int, check: str, message: str, trip: Trip | None = None) -> None:
-        """Stop the running move (once): cancel the controller's goal, which holds the arm."""
+    def stop_move(
+        self,
+        code: int,
+        check: str,
+        message: str,
+        trip: Trip | None = None,
+        only: ActiveMove | None = None,
+        spare=None,
+    ) -> None:
+        """Stop the running move (once): cancel the controller's goal, which holds the arm.
+        The move is the one running when the lock is taken: with ``only``, only if it is that
+        move; with ``spare`` (a predicate on it), not if it spares it."""
         with self._lock:
             move = self._move
             if move is None or move.code is not None:
+                return
+            if (only is not None and move is not only) or (spare is not None and spare(move)):
                 return
             move.code, move.message, move.trip = code, message, trip
             move.stopped_s = time.monotonic()
@@ -761,19 +773,22 @@ class BridgeNode(Node):
                 f"[{self.limits.lower[j]}, {self.limits.upper[j]}] rad"
             )
             excess = float(limit_excess(arm_q, self.limits).max())
-            recovering = (
-                move is not None
-                and move.recovery_excess is not None
-                and excess <= move.recovery_excess + RECOVERY_SLACK
+            recovering = lambda mv: (
+                mv.recovery_excess is not None and excess <= mv.recovery_excess + RECOVERY_SLACK
             )
-            if not recovering:
-                self.stop_all(SafetyCode.JOINT_LIMITS, "joint_limits", self._limit_fault)
+            # judged on the move running when the stop is made: a recovery move registered
+            # since this message arrived is spared
+            self.stop_move(
+                SafetyCode.JOINT_LIMITS, "joint_limits", self._limit_fault, spare=recovering
+            )
+            if move is None or not recovering(move):
+                self.stop_hand(SafetyCode.JOINT_LIMITS, "joint_limits", self._limit_fault)
         else:
             self._limit_fault = ""
         if move is not None and move.guard is not None and effort is not None:
             trip = move.guard.check_effort(effort)
             if trip is not None:
-                self.stop_move(R.NONE, "contact", trip.describe(SENSOR_NAMES), trip)
+                self.stop_move(R.NONE, "contact", trip.describe(SENSOR_NAMES), trip, only=move)
         with self._joint_event:
             self._joint_event.notify_all()
 
@@ -793,7 +808,7 @@ class BridgeNode(Node):
         elif move is not None and move.guard is not None:  # derived pads: read afresh per sample
             trip = move.guard.check_sensors(self.hand.pads(), tips, self.hand.derive_pads)
             if trip is not None:
-                self.stop_move(R.NONE, "contact", trip.describe(SENSOR_NAMES), trip)
+                self.stop_move(R.NONE, "contact", trip.describe(SENSOR_NAMES), trip, only=move)
 
     def on_sensor_fault(self, finger: int, kind: str, detail: str) -> None:
         """A Net F/T fault: the arm holds and the hand stops. A status word is first answered
@@ -823,7 +838,7 @@ class BridgeNode(Node):
         if move is not None and move.guard is not None:
             trip = move.guard.check_sensors(self.hand.pads(), self.hand.tips(), True)
             if trip is not None:
-                self.stop_move(R.NONE, "contact", trip.describe(SENSOR_NAMES), trip)
+                self.stop_move(R.NONE, "contact", trip.describe(SENSOR_NAMES), trip, only=move)
 
     def on_estop(self, msg: Bool) -> None:
         latched = self.estop.on_message(bool(msg.data), time.monotonic())
