@@ -53,6 +53,13 @@ class BridgeParams:
     #: 10 rad/s² limit where the speed cap changes between samples, which needs 4.3×;
     #: tests/test_hw_safety.py measures them).
     max_slowdown: float = 6.0
+    #: Gain [1/s] of the momentum observer that estimates the arm's external joint torques
+    #: (chosen: a 20 ms time constant; on the emulated WAM with 0.2 N m torque noise its
+    #: free-motion residual stays below 0.5 N m, tests/test_external_torque.py).
+    observer_gain: float = 50.0
+    #: Longest gap [s] between joint states the observer integrates over; after a longer one
+    #: it starts again (chosen: 50 periods of a 500 Hz controller).
+    observer_max_gap: float = 0.1
     #: Rate [Hz] of the upward state topics (joint states, wrenches, pads), as the simulator's
     #: default state_rate, whatever the drivers' rates are.
     state_rate: float = 50.0

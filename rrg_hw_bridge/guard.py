@@ -134,6 +134,9 @@ class ContactGuard:
         self.thresholds = np.r_[np.full(7, pad_force_threshold), np.full(3, tip_force_threshold)]
         self.effort_threshold = effort_threshold  # [N m]; <= 0: efforts are not watched
         self._effort0: np.ndarray | None = None
+        #: the largest effort change seen so far [N m] and its joint (0-6): the margin the
+        #: arm's free motion leaves under the threshold
+        self.peak_effort_change, self.peak_effort_joint = 0.0, 0
         self.confirmation = StopConfirmation(confirm_stops)
         self._pad_sample = 0  # pad samples seen during the move
 
@@ -158,6 +161,8 @@ class ContactGuard:
             return None
         change = np.abs(np.asarray(effort) - self._effort0)
         j = int(np.argmax(change))
+        if change[j] > self.peak_effort_change:
+            self.peak_effort_change, self.peak_effort_joint = float(change[j]), j
         if change[j] > self.effort_threshold:
             return Trip(np.zeros(10, bool), j, float(change[j]))
         return None

@@ -12,8 +12,9 @@ A thread steps the world one control period (PHYSICS.timestep) at a time against
   is stopped (velocity 0 or idle), which a later move of that finger releases.
 
 Readings for the driver emulations (``snapshot``) carry seeded noise where the real drivers'
-readings are noisy (arm external torque, pads); the fingertip loads are noise-free and never
-tared, since the emulated Net F/T boxes add their own noise and the bias is the client's job.
+readings are noisy (the arm's joint torques, pads). The joint torques are the motors', gravity
+and motion included, as a real controller reports them. The fingertip loads are noise-free and
+never tared, since the emulated Net F/T boxes add their own noise and the bias is the client's job.
 Faults: a stuck finger, a joint-4 encoder glitch past its limit, and a synthetic force on
 fingertip 1.
 
@@ -32,12 +33,20 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from enum import Enum
 
+import mujoco
 import numpy as np
 
 from rrg_sim import wam
 from rrg_sim.config import HAND, PHYSICS
 from rrg_sim.executor.trajectory import servo_targets
-from rrg_sim.physics.mjcf_robot import ARM_JOINTS, TIP_FORCE, TIP_TORQUE
+from rrg_sim.physics.mjcf_robot import (
+    ARM_ACTUATORS,
+    ARM_JOINTS,
+    HAND_JOINTS,
+    PALM_BODY,
+    TIP_FORCE,
+    TIP_TORQUE,
+)
 from rrg_sim.physics.sensing import HandSensors
 from rrg_sim.physics.world import PhysicsWorld, WorldsByObject
 
@@ -59,9 +68,7 @@ HAND_SPEEDS = np.array([PHYSICS.spread_speed] + [HAND.close_speed] * 3)
 #: joint_trajectory_controller.cpp, goal_accepted_callback).
 PREEMPTED_MESSAGE = "Current goal cancelled due to new incoming action."
 #: MuJoCo joints of the hand readings: spread (fingers 1, 2), proximal 1-3, distal 1-3.
-SPREAD_JOINTS = ("bh/f1_spread", "bh/f2_spread")
-PROXIMAL_JOINTS = tuple(f"bh/f{i}_prox" for i in (1, 2, 3))
-DISTAL_JOINTS = tuple(f"bh/f{i}_dist" for i in (1, 2, 3))
+SPREAD_JOINTS, PROXIMAL_JOINTS, DISTAL_JOINTS = HAND_JOINTS[:2], HAND_JOINTS[2:5], HAND_JOINTS[5:]
 
 # Hand channel modes.
 _HOLD, _POSITION, _VELOCITY = 0, 1, 2
@@ -123,10 +130,15 @@ class Snapshot:
     """The readings the drivers publish, all taken at one instant."""
 
     time_s: float  # time.monotonic() [s]
+    #: time.monotonic() [s] of the control period that produced this state: when a real
+    #: controller would have read it (its joint states' stamp)
+    stepped_s: float
     sim_time: float  # [s] since the last reset
     arm_q: np.ndarray  # (7,) [rad], as the encoders report (the joint-limit fault shows here)
     arm_qd: np.ndarray  # (7,) [rad/s]
-    arm_effort: np.ndarray  # (7,) external (contact) torque [N m], noisy
+    #: (7,) the motors' joint torques [N m], gravity and motion included, noisy: what
+    #: ros2_control's effort state interface reports
+    arm_effort: np.ndarray
     spread: np.ndarray  # (2,) spread joints of fingers 1, 2 [rad]
     proximal: np.ndarray  # (3,) [rad]
     distal: np.ndarray  # (3,) [rad]
@@ -135,7 +147,9 @@ class Snapshot:
     distal_velocity: np.ndarray  # (3,) [rad/s]
     pads: np.ndarray  # (7,) pad forces [N], noisy
     tip_loads: np.ndarray  # (3,6) load on each fingertip [N, N m], sensor frame, noise-free
-    arm_torque: np.ndarray | None = None  # (7,) commanded joint torques [N m] (wam_node's)
+    #: (7,) the same torques as commanded, noise-free: wam_node's effort (libbarrett's
+    #: getJointTorques)
+    arm_torque: np.ndarray | None = None
 
 
 @dataclass
@@ -177,6 +191,8 @@ class EmulatedRobot:
         self._stuck: int | None = None
         self._joint_limit_fault = False
         self._extra_force = 0.0
+        self._palm_push = 0.0  # [N]
+        self._stepped_s = time.monotonic()
         self._events: list[Event] = []
         self._pending: deque[Event] = deque()
         self._listeners: list[Callable[[Event], None]] = []
@@ -212,6 +228,7 @@ class EmulatedRobot:
         self._finger_speed = np.zeros(3)
         self._braked = np.zeros(3, bool)
         self._loads = self._read_loads()
+        self._apply_palm_push()
         self._wam_reset()
 
     def _read_loads(self) -> np.ndarray:
@@ -323,7 +340,10 @@ class EmulatedRobot:
         elif self._rt_tracking:
             arm = self._rt_target()
         self._hand_step()
+        v0 = w.data.qvel[self._arm_dof].copy()
         w.step(arm, self._hand_target)
+        self._applied = self._joint_torques_now(w.data.qvel[self._arm_dof] - v0)
+        self._stepped_s = time.monotonic()
         self._loads = self._read_loads()
 
     def _hand_step(self) -> None:
@@ -453,6 +473,9 @@ class EmulatedRobot:
         self._rt_ignored = False  # a command the arm does not track arrived (reported once)
         m = self.world.model
         self._arm_dof = np.array([m.jnt_dofadr[m.joint(n).id] for n in ARM_JOINTS])
+        #: the arm servos' velocity gains [N m s/rad] (their bias -kv q̇)
+        self._arm_kv = -m.actuator_biasprm[[m.actuator(n).id for n in ARM_ACTUATORS], 2]
+        self._applied = self._joint_torques_now(np.zeros(7))
 
     def rt_joint_positions(self, q, stamp_s: float = 0.0) -> None:
         """One command of wam_node's real-time joint position stream (/wam/RTJointPositionCMD):
@@ -547,11 +570,13 @@ class EmulatedRobot:
         fraction = np.clip(s / length, 0.0, 1.0) if length > 0.0 else np.ones_like(t)
         return self.follow(q0 + fraction[:, None] * (q - q0), t)
 
-    def _joint_torques(self) -> np.ndarray:
-        """(7,) the arm's commanded joint torques [N m], gravity compensation included: what
-        wam_node reports as effort (libbarrett's getJointTorques; call under the lock)."""
+    def _joint_torques_now(self, dv: np.ndarray) -> np.ndarray:
+        """(7,) the torques [N m] the arm's motors applied in the last step, whose velocity
+        change was dv (7,) [rad/s]: the servo's and the gravity compensation's. The implicit
+        integrator applies the servo's damping at the step's end velocity, -kv dv more than
+        qfrc_actuator (evaluated at its start) says (call under the lock)."""
         d = self.world.data
-        return d.qfrc_actuator[self._arm_dof] + d.qfrc_gravcomp[self._arm_dof]
+        return d.qfrc_actuator[self._arm_dof] + d.qfrc_gravcomp[self._arm_dof] - self._arm_kv * dv
 
     # ------------------------------------------------------------------ hand
     def _commandable(self, fingers) -> np.ndarray:
@@ -646,6 +671,31 @@ class EmulatedRobot:
         """Report joint 4 JOINT_LIMIT_GLITCH past its upper limit (an encoder glitch)."""
         self._joint_limit_fault = bool(on)
 
+    def set_palm_push(self, force_n: float) -> None:
+        """Push the palm with ``force_n`` [N] along the world's +z at its origin (a contact on
+        the arm: its servos answer it, the fingertips feel nothing); 0: none."""
+        if not np.isfinite(force_n):
+            raise ValueError("palm push must be finite")
+        with self._lock:
+            self._palm_push = float(force_n)
+            self._apply_palm_push()
+
+    def _apply_palm_push(self) -> None:
+        """The palm push into the world (after a reset too; call under the lock)."""
+        palm = self.world.model.body(PALM_BODY).id
+        self.world.data.xfrc_applied[palm] = [0.0, 0.0, self._palm_push, 0.0, 0.0, 0.0]
+
+    def palm_push_torque(self) -> np.ndarray:
+        """(7,) the joint torques [N m] of the palm push (the truth an observer estimates)."""
+        with self._lock:
+            m, d = self.world.model, self.world.data
+            palm = m.body(PALM_BODY).id
+            torque = np.zeros(m.nv)
+            mujoco.mj_applyFT(
+                m, d, d.xfrc_applied[palm, :3], d.xfrc_applied[palm, 3:], d.xpos[palm], palm, torque
+            )
+            return torque[self._arm_dof]
+
     def set_extra_force(self, force_n: float) -> None:
         """Add ``force_n`` [N] to fingertip 1's load along its z (a synthetic contact)."""
         if not np.isfinite(force_n):
@@ -679,7 +729,7 @@ class EmulatedRobot:
             if self._joint_limit_fault:
                 arm_q[GLITCH_JOINT] = wam.UPPER[GLITCH_JOINT] + JOINT_LIMIT_GLITCH
             noise = self.sensor_noise
-            effort = w.arm_external_torque()
+            effort = self._applied.copy()
             if noise > 0.0:
                 effort = effort + self._rng.normal(0.0, PHYSICS.arm_torque_noise * noise, 7)
             pad_forces = np.full(7, np.nan)
@@ -689,6 +739,7 @@ class EmulatedRobot:
                     pad_forces += self._rng.normal(0.0, PHYSICS.pad_force_noise * noise, 7)
             return Snapshot(
                 time_s=time.monotonic(),
+                stepped_s=self._stepped_s,
                 sim_time=w.sim_time,
                 arm_q=arm_q,
                 arm_qd=w.arm_velocity(),
@@ -701,7 +752,7 @@ class EmulatedRobot:
                 distal_velocity=d.qvel[self._hand_v["distal"]].copy(),
                 pads=pad_forces,
                 tip_loads=self._loads.copy(),
-                arm_torque=self._joint_torques(),
+                arm_torque=self._applied.copy(),
             )
 
 

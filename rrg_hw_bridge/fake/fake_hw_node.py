@@ -16,8 +16,9 @@ JointTrajectoryController and under Barrett's wam_node, Barrett's BarrettHand se
   a trapezoidal move). ``arm_interface`` chooses follow_joint_trajectory, wam_node or both (the
   default); both drive the one arm, each command replacing what it tracked.
 * ``/joint_states`` (sensor_msgs/JointState) at joint_state_rate: arm joints wam_j1_joint …
-  (effort: the external contact torque [N m], noisy) and, with wam_node, q1 … q7 (effort: the
-  commanded torque; wam_node alone: no velocities, as wam_node's), then the hand's spread,
+  (effort: the motors' joint torque [N m], gravity and motion included, noisy) and, with
+  wam_node, q1 … q7 (effort: the same torque as commanded; wam_node alone: no velocities, as
+  wam_node's), then the hand's spread,
   proximal and distal joints (effort NaN: not measured).
 * services ``/bhand/moveToFingerPositions``, ``/bhand/moveToSpreadPosition``,
   ``/bhand/moveToFingerVelocities``, ``/bhand/moveToGraspPosition`` (bhand_srvs) and
@@ -57,6 +58,7 @@ from rcl_interfaces.msg import (
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.action.server import GoalEvent, ServerGoalHandle
 from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -132,6 +134,9 @@ FAULTS: dict[str, _Fault] = {
     "fault.stuck_finger": _Fault(-1, "Finger (0-2) that ignores every command; -1: none", -1, 2),
     "fault.extra_force": _Fault(
         0.0, "Force [N] added to fingertip 1's load along its z (synthetic contact)", -100.0, 100.0
+    ),
+    "fault.palm_push": _Fault(
+        0.0, "Force [N] pushing the palm up (world +z): a contact on the arm", -100.0, 100.0
     ),
     "bench.crossing_threshold": _Fault(
         0.0, "Record every box's first |force| over this [N] (0: off)", 0.0, 1000.0
@@ -432,6 +437,8 @@ class FakeHwNode(Node):
                 pass  # read by the action server's cancel callback
             elif name == "fault.extra_force":
                 self.robot.set_extra_force(v)
+            elif name == "fault.palm_push":
+                self.robot.set_palm_push(v)
             elif name == "bench.crossing_threshold":
                 self._crossing = None
                 if v > 0.0:
@@ -484,6 +491,7 @@ class FakeHwNode(Node):
         js_period = 1.0 / self.get_parameter("joint_state_rate").value
         pad_period = 1.0 / self.get_parameter("pad_rate").value
         next_js = next_pad = time.monotonic()
+        published = None  # sim time [s] of the last joint state published
         while not self._stop.is_set():
             now = time.monotonic()
             wake = min(next_js, next_pad)
@@ -493,9 +501,13 @@ class FakeHwNode(Node):
             try:
                 pads_due = now >= next_pad
                 s = self.robot.snapshot(pads=pads_due)
-                stamp = self.get_clock().now().to_msg()
+                # stamped when its control period ran, as a controller stamps what it read
+                age_ns = int((time.monotonic() - s.stepped_s) * 1e9)
+                stamp = (self.get_clock().now() - Duration(nanoseconds=age_ns)).to_msg()
                 if now >= next_js:
-                    self.joint_pub.publish(self._joint_state(s, stamp))
+                    if s.sim_time != published:  # each control period's state once
+                        self.joint_pub.publish(self._joint_state(s, stamp))
+                        published = s.sim_time
                     next_js = max(next_js + js_period, now - js_period)
                 if pads_due:
                     pads = ContactPads(
@@ -513,8 +525,8 @@ class FakeHwNode(Node):
                 time.sleep(0.1)
 
     def _joint_names(self) -> tuple[str, ...]:
-        """The /joint_states names: the trajectory controller's arm joints (effort: external
-        torque), wam_node's (effort: commanded torque), or both, then the hand's."""
+        """The /joint_states names: the trajectory controller's arm joints (effort: the
+        motors' torque), wam_node's (effort: commanded torque), or both, then the hand's."""
         arm = {
             "follow_joint_trajectory": ARM_JOINTS,
             "wam_node": WAM_NODE_ARM_JOINTS,

@@ -73,6 +73,7 @@ from rrg_sim.ros_common.node_main import keep_serving, run_node
 
 from ..arm_limits import DEFAULT_ARM_LIMITS, load_arm_limits
 from ..config import BRIDGE
+from ..external_torque import ExternalTorqueObserver
 from ..guard import (
     DERIVED_PADS_UNSENSED,
     ContactGuard,
@@ -109,6 +110,8 @@ NODE_NAME = "hw_bridge"
 #: transient-local publisher holds reaches it first (chosen: DDS discovery on one host takes
 #: 0.1-0.5 s, measured by the bridge tests' startup; the message follows the match at once).
 ARM_ON_START_DELAY_S = 1.0
+#: What the driver's arm efforts are (parameter effort_kind).
+EFFORT_KINDS = ("joint_torque", "external_torque")
 NAMESPACE = "rrg"
 R = GuardedMove.Result
 H = HandCommand.Response
@@ -271,6 +274,10 @@ class BridgeNode(Node):
         self._measured = Measured()
         self._joint_event = threading.Condition()
         self._efforts: deque[np.ndarray] = deque(maxlen=EFFORT_BASELINE_SAMPLES)
+        if p("effort_kind") not in EFFORT_KINDS:
+            raise ValueError(f"effort_kind must be one of {EFFORT_KINDS}, got {p('effort_kind')!r}")
+        #: the arm's external torques from its joint torques (effort_kind joint_torque)
+        self.observer = ExternalTorqueObserver() if p("effort_kind") == EFFORT_KINDS[0] else None
         #: per joint-name list, for drivers whose joint states carry no velocities
         self._velocity: dict[tuple[str, ...], VelocityEstimate] = {}
         self._move: ActiveMove | None = None
@@ -311,12 +318,6 @@ class BridgeNode(Node):
                 self.estop.run_if_released,
             )
             self.arm_text = self.arm.describe()
-            if p("effort_threshold") > 0.0:
-                self.get_logger().warn(
-                    "wam_node's joint efforts are its commanded torques, gravity included, not "
-                    "an external torque: set effort_threshold:=0.0, or guarded moves stop on "
-                    "the arm's own motion"
-                )
         else:
             self.arm = TrajectoryArm(
                 self, p("arm_action"), self.arm_driver_joints, group, self.estop.run_if_released
@@ -417,6 +418,15 @@ class BridgeNode(Node):
             "wam_node's joint position hold service (std_srvs/SetBool)",
         )
         text("driver_joint_states", "/joint_states", "The drivers' sensor_msgs/JointState topic")
+        text(
+            "effort_kind",
+            EFFORT_KINDS[0],
+            "What the arm's joint efforts are: the motors' joint torques, gravity and motion "
+            "included (ros2_control's effort interface, wam_node's torques; the bridge "
+            "subtracts the WAM model's with a momentum observer), or external torques a "
+            "driver already estimated",
+            EFFORT_KINDS,
+        )
         text(
             "arm_joint_names",
             DEFAULT_ARM_DRIVER_JOINTS,
@@ -660,7 +670,16 @@ class BridgeNode(Node):
             + ("measured" if i["hand_velocity"] else "derived from positions (stall detection)"),
         ]
         if i["arm_effort"]:
-            parts.append("arm efforts measured")
+            parts.append(
+                "arm efforts measured ("
+                + (
+                    f"joint torques: the external torque from a momentum observer, gain "
+                    f"{self.observer.gain_per_s:.0f}/s"
+                    if self.observer is not None
+                    else "external torques"
+                )
+                + ")"
+            )
         elif effort > 0.0:
             parts.append(
                 f"NO arm efforts (missing or NaN): the effort guard ({effort} N m) cannot run, "
@@ -743,17 +762,22 @@ class BridgeNode(Node):
             )
         with self._lock:
             m = self._measured
-            if arm is not None:
-                m.arm_q = pos[arm]
-                m.arm_v = vel[arm]
-                m.arm_effort = eff[arm] if self.interfaces["arm_effort"] else None
-                if m.arm_effort is not None:
-                    self._efforts.append(m.arm_effort)
             for k, i in enumerate(hand):
                 if i is not None:
                     sign = self.spread_sign if k == 0 else 1.0  # bhand_j11's reading
                     m.hand_q[k] = sign * pos[i]
                     m.hand_v[k] = sign * vel[i]
+            if arm is not None:
+                m.arm_q = pos[arm]
+                m.arm_v = vel[arm]
+                m.arm_effort = eff[arm] if self.interfaces["arm_effort"] else None
+                if m.arm_effort is not None and self.observer is not None:
+                    stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+                    m.arm_effort = self.observer.update(
+                        stamp or now, m.arm_q, m.arm_v, m.arm_effort, m.hand_q, m.hand_v
+                    )
+                if m.arm_effort is not None:
+                    self._efforts.append(m.arm_effort)
             m.received_s = now
             move = self._move
             arm_q, effort, hand_q = m.arm_q.copy(), m.arm_effort, m.hand_q.copy()
@@ -1148,6 +1172,12 @@ class BridgeNode(Node):
             result.stopped_on_contact = move.trip is not None
             if move.guard is not None:
                 result.unconfirmed_stops = move.guard.confirmation.rejected
+                if move.guard.effort_threshold > 0.0 and move.trip is None:
+                    self.get_logger().info(
+                        f"guarded move: peak effort change {move.guard.peak_effort_change:.2f}"
+                        f" N m (joint {move.guard.peak_effort_joint + 1}) of the "
+                        f"{move.guard.effort_threshold} N m threshold"
+                    )
             if move.trip is not None:
                 self.get_logger().info(
                     f"guarded move stopped at {result.path_fraction:.2f} of its path: "

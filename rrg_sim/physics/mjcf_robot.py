@@ -34,6 +34,13 @@ ROBOT_FILE = "wam_barretthand.xml"
 ARM_JOINTS = tuple(f"wam/j{i}" for i in range(1, 8))
 FINGER_JOINTS = tuple(f"bh/f{i}_prox" for i in FINGERS)
 SPREAD_JOINT = "bh/f1_spread"
+#: The hand's joints: spread of fingers 1 and 2, proximal 1-3, distal 1-3.
+HAND_JOINTS = (
+    SPREAD_JOINT,
+    "bh/f2_spread",
+    *FINGER_JOINTS,
+    *(f"bh/f{i}_dist" for i in FINGERS),
+)
 PALM_BODY = "bh/palm"
 TIP_BODIES = tuple(f"bh/f{i}_tip" for i in FINGERS)
 #: Actuator order: 7 arm servos, the spread servo, 3 proximal servos.
