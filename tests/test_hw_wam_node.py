@@ -144,7 +144,8 @@ def wam_bridge(tmp_path_factory, ros_domain):
         "rdt_port": port,
         "arm_interface": "wam_node",
     }
-    # wam_node's efforts are commanded torques, not external ones: the effort guard is off. The
+    # wam_node has no velocities: the external torque estimated from its efforts lags in
+    # acceleration (docs/hardware.md), so the effort guard is off, as advised there. The
     # watchdog (tested on its own elsewhere) is relaxed, so that a loaded
     # test machine does not stop these moves on stale data.
     bridge = {
