@@ -10,6 +10,9 @@ between joint states the external torque is
     τ_ext ≈ (M Δq̇ - (τ - b) Δt) / Δt,        M and b at the interval's start,
 
 the increment of the generalized momentum p = M q̇ that the motors and the model do not explain.
+The torque is known only at the samples, so an interval longer than GAP_FACTOR controller
+periods (the median of recent intervals), left by a lost message, is not used: the torque in a
+gap at the start of a motion is anything between its ends.
 Low-passed with time constant 1/K it is the momentum observer (De Luca and Mattone, ICRA 2003;
 Haddadin, De Luca and Albu-Schäffer, "Robot Collisions", IEEE T-RO 33(6), 2017, sec. V-C),
 ṙ = K (τ_ext - r): it needs no acceleration, so the steps of a trajectory's acceleration do not
@@ -23,6 +26,7 @@ reports the residual it sees in free motion (docs/hardware.md, first day).
 from __future__ import annotations
 
 import math
+from collections import deque
 
 import mujoco
 import numpy as np
@@ -31,19 +35,27 @@ from rrg_sim.physics.mjcf_robot import ARM_JOINTS, HAND_JOINTS, robot_xml
 
 from .config import BRIDGE
 
+#: An interval longer than this many controller periods is a gap, not used (chosen: one lost
+#: message at least doubles the interval).
+GAP_FACTOR = 1.5
+#: Intervals whose median is the controller's period.
+PERIOD_WINDOW = 51
+
 
 class ExternalTorqueObserver:
     """External torque (7,) [N m] on the WAM's joints from its joint states (the module doc).
 
     gain_per_s: K [1/s]. max_gap_s: a longer gap between joint states restarts the observer.
+    gap_factor: an interval longer than this many periods is skipped.
     """
 
     def __init__(
         self,
         gain_per_s: float = BRIDGE.observer_gain,
         max_gap_s: float = BRIDGE.observer_max_gap,
+        gap_factor: float = GAP_FACTOR,
     ):
-        self.gain_per_s, self.max_gap_s = gain_per_s, max_gap_s
+        self.gain_per_s, self.max_gap_s, self.gap_factor = gain_per_s, max_gap_s, gap_factor
         m = mujoco.MjModel.from_xml_string(robot_xml())
         m.body_gravcomp[:] = 0.0  # the motors carry the arm's weight: gravity is in b
         self.model, self.data = m, mujoco.MjData(m)
@@ -58,6 +70,8 @@ class ExternalTorqueObserver:
     def reset(self) -> None:
         """Forget the history: the next joint state starts the observer at zero."""
         self.estimate = np.zeros(7)
+        self.gaps = 0  # intervals not used
+        self._intervals: deque[float] = deque(maxlen=PERIOD_WINDOW)
         self._t: float | None = None
         self._v = np.zeros(self.model.nv)
         self._mass_arm = np.zeros((7, self.model.nv))
@@ -78,9 +92,13 @@ class ExternalTorqueObserver:
         v = self._state(arm_q, arm_v, hand_q, hand_v)
         dt = None if self._t is None else t_s - self._t
         if dt is not None and 0.0 < dt <= self.max_gap_s:
-            applied = np.asarray(arm_torque, dtype=float) - self._bias
-            raw = (self._mass_arm @ (v - self._v) - applied * dt) / dt
-            self.estimate += (raw - self.estimate) * (1.0 - math.exp(-self.gain_per_s * dt))
+            self._intervals.append(dt)
+            if dt <= self.gap_factor * float(np.median(self._intervals)):
+                applied = np.asarray(arm_torque, dtype=float) - self._bias
+                raw = (self._mass_arm @ (v - self._v) - applied * dt) / dt
+                self.estimate += (raw - self.estimate) * (1.0 - math.exp(-self.gain_per_s * dt))
+            else:
+                self.gaps += 1
         elif dt is None or dt > self.max_gap_s:
             self.estimate = np.zeros(7)
         if dt is None or dt > 0.0:

@@ -96,13 +96,30 @@ def test_a_contact_of_the_configured_size_trips_the_guard(robot, size, trips):
         assert k is None
 
 
-def test_a_gap_in_the_joint_states_restarts_the_observer(robot):
-    """After a silence longer than max_gap_s the estimate starts again from zero instead of
-    integrating over the gap."""
-    observer = ExternalTorqueObserver(max_gap_s=0.1)
+def test_lost_joint_states_are_skipped_and_a_long_silence_restarts_the_observer(robot):
+    """Joint states lost at the start of a fast motion (the torque between their neighbours
+    unknown) leave the estimate where it was: the interval is skipped; with the interval used,
+    the same loss shows up as torque several times the noise. After a silence longer than
+    max_gap_s the estimate starts again from zero."""
+    kept, used = ExternalTorqueObserver(), ExternalTorqueObserver(gap_factor=np.inf)
+    t, peaks = 0.0, {"kept": 0.0, "used": 0.0}
+    _, _, t = run(robot, kept, 0.1, t)
+    robot.follow(AWAY[None], [0.3])  # 0.3 rad in 0.3 s: up to 20 rad/s² at the start
+    for k in range(300):
+        robot.advance(PHYSICS.timestep)
+        t += PHYSICS.timestep
+        if k % 50 < 9:  # 18 ms lost every 100 ms from the start on, as seen on a loaded host
+            continue
+        s = robot.snapshot(pads=False)
+        args = (t, s.arm_q, s.arm_qd, s.arm_effort, *hand_state(s))
+        peaks["kept"] = max(peaks["kept"], np.abs(kept.update(*args)).max())
+        peaks["used"] = max(peaks["used"], np.abs(used.update(*args)).max())
+    assert kept.gaps >= 6
+    assert peaks["kept"] < THRESHOLD / 2, peaks
+    assert peaks["used"] > 3 * peaks["kept"], peaks
     robot.set_palm_push(10.0)
-    est, _, t = run(robot, observer, 0.3, 0.0)
+    est, _, t = run(robot, kept, 0.3, t)
     assert np.abs(est[-1]).max() > 2.0
     s = robot.snapshot(pads=False)
-    again = observer.update(t + 0.5, s.arm_q, s.arm_qd, s.arm_effort, *hand_state(s))
+    again = kept.update(t + 0.5, s.arm_q, s.arm_qd, s.arm_effort, *hand_state(s))
     np.testing.assert_array_equal(again, np.zeros(7))

@@ -56,6 +56,8 @@ MAX_CATCH_UP = 5
 #: How far past joint 4's upper limit [rad] the joint-limit fault reports it (chosen: far beyond
 #: any tolerance a limit check allows, as an encoder glitch would be).
 JOINT_LIMIT_GLITCH = 0.2
+#: Control periods of joint readings kept for the driver emulation (chosen: 0.2 s at 500 Hz).
+PERIOD_STATE_BACKLOG = 100
 #: Joint 4 (index 3) is the one the joint-limit fault corrupts.
 GLITCH_JOINT = 3
 #: Largest lead [rad] of a finger's target over its measured angle in a velocity move: the lead at
@@ -130,8 +132,8 @@ class Snapshot:
     """The readings the drivers publish, all taken at one instant."""
 
     time_s: float  # time.monotonic() [s]
-    #: time.monotonic() [s] of the control period that produced this state: when a real
-    #: controller would have read it (its joint states' stamp)
+    #: time.monotonic() [s] of the control period that produced this state on the
+    #: controller's clock, which runs with the simulated time (its joint states' stamp)
     stepped_s: float
     sim_time: float  # [s] since the last reset
     arm_q: np.ndarray  # (7,) [rad], as the encoders report (the joint-limit fault shows here)
@@ -192,7 +194,13 @@ class EmulatedRobot:
         self._joint_limit_fault = False
         self._extra_force = 0.0
         self._palm_push = 0.0  # [N]
-        self._stepped_s = time.monotonic()
+        #: time.monotonic() [s] at sim time 0: the controller's clock (re-anchored when the
+        #: real-time stepping restarts)
+        self._epoch_s = time.monotonic()
+        self._stepped_s = self._epoch_s
+        #: each control period's joint readings, for a driver that publishes every period
+        self._period_states: deque[Snapshot] = deque(maxlen=PERIOD_STATE_BACKLOG)
+        self.record_periods = False
         self._events: list[Event] = []
         self._pending: deque[Event] = deque()
         self._listeners: list[Callable[[Event], None]] = []
@@ -229,6 +237,7 @@ class EmulatedRobot:
         self._braked = np.zeros(3, bool)
         self._loads = self._read_loads()
         self._apply_palm_push()
+        self._epoch_s = time.monotonic() - self.world.sim_time  # the clock goes on from now
         self._wam_reset()
 
     def _read_loads(self) -> np.ndarray:
@@ -307,6 +316,8 @@ class EmulatedRobot:
             if self._rebase:
                 self._rebase = False
                 t0, done = now, 0
+                with self._lock:
+                    self._epoch_s = now - self.world.sim_time
             due = int((now - t0) / dt) + 1 - done  # periods whose deadline has passed
             if due <= 0:
                 time.sleep(t0 + done * dt - now)
@@ -343,8 +354,18 @@ class EmulatedRobot:
         v0 = w.data.qvel[self._arm_dof].copy()
         w.step(arm, self._hand_target)
         self._applied = self._joint_torques_now(w.data.qvel[self._arm_dof] - v0)
-        self._stepped_s = time.monotonic()
+        self._stepped_s = self._epoch_s + w.sim_time
         self._loads = self._read_loads()
+        if self.record_periods:
+            self._period_states.append(self.snapshot(pads=False))
+
+    def period_states(self) -> list[Snapshot]:
+        """The joint readings of every control period since the last call (oldest first; at
+        most PERIOD_STATE_BACKLOG), when ``record_periods`` is set."""
+        with self._lock:
+            states = list(self._period_states)
+            self._period_states.clear()
+        return states
 
     def _hand_step(self) -> None:
         tgt, mode = self._hand_target, self._hand_mode
@@ -422,7 +443,9 @@ class EmulatedRobot:
         received = time.monotonic()
         with self._lock:
             goal = self._goal
-            self._emit("cancel_received", received, goal_id=goal_id)
+            # the truth at the cancel (evaluation only): the arm's largest contact torque [N m]
+            contact = float(np.abs(self.world.arm_external_torque()).max())
+            self._emit("cancel_received", received, goal_id=goal_id, contact_torque=contact)
             ok = goal is not None and goal_id in (None, goal.goal_id)
             if ok:
                 self.world.hold_arm()

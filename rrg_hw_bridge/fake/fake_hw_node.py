@@ -473,6 +473,10 @@ class FakeHwNode(Node):
         self._publish_event(event)
 
     def _publish_event(self, event: Event) -> None:
+        if event.name == "cancel_received":
+            self.get_logger().info(
+                "cancel received: " + ", ".join(f"{k}={v}" for k, v in event.details.items())
+            )
         values = [KeyValue(key="time", value=f"{event.time_s:.9f}")]
         values += [KeyValue(key=k, value=str(v)) for k, v in event.details.items()]
         self.events_pub.publish(
@@ -491,7 +495,10 @@ class FakeHwNode(Node):
         js_period = 1.0 / self.get_parameter("joint_state_rate").value
         pad_period = 1.0 / self.get_parameter("pad_rate").value
         next_js = next_pad = time.monotonic()
-        published = None  # sim time [s] of the last joint state published
+        # at the control rate every period's state goes out, as a controller's broadcaster
+        # publishes each update's; below it, the newest
+        every_period = js_period <= PHYSICS.timestep * 1.001
+        self.robot.record_periods = every_period
         while not self._stop.is_set():
             now = time.monotonic()
             wake = min(next_js, next_pad)
@@ -501,13 +508,10 @@ class FakeHwNode(Node):
             try:
                 pads_due = now >= next_pad
                 s = self.robot.snapshot(pads=pads_due)
-                # stamped when its control period ran, as a controller stamps what it read
-                age_ns = int((time.monotonic() - s.stepped_s) * 1e9)
-                stamp = (self.get_clock().now() - Duration(nanoseconds=age_ns)).to_msg()
+                stamp = self._stamp(s)
                 if now >= next_js:
-                    if s.sim_time != published:  # each control period's state once
-                        self.joint_pub.publish(self._joint_state(s, stamp))
-                        published = s.sim_time
+                    for state in self.robot.period_states() if every_period else [s]:
+                        self.joint_pub.publish(self._joint_state(state, self._stamp(state)))
                     next_js = max(next_js + js_period, now - js_period)
                 if pads_due:
                     pads = ContactPads(
@@ -533,6 +537,12 @@ class FakeHwNode(Node):
             "both": ARM_JOINTS + WAM_NODE_ARM_JOINTS,
         }[self.arm_interface]
         return arm + JOINT_NAMES[len(ARM_JOINTS) :]
+
+    def _stamp(self, s):
+        """The ROS time of a state's control period (builtin_interfaces/Time), as a controller
+        stamps what it read."""
+        age_ns = int((time.monotonic() - s.stepped_s) * 1e9)
+        return (self.get_clock().now() - Duration(nanoseconds=age_ns)).to_msg()
 
     def _joint_state(self, s, stamp) -> JointState:
         """The JointState of a snapshot, in one reused message (publish serializes it at once;
