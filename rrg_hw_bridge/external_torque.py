@@ -72,6 +72,8 @@ class ExternalTorqueObserver:
         self.estimate = np.zeros(7)
         self.gaps = 0  # intervals not used
         self._intervals: deque[float] = deque(maxlen=PERIOD_WINDOW)
+        self._period = np.inf  # [s] the controller's, the median of the recent intervals
+        self._samples = 0
         self._t: float | None = None
         self._v = np.zeros(self.model.nv)
         self._mass_arm = np.zeros((7, self.model.nv))
@@ -93,7 +95,10 @@ class ExternalTorqueObserver:
         dt = None if self._t is None else t_s - self._t
         if dt is not None and 0.0 < dt <= self.max_gap_s:
             self._intervals.append(dt)
-            if dt <= self.gap_factor * float(np.median(self._intervals)):
+            self._samples += 1
+            if self._samples % 10 == 1:  # the median, refreshed now and then (cheap)
+                self._period = float(np.median(self._intervals))
+            if dt <= self.gap_factor * self._period:
                 applied = np.asarray(arm_torque, dtype=float) - self._bias
                 raw = (self._mass_arm @ (v - self._v) - applied * dt) / dt
                 self.estimate += (raw - self.estimate) * (1.0 - math.exp(-self.gain_per_s * dt))
@@ -110,11 +115,11 @@ class ExternalTorqueObserver:
     def _state(self, arm_q, arm_v, hand_q, hand_v) -> np.ndarray:
         """Set the model to a state; M into self._mass, b into data.qfrc_bias; returns q̇ (nv,)."""
         m, d = self.model, self.data
+        hand_q, hand_v = np.asarray(hand_q, dtype=float), np.asarray(hand_v, dtype=float)
         d.qpos[self._arm_q] = arm_q
-        d.qpos[self._hand_q] = np.nan_to_num(np.asarray(hand_q, dtype=float))
-        d.qvel[:] = 0.0
+        d.qpos[self._hand_q] = np.where(hand_q == hand_q, hand_q, 0.0)  # NaN: 0
         d.qvel[self._arm_v] = arm_v
-        d.qvel[self._hand_v] = np.nan_to_num(np.asarray(hand_v, dtype=float))
+        d.qvel[self._hand_v] = np.where(hand_v == hand_v, hand_v, 0.0)
         mujoco.mj_kinematics(m, d)
         mujoco.mj_comPos(m, d)
         mujoco.mj_crb(m, d)
