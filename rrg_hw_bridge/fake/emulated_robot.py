@@ -205,6 +205,7 @@ class EmulatedRobot:
         self._pending: deque[Event] = deque()
         self._listeners: list[Callable[[Event], None]] = []
         self._dispatch_lock = threading.Lock()
+        self._deliver_lock = threading.Lock()
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._rebase = False
@@ -401,13 +402,16 @@ class EmulatedRobot:
             self._pending.append(event)
 
     def _dispatch(self) -> None:
-        while True:
-            with self._dispatch_lock:
-                if not self._pending:
-                    return
-                event = self._pending.popleft()
-            for listener in self._listeners:
-                listener(event)
+        """Hand the pending events to the listeners, in the order they happened (one thread
+        delivers at a time; call outside the lock)."""
+        with self._deliver_lock:
+            while True:
+                with self._dispatch_lock:
+                    if not self._pending:
+                        return
+                    event = self._pending.popleft()
+                for listener in self._listeners:
+                    listener(event)
 
     # ------------------------------------------------------------------ arm controller
     def follow(self, q, t) -> int:

@@ -473,10 +473,6 @@ class FakeHwNode(Node):
         self._publish_event(event)
 
     def _publish_event(self, event: Event) -> None:
-        if event.name == "cancel_received":
-            self.get_logger().info(
-                "cancel received: " + ", ".join(f"{k}={v}" for k, v in event.details.items())
-            )
         values = [KeyValue(key="time", value=f"{event.time_s:.9f}")]
         values += [KeyValue(key=k, value=str(v)) for k, v in event.details.items()]
         self.events_pub.publish(
@@ -488,6 +484,10 @@ class FakeHwNode(Node):
                 values=values,
             )
         )
+        if event.name == "cancel_received":
+            self.get_logger().info(
+                "cancel received: " + ", ".join(f"{k}={v}" for k, v in event.details.items())
+            )
 
     def _publish_loop(self) -> None:
         """Joint states at joint_state_rate, pads and the true object pose at pad_rate (a thread
