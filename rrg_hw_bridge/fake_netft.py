@@ -13,11 +13,13 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import numpy as np
 
 from .config import RDT_RECORD_FORMAT
 from .rdt import (
+    CONFIG_PAGE,
     RDT_CMD_RESET_THRESHOLD_LATCH,
     RDT_CMD_SET_SOFTWARE_BIAS,
     RDT_CMD_START_REALTIME,
@@ -26,6 +28,7 @@ from .rdt import (
     RECORD_SIZE,
     Calibration,
     RdtProtocolError,
+    box_config_xml,
     decode_request,
 )
 
@@ -53,7 +56,9 @@ class FakeNetFtBox:
     START_BUFFERED and malformed requests are ignored. rdt_sequence restarts at 1 with every
     START and counts every record generated, also those dropped or silenced, so a loss shows as
     a gap; ft_sequence counts internal samples at ``rate_hz`` since the box was created.
-    ``port=0`` binds a free port (see ``.port``).
+    ``port=0`` binds a free port (see ``.port``). With ``http_port`` the box also serves its
+    configuration page, /netftapi2.xml (its calibration in N and N m, and its RDT rate), over
+    HTTP on (host, http_port) (0: a free port, see ``.http_port``).
     """
 
     def __init__(
@@ -67,6 +72,7 @@ class FakeNetFtBox:
         noise_nm: float = 0.0,
         seed: int = 0,
         zero_offset=(0.0,) * 6,
+        http_port: int | None = None,
     ):
         if rate_hz <= 0:
             raise ValueError(f"rate_hz must be positive, got {rate_hz}")
@@ -119,6 +125,10 @@ class FakeNetFtBox:
             target=self._serve, name=f"fake-netft-{host}:{self.port}", daemon=True
         )
         self._thread.start()
+        self._http: ThreadingHTTPServer | None = None
+        self.http_port: int | None = None
+        if http_port is not None:
+            self._serve_config_page(host, http_port)
 
     # -------------------------------------------------------------- fault injection
     def silence(self, on: bool) -> None:
@@ -165,11 +175,42 @@ class FakeNetFtBox:
         """Whether a START_REALTIME stream is running."""
         return self._target is not None
 
+    def _serve_config_page(self, host: str, port: int) -> None:
+        """Serve /netftapi2.xml over HTTP on (host, port) from a daemon thread."""
+        page = box_config_xml(self.calibration, self.rate_hz).encode()
+
+        class ConfigPage(BaseHTTPRequestHandler):
+            def do_GET(self) -> None:
+                if self.path.lstrip("/") != CONFIG_PAGE:
+                    self.send_error(404)
+                    return
+                self.send_response(200)
+                self.send_header("Content-Type", "text/xml")
+                self.send_header("Content-Length", str(len(page)))
+                self.end_headers()
+                self.wfile.write(page)
+
+            def log_message(self, *args) -> None:  # quiet, as the box is
+                pass
+
+        try:
+            self._http = ThreadingHTTPServer((host, port), ConfigPage)
+        except OSError:
+            self.close()
+            raise
+        self.http_port = self._http.server_address[1]
+        threading.Thread(
+            target=self._http.serve_forever, name=f"fake-netft-http-{host}", daemon=True
+        ).start()
+
     def close(self) -> None:
         """Stop the box thread and close the socket (idempotent)."""
         if self._closed:
             return
         self._closed = True
+        if self._http is not None:
+            self._http.shutdown()
+            self._http.server_close()
         if self._thread is not threading.current_thread():
             self._thread.join(timeout=1.0)
         self._sock.close()

@@ -15,6 +15,8 @@ import socket
 import struct
 import threading
 import time
+import urllib.request
+import xml.etree.ElementTree as ET
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -52,6 +54,7 @@ __all__ = [
     "RDT_PORT",
     "RECORD_SIZE",
     "REQUEST_SIZE",
+    "BoxConfig",
     "Calibration",
     "RdtClient",
     "RdtHealth",
@@ -62,6 +65,9 @@ __all__ = [
     "decode_request",
     "encode_record",
     "encode_request",
+    "box_config_xml",
+    "parse_box_config",
+    "read_box_config",
 ]
 
 log = logging.getLogger(__name__)
@@ -175,6 +181,96 @@ class Calibration:
         return tuple(int(x) for x in c)
 
 
+# ------------------------------------------------------------------------ box configuration
+#: The box's configuration page: its active configuration's counts per force and torque unit
+#: (cfgcpf, cfgcpt), those units (scfgfu, scfgtu) and the RDT output rate (comrdtrate).
+CONFIG_PAGE = "netftapi2.xml"
+#: Force and torque units a box may be set to (scfgfu / scfgtu, as ATI's Net F/T manual lists
+#: them), in N and N m; a box in any other unit is refused.
+FORCE_UNITS = {
+    "N": 1.0,
+    "kN": 1e3,
+    "lbf": 4.4482216152605,
+    "klbf": 4448.2216152605,
+    "kgf": 9.80665,
+    "gf": 9.80665e-3,
+}
+TORQUE_UNITS = {
+    "N-m": 1.0,
+    "N-mm": 1e-3,
+    "kN-m": 1e3,
+    "lbf-in": 0.1129848290276167,
+    "lbf-ft": 1.3558179483314004,
+    "kgf-cm": 0.0980665,
+    "gf-cm": 9.80665e-5,
+}
+
+
+@dataclass(frozen=True)
+class BoxConfig:
+    """A box's active configuration (its netftapi2.xml): the calibration in SI units, the RDT
+    output rate [Hz] and the units the box is set to."""
+
+    calibration: Calibration
+    rdt_rate_hz: float
+    force_unit: str
+    torque_unit: str
+
+    def describe(self) -> str:
+        c = self.calibration
+        return (
+            f"{c.counts_per_force:g} counts/N, {c.counts_per_torque:g} counts/(N m) (box in "
+            f"{self.force_unit}, {self.torque_unit}), RDT at {self.rdt_rate_hz:g} Hz"
+        )
+
+
+def parse_box_config(page: bytes | str) -> BoxConfig:
+    """The BoxConfig of a netftapi2.xml page; ValueError when a field is missing or a unit
+    unknown."""
+    root = ET.fromstring(page)
+    fields = {el.tag.rsplit("}", 1)[-1].lower(): (el.text or "").strip() for el in root.iter()}
+    missing = [k for k in ("cfgcpf", "cfgcpt", "scfgfu", "scfgtu", "comrdtrate") if k not in fields]
+    if missing:
+        raise ValueError(f"{CONFIG_PAGE} lacks {', '.join(missing)}")
+    force_unit, torque_unit = fields["scfgfu"], fields["scfgtu"]
+    if force_unit not in FORCE_UNITS or torque_unit not in TORQUE_UNITS:
+        raise ValueError(f"unknown units {force_unit!r}, {torque_unit!r}")
+    return BoxConfig(
+        Calibration(
+            float(fields["cfgcpf"]) / FORCE_UNITS[force_unit],
+            float(fields["cfgcpt"]) / TORQUE_UNITS[torque_unit],
+        ),
+        float(fields["comrdtrate"]),
+        force_unit,
+        torque_unit,
+    )
+
+
+def read_box_config(host: str, port: int = 80, timeout_s: float = 2.0) -> BoxConfig:
+    """A box's configuration from http://host:port/netftapi2.xml (OSError when unreachable,
+    ValueError when the page is not one)."""
+    with urllib.request.urlopen(f"http://{host}:{port}/{CONFIG_PAGE}", timeout=timeout_s) as r:
+        page = r.read()
+    try:
+        return parse_box_config(page)
+    except ET.ParseError as exc:
+        raise ValueError(f"{CONFIG_PAGE} is not XML: {exc}") from exc
+
+
+def box_config_xml(
+    calibration: Calibration, rdt_rate_hz: float, force_unit: str = "N", torque_unit: str = "N-m"
+) -> str:
+    """A netftapi2.xml page (the fields RRG reads) for a box in the given units."""
+    cpf = calibration.counts_per_force * FORCE_UNITS[force_unit]
+    cpt = calibration.counts_per_torque * TORQUE_UNITS[torque_unit]
+    return (
+        '<?xml version="1.0"?>\n<netftapi2>'
+        f"<cfgcpf>{cpf:.0f}</cfgcpf><cfgcpt>{cpt:.0f}</cfgcpt>"
+        f"<scfgfu>{force_unit}</scfgfu><scfgtu>{torque_unit}</scfgtu>"
+        f"<comrdtrate>{rdt_rate_hz:.0f}</comrdtrate></netftapi2>"
+    )
+
+
 # ------------------------------------------------------------------------ client
 class RdtSample(NamedTuple):
     """One received record in SI units; ``received_s`` is time.monotonic() at reception."""
@@ -245,6 +341,10 @@ class RdtClient:
         self._last_rx = -np.inf
         self._started_s = time.monotonic()
         self._times: deque[float] = deque(maxlen=16384)  # > RDT_RATE_WINDOW at 7 kHz
+
+    def set_calibration(self, calibration: Calibration) -> None:
+        """Scale the records received from now on with ``calibration``."""
+        self.calibration, self._scale = calibration, calibration.scale
 
     # -------------------------------------------------------------- commands
     def start(self) -> None:
@@ -349,7 +449,7 @@ class RdtClient:
         sock, lock, times = self._sock, self._lock, self._times
         buf = bytearray(RECORD_SIZE + 28)  # room to see (and refuse) longer datagrams
         head = _RECORD_HEAD.unpack_from
-        frombuffer, scale, dtype = np.frombuffer, self._scale, _COUNTS_DTYPE
+        frombuffer, dtype = np.frombuffer, _COUNTS_DTYPE  # the scale may change (set_calibration)
         monotonic, box, ip = time.monotonic, self.name, self._addr[0]
         while self._running:
             try:
@@ -387,7 +487,7 @@ class RdtClient:
                     self._lost += skipped
                 self._fault("gap", f"expected {expected} got {seq}, {skipped} lost")
             self._last_seq = seq
-            wrench = frombuffer(buf, dtype, 6, _COUNTS_OFFSET) * scale
+            wrench = frombuffer(buf, dtype, 6, _COUNTS_OFFSET) * self._scale
             with lock:
                 self._received += 1
                 self._last_rx = now

@@ -39,7 +39,7 @@ from rrg_hw_bridge.fake.fake_hw_node import FAULTS
 from rrg_hw_bridge.ros.bridge_node import ARM_ON_START_DELAY_S
 from rrg_msgs.action import GuardedMove
 from rrg_msgs.srv import HandCommand, ResetSim
-from rrg_planner.bringup.graph import rdt_addresses
+from rrg_planner.bringup.graph import FAKE_NETFT_HTTP_PORT, rdt_addresses
 from rrg_sim import wam
 from rrg_sim.config import HAND, SENSING
 from rrg_sim.ros_common.msg_conversions import (
@@ -69,6 +69,8 @@ SILENCE_HOLD_S = 0.150
 ESTOP_CANCEL_S = 0.050
 #: Every emulated Net F/T box's unloaded reading [N, N m] until bridge/bias removes it.
 TIP_ZERO_OFFSET = (3.0, -1.0, 2.0, 0.0, 0.0, 0.0)
+#: The three emulated boxes are calibrated differently (counts per unit × these factors).
+BOX_CALIBRATION_FACTORS = (2.0, 1.0, 0.5)
 
 
 def fmt_list(values) -> str:
@@ -87,10 +89,13 @@ class Rig:
             "seed": 0,
             "rdt_hosts": hosts,
             "tip_zero_offset": fmt_list(TIP_ZERO_OFFSET),
+            "box_calibration_factors": fmt_list(BOX_CALIBRATION_FACTORS),
+            "netft_http_port": str(FAKE_NETFT_HTTP_PORT),
         }
         self.latch_file = log_dir / "estop.latched"
         self.bridge_params = {
             "rdt_hosts": hosts,
+            "netft_http_port": str(FAKE_NETFT_HTTP_PORT),
             "retime": "false",
             "arm_on_start": "true",
             "estop_latch_file": str(self.latch_file),
@@ -789,6 +794,38 @@ def test_bias_tares_on_records_taken_after_the_box_applied_it(hw):
     readings = [force(m) for t, m in hw.seen["tip1"] if t > since]
     assert readings
     assert np.abs(readings).max() < SENSING.tip_force_threshold, np.abs(readings).max()
+
+
+# ---------------------------------------------------------------------- Net F/T configuration
+def test_each_box_is_scaled_by_the_calibration_its_own_page_gives(hw):
+    """The boxes' netftapi2.xml pages give different counts per N: each is read, the status
+    lists them, and a 5 N load on fingertip 1 (a box at twice the counts) reads 5 N."""
+    force = lambda m: np.array([m.wrench.force.x, m.wrench.force.y, m.wrench.force.z])
+    hw.wait_ready()
+    values = {v.key: v.value for v in hw.seen["status"][-1][1].values}
+    for i, factor in enumerate(BOX_CALIBRATION_FACTORS):
+        assert f"{1e6 * factor:g} counts/N" in values[f"fingertip{i + 1}"], values
+    hw.set_fault("fault.extra_force", 5.0)
+    try:
+        since = time.monotonic() + 0.1
+        hw.spin(0.4)
+        readings = [force(m)[2] for t, m in hw.seen["tip1"] if t > since]
+        assert readings and np.median(readings) == pytest.approx(5.0, abs=0.3), readings[-3:]
+    finally:
+        hw.set_fault("fault.extra_force", 0.0)
+
+
+def test_a_box_whose_page_cannot_be_read_is_not_used(hw):
+    """A bridge that cannot read the boxes' netftapi2.xml (no page on its port) uses none of
+    their records: goals are refused as stale data, and the refusal says why."""
+    started = time.monotonic()
+    with hw.bridge_with(ready=False, netft_http_port=str(FAKE_NETFT_HTTP_PORT + 1)):
+        said = lambda: [
+            m for t, m in hw.seen["status"] if t > started and "netftapi2.xml" in m.message
+        ]
+        assert hw.client.spin_until(said, WAIT)  # armed, and waiting for the boxes' pages
+        res = assert_refused(hw, short_move(hw), R.STALE_DATA)
+        assert "netftapi2.xml not read" in res.error_msg, res.error_msg
 
 
 # ---------------------------------------------------------------------- recovery, escalation

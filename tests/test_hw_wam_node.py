@@ -151,6 +151,7 @@ def wam_bridge(tmp_path_factory, ros_domain):
     bridge = {
         "rdt_port": port,
         "arm_backend": "wam_node",
+        "netft_http_port": 0,  # the emulated boxes serve no netftapi2.xml here
         "effort_threshold": 0.0,
         "watchdog_timeout": 0.5,
     }

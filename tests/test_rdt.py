@@ -20,10 +20,13 @@ from rrg_hw_bridge.rdt import (
     RdtProtocolError,
     RdtRecord,
     RdtSample,
+    box_config_xml,
     decode_record,
     decode_request,
     encode_record,
     encode_request,
+    parse_box_config,
+    read_box_config,
 )
 
 #: rdt_sequence 1, ft_sequence 258, status 0; Fx 1 000 000, Fy -1 000 000, Fz 2 500 000,
@@ -357,3 +360,48 @@ def test_noise_is_seeded_and_delay_delays() -> None:
         box.arm_crossing(100.0)
         time.sleep(0.02)
         assert box.first_crossing(100.0) is None
+
+
+# ---------------------------------------------------------------------- box configuration
+def test_a_box_page_in_other_units_gives_counts_per_si_unit():
+    """netftapi2.xml's cfgcpf / cfgcpt count per the box's own units (scfgfu / scfgtu):
+    1 000 000 counts per lbf are 224 809 counts per N."""
+    page = (
+        "<netftapi2><cfgcpf>1000000</cfgcpf><cfgcpt>1000000</cfgcpt><scfgfu>lbf</scfgfu>"
+        "<scfgtu>lbf-in</scfgtu><comrdtrate>7000</comrdtrate><runstat>0</runstat></netftapi2>"
+    )
+    config = parse_box_config(page)
+    assert config.calibration.counts_per_force == pytest.approx(1e6 / 4.4482216152605)
+    assert config.calibration.counts_per_torque == pytest.approx(1e6 / 0.1129848290276167)
+    assert config.rdt_rate_hz == 7000.0
+    cal = Calibration(2e6, 5e5)
+    again = parse_box_config(box_config_xml(cal, 1000.0, "kN", "N-mm"))
+    assert again.calibration.counts_per_force == pytest.approx(2e6)
+    assert again.calibration.counts_per_torque == pytest.approx(5e5)
+
+
+@pytest.mark.parametrize(
+    "page, why",
+    [
+        ("<netftapi2><cfgcpf>1</cfgcpf></netftapi2>", "lacks"),
+        (
+            "<netftapi2><cfgcpf>1</cfgcpf><cfgcpt>1</cfgcpt><scfgfu>ozf</scfgfu>"
+            "<scfgtu>N-m</scfgtu><comrdtrate>1000</comrdtrate></netftapi2>",
+            "unknown units",
+        ),
+    ],
+)
+def test_a_page_without_the_fields_or_in_unknown_units_is_refused(page, why):
+    with pytest.raises(ValueError, match=why):
+        parse_box_config(page)
+
+
+def test_the_emulated_box_serves_its_page_over_http():
+    cal = Calibration(3e6, 2e5)
+    with FakeNetFtBox(
+        "127.0.0.1", lambda: np.zeros(6), cal, rate_hz=3000.0, port=0, http_port=0
+    ) as box:
+        config = read_box_config("127.0.0.1", box.http_port, timeout_s=2.0)
+    assert config.calibration == cal and config.rdt_rate_hz == 3000.0
+    with pytest.raises(OSError):
+        read_box_config("127.0.0.1", box.http_port, timeout_s=0.5)  # closed with the box

@@ -246,7 +246,10 @@ class FakeHwNode(Node):
                 observation="/rrg/observation",
             ),
         )
-        calibration = Calibration(p("counts_per_force"), p("counts_per_torque"))
+        factors = list(p("box_calibration_factors"))
+        if len(factors) != len(p("rdt_hosts")) or min(factors) <= 0.0:
+            raise ValueError("box_calibration_factors: one positive factor per box")
+        http_port = p("netft_http_port") or None
         noise = p("sensor_noise")
         self.boxes: list[FakeNetFtBox] = []
         try:
@@ -255,13 +258,16 @@ class FakeHwNode(Node):
                     FakeNetFtBox(
                         host,
                         lambda i=i: self.robot.tip_load(i),
-                        calibration,
+                        Calibration(
+                            p("counts_per_force") * factors[i], p("counts_per_torque") * factors[i]
+                        ),
                         rate_hz=p("rdt_rate"),
                         port=p("rdt_port"),
                         noise_n=SENSING.nano17_force_noise * noise,
                         noise_nm=PHYSICS.nano17_torque_noise * noise,
                         seed=p("seed") + 1 + i,
                         zero_offset=p("tip_zero_offset"),
+                        http_port=http_port,
                     )
                 )
         except OSError:
@@ -333,6 +339,25 @@ class FakeHwNode(Node):
             "rdt_hosts",
             ["127.0.0.2", "127.0.0.3", "127.0.0.4"],
             ParameterDescriptor(description="Addresses of the Net F/T boxes, fingers 1-3", **ro),
+        )
+        d(
+            "box_calibration_factors",
+            [1.0, 1.0, 1.0],
+            ParameterDescriptor(
+                description="Per box, a factor on counts_per_force and counts_per_torque: "
+                "boxes calibrated differently, as three real ones are",
+                **ro,
+            ),
+        )
+        d(
+            "netft_http_port",
+            0,
+            ParameterDescriptor(
+                description="TCP port each box serves its /netftapi2.xml on (0: none; a real "
+                "box: 80)",
+                integer_range=[IntegerRange(from_value=0, to_value=65535, step=1)],
+                **ro,
+            ),
         )
         d(
             "rdt_port",

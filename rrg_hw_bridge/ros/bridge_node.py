@@ -334,6 +334,8 @@ class BridgeNode(Node):
                 Calibration(p("counts_per_force"), p("counts_per_torque")),
                 self.on_wrench,
                 self.on_sensor_fault,
+                http_port=int(p("netft_http_port")),
+                on_config=self.on_box_config,
             )
         else:
             self.sensors = WrenchTopicSensors(
@@ -447,11 +449,21 @@ class BridgeNode(Node):
         self.declare_parameter(
             "rdt_port", 49152, ParameterDescriptor(description="RDT UDP port", read_only=True)
         )
+        self.declare_parameter(
+            "netft_http_port",
+            80,
+            ParameterDescriptor(
+                description="HTTP port of the Net F/T boxes' netftapi2.xml, read for each box's "
+                "counts per force and torque and its RDT rate (0: not read; counts_per_force "
+                "and counts_per_torque then hold for every box)",
+                read_only=True,
+            ),
+        )
         _float_param(
             self,
             "counts_per_force",
             DEFAULT_COUNTS_PER_FORCE,
-            "Net F/T counts per N (netftapi2.xml cfgcpf)",
+            "Net F/T counts per N of every box when netft_http_port is 0",
             1.0,
             1e9,
         )
@@ -459,7 +471,7 @@ class BridgeNode(Node):
             self,
             "counts_per_torque",
             DEFAULT_COUNTS_PER_TORQUE,
-            "Net F/T counts per N m (netftapi2.xml cfgcpt)",
+            "Net F/T counts per N m of every box when netft_http_port is 0",
             1.0,
             1e9,
         )
@@ -690,7 +702,23 @@ class BridgeNode(Node):
         return "; ".join(parts)
 
     def stale_message(self, stale: list[str]) -> str:
-        return f"no fresh data from {', '.join(stale)} within {self.watchdog_timeout * 1e3:.0f} ms"
+        unread = getattr(self.sensors, "unread", dict)()
+        why = "".join(f" ({name}: {unread[name]})" for name in stale if name in unread)
+        return (
+            f"no fresh data from {', '.join(stale)} within {self.watchdog_timeout * 1e3:.0f} ms"
+            + why
+        )
+
+    def on_box_config(self, finger: int, config, error: str) -> None:
+        """A Net F/T box's netftapi2.xml was read (config), or could not be (error)."""
+        name = f"fingertip{finger + 1}"
+        if config is not None:
+            self.get_logger().info(f"{name}: {config.describe()}")
+        else:
+            self.get_logger().warn(
+                f"{name}: {error}; its records are not used until it is read",
+                throttle_duration_sec=10.0,
+            )
 
     def stop_move(
         self,

@@ -31,7 +31,12 @@ from wam_msgs.msg import RTJointPositions
 
 from rrg_sim.ros_common.futures import ThreadSafeActionClient, WaitTimeout, wait_for
 
-from ..rdt import Calibration, RdtClient, RdtSample
+from ..rdt import CONFIG_PAGE, BoxConfig, Calibration, RdtClient, RdtSample, read_box_config
+
+#: A box's netftapi2.xml request times out after this long [s], and an unread page is asked
+#: for again this often [s] (chosen: a box on the lab network answers within milliseconds).
+CONFIG_TIMEOUT_S = 1.0
+CONFIG_RETRY_S = 2.0
 
 #: Longest wait [s] for a driver's answer to one request (a goal, a cancel, a service call).
 DRIVER_TIMEOUT = 2.0
@@ -528,13 +533,27 @@ class RdtSensors:
         calibration: Calibration,
         on_wrench: Callable[[int, np.ndarray, float], None],
         on_fault: Callable[[int, str, str], None],
+        http_port: int = 0,
+        on_config: Callable[[int, BoxConfig | None, str], None] | None = None,
     ):
+        """http_port > 0: each box's calibration is read from its netftapi2.xml over HTTP on
+        that port (``on_config(finger, config or None, error)`` reports each attempt), and its
+        records are not used until then; 0: ``calibration`` holds for every box."""
         self.clients = []
+        self.http_port = http_port
+        self.on_config = on_config
+        #: per box: its configuration once read (None: not yet), or the last reading error
+        self.configs: list[BoxConfig | None] = [None] * len(hosts)
+        self.config_errors = [""] * len(hosts)
+        self._stopping = threading.Event()
         for i, host in enumerate(hosts):
 
             def sample(s: RdtSample, i=i) -> None:
-                if not s.status:  # a record with a status error is reported by on_fault
-                    on_wrench(i, s.wrench, s.received_s)
+                if s.status:  # a record with a status error is reported by on_fault
+                    return
+                if self.http_port and self.configs[i] is None:
+                    return  # scaled by an unknown calibration: not a wrench
+                on_wrench(i, s.wrench, s.received_s)
 
             self.clients.append(
                 RdtClient(
@@ -550,6 +569,29 @@ class RdtSensors:
     def start(self) -> None:
         for c in self.clients:
             c.start()
+        if self.http_port:
+            threading.Thread(target=self._read_configs, name="netft-config", daemon=True).start()
+
+    def _read_configs(self) -> None:
+        """Read every box's netftapi2.xml, again every CONFIG_RETRY_S until each is read."""
+        while not self._stopping.is_set():
+            for i, c in enumerate(self.clients):
+                if self.configs[i] is not None:
+                    continue
+                try:
+                    config = read_box_config(c.host, self.http_port, CONFIG_TIMEOUT_S)
+                except (OSError, ValueError) as exc:
+                    self.config_errors[i] = f"{CONFIG_PAGE} not read: {exc}"
+                    if self.on_config is not None:
+                        self.on_config(i, None, self.config_errors[i])
+                    continue
+                c.set_calibration(config.calibration)
+                self.configs[i], self.config_errors[i] = config, ""
+                if self.on_config is not None:
+                    self.on_config(i, config, "")
+            if all(cfg is not None for cfg in self.configs):
+                return
+            self._stopping.wait(CONFIG_RETRY_S)
 
     def revive(self, silent_s: float) -> list[str]:
         """Ask every box silent for longer than ``silent_s`` [s] to stream again (it was not up
@@ -569,6 +611,7 @@ class RdtSensors:
         self.clients[finger].reset_latch()
 
     def stop(self) -> None:
+        self._stopping.set()
         for c in self.clients:
             c.stop()
 
@@ -578,13 +621,26 @@ class RdtSensors:
     def status(self) -> dict[str, str]:
         """Each box's receive rate [Hz], lost records, status and length errors, and age [s]."""
         out = {}
-        for c in self.clients:
+        for i, c in enumerate(self.clients):
             h = c.health()
             out[c.name] = (
                 f"{h.rate_hz:.0f} Hz, {h.lost} lost, {h.status_errors} status errors, "
                 f"{h.length_errors} length errors, age {h.age_s:.3f} s"
             )
+            if self.http_port:
+                cfg = self.configs[i]
+                out[c.name] += f"; {cfg.describe()}" if cfg else f"; {self.config_errors[i]}"
         return out
+
+    def unread(self) -> dict[str, str]:
+        """The boxes whose calibration is not known yet, and why (name: error)."""
+        if not self.http_port:
+            return {}
+        return {
+            c.name: self.config_errors[i] or f"{CONFIG_PAGE} not read yet"
+            for i, c in enumerate(self.clients)
+            if self.configs[i] is None
+        }
 
 
 class WrenchTopicSensors:
