@@ -432,6 +432,7 @@ def test_rdt_boxes_stream_and_the_fault_parameters_take_effect(fake_hw):
 
         assert set_param(client, c, "bench.crossing_threshold", 2.0).successful  # N
         assert set_param(client, c, "fault.extra_force", 5.0).successful
+        collect(0.05)  # records the boxes sent before the fault, still in the sockets
         got = collect(0.2)
         np.testing.assert_allclose(
             np.mean([x.wrench for x in got[0]], axis=0) - base, [0, 0, 5.0, 0, 0, 0], atol=0.05
