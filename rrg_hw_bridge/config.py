@@ -70,6 +70,10 @@ class BridgeParams:
     hand_position_tolerance: float = 0.03
     #: ... or has stopped moving (slower than PHYSICS.stall_speed) for this long [s] (chosen).
     hand_still_time: float = 0.1
+    #: A hand loop counts only joint states stamped after its command went out; one that
+    #: arrives this long [s] after the command counts whatever its stamp, so a driver whose
+    #: clock is behind the bridge's cannot hang the loop (chosen: 5× a 0.1 s hand round trip).
+    hand_stamp_grace: float = 0.5
 
 
 BRIDGE = BridgeParams()

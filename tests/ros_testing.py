@@ -197,6 +197,16 @@ class RosClient:
     def call(self, client, request, timeout_s: float = 30.0):
         return self.result(client.call_async(request), timeout_s)
 
+    def try_call(self, client, request, timeout_s: float):
+        """The answer, or None when none came within ``timeout_s`` [s]: a server that has just
+        started drops a response while it has not yet matched the client's response reader
+        (rmw_fastrtps waits 100 ms for it; ros2/rmw_fastrtps#390), so a caller may retry."""
+        future = client.call_async(request)
+        if self.spin_until(future.done, timeout_s):
+            return future.result()
+        client.remove_pending_request(future)
+        return None
+
     def close(self) -> None:
         self.executor.shutdown()
         self.node.destroy_node()

@@ -26,6 +26,7 @@ import sys
 import threading
 import time
 from collections import deque
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -185,6 +186,8 @@ class Measured:
     hand_q: np.ndarray = field(default_factory=lambda: np.full(8, np.nan))  # HAND_JOINT_NAMES
     hand_v: np.ndarray = field(default_factory=lambda: np.zeros(8))
     received_s: float = -np.inf  # monotonic time of arrival
+    hand_count: int = 0  # driver joint states with hand joints received so far
+    hand_stamp_s: float = -np.inf  # the newest one's driver stamp [s] (arrival when unstamped)
 
 
 @dataclass
@@ -746,16 +749,18 @@ class BridgeNode(Node):
         if trip is None and code != R.CANCELED:
             self.report(code, check, message, refused=False)
 
-    def stop_hand(self, code: int, check: str, message: str) -> None:
-        """Stop the running hand command (once): every hand motor stops at once."""
+    def stop_hand(self, code: int, check: str, message: str) -> bool:
+        """Stop the running hand command (once): every hand motor stops at once. False when
+        no hand command was running (or it had been stopped already)."""
         with self._lock:
             motion = self._hand_motion
             if motion is None or motion.code is not None:
-                return
+                return False
             motion.code, motion.message = code, message
         with self._hand_command_lock:  # no finger command of the closing loop follows it
             self.hand_driver.stop(self.measured().hand_q[0])
         self.report(code, check, f"hand command: {message}", refused=False)
+        return True
 
     def stop_all(self, code: int, check: str, message: str) -> None:
         """Stop the arm's move and the hand's motion."""
@@ -771,6 +776,8 @@ class BridgeNode(Node):
         except KeyError:
             arm = None
         hand = [index.get(n) for n in self.hand_driver_joints]
+        # when the driver measured it, on its clock (arrival when it does not stamp)
+        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec or self.ros_time()
         pos = np.asarray(msg.position, dtype=float)
         vel, eff = np.asarray(msg.velocity, dtype=float), np.asarray(msg.effort, dtype=float)
         # A driver without velocities (wam_node), or with NaN for a joint that lacks the
@@ -778,7 +785,7 @@ class BridgeNode(Node):
         measured_v = len(vel) == len(pos)
         if not measured_v or not np.isfinite(vel).all():
             estimate = self._velocity.setdefault(tuple(msg.name), VelocityEstimate(len(pos)))
-            derived = estimate.update(pos, now)
+            derived = estimate.update(pos, stamp)
             vel = np.where(np.isfinite(vel), vel, derived) if measured_v else derived
         has_effort = len(eff) == len(pos)
         if arm is not None:
@@ -795,14 +802,16 @@ class BridgeNode(Node):
                     sign = self.spread_sign if k == 0 else 1.0  # bhand_j11's reading
                     m.hand_q[k] = sign * pos[i]
                     m.hand_v[k] = sign * vel[i]
+            if any(i is not None for i in hand):
+                m.hand_count += 1
+                m.hand_stamp_s = stamp
             if arm is not None:
                 m.arm_q = pos[arm]
                 m.arm_v = vel[arm]
                 m.arm_effort = eff[arm] if self.interfaces["arm_effort"] else None
                 if m.arm_effort is not None and self.observer is not None:
-                    stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
                     m.arm_effort = self.observer.update(
-                        stamp or now, m.arm_q, m.arm_v, m.arm_effort, m.hand_q, m.hand_v
+                        stamp, m.arm_q, m.arm_v, m.arm_effort, m.hand_q, m.hand_v
                     )
                 if m.arm_effort is not None:
                     self._efforts.append(m.arm_effort)
@@ -810,6 +819,8 @@ class BridgeNode(Node):
             move = self._move
             arm_q, effort, hand_q = m.arm_q.copy(), m.arm_effort, m.hand_q.copy()
         if arm is None:
+            with self._joint_event:
+                self._joint_event.notify_all()
             return
         if self.interfaces != self._interfaces_logged:
             self._interfaces_logged = dict(self.interfaces)
@@ -902,8 +913,8 @@ class BridgeNode(Node):
         stops, whether or not a command runs."""
         self.stop_move(SafetyCode.ESTOP, "estop", why)
         if latched:
-            self.hand_driver.stop(self.measured().hand_q[0])
-            self.stop_hand(SafetyCode.ESTOP, "estop", why)
+            if not self.stop_hand(SafetyCode.ESTOP, "estop", why):  # no command ran: stop anyway
+                self.hand_driver.stop(self.measured().hand_q[0])
             self.report(SafetyCode.ESTOP, "estop", f"{why}: holding", refused=False)
 
     def on_watchdog(self) -> None:
@@ -944,6 +955,8 @@ class BridgeNode(Node):
                 m.hand_q.copy(),
                 m.hand_v.copy(),
                 m.received_s,
+                m.hand_count,
+                m.hand_stamp_s,
             )
 
     def effort_baseline(self) -> np.ndarray | None:
@@ -1016,6 +1029,37 @@ class BridgeNode(Node):
     def wait_joint_state(self, timeout: float) -> None:
         with self._joint_event:
             self._joint_event.wait(timeout)
+
+    def ros_time(self) -> float:
+        """The node's clock now [s] (the time drivers stamp their messages with)."""
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def hand_states(
+        self, since_s: float, timeout_s: float, what: str
+    ) -> Iterator[tuple[float, Measured]]:
+        """Each driver joint state with hand joints measured since ``since_s`` (the node's
+        clock [s]: when the command went out), with the time [s] on the driver's clock since
+        the one before (0 for the first). A hand loop counts stalls in the driver's time on
+        states that can show its command's effect, so a late, queued or bursty stream cannot
+        fake a stall. A state that arrives BRIDGE.hand_stamp_grace after the start counts
+        whatever its stamp (a driver whose clock is behind). Checks the safety layer's stops
+        meanwhile; TimeoutError after ``timeout_s`` [s] of wall time."""
+        start = time.monotonic()
+        last = self.measured()
+        first = True
+        while time.monotonic() < start + timeout_s:
+            self.wait_joint_state(0.02)
+            self.check_hand_motion()
+            m = self.measured()
+            if m.hand_count == last.hand_count:
+                continue
+            if first and m.hand_stamp_s < since_s:
+                if m.received_s - start < BRIDGE.hand_stamp_grace:
+                    last = m
+                    continue  # measured before the command: it cannot show its effect
+            yield (0.0 if first else max(m.hand_stamp_s - last.hand_stamp_s, 0.0)), m
+            first, last = False, m
+        raise TimeoutError(f"the hand did not {what} within {timeout_s:.1f} s")
 
     # ------------------------------------------------------------------ guarded move
     def on_move_goal(self, goal: GuardedMove.Goal) -> GoalResponse:
@@ -1298,44 +1342,41 @@ class BridgeNode(Node):
 
     def move_hand(self, spread: float, proximal: np.ndarray) -> None:
         """Move the spread and the proximal joints to their targets [rad] and wait until they
-        are there or have stopped (e.g. on the object)."""
+        are there or have stopped (e.g. on the object) for BRIDGE.hand_still_time of the
+        driver's time."""
+        since = self.ros_time()
         self.hand_driver.move_spread(spread)
         self.hand_driver.move_fingers(proximal)
         target = np.r_[spread, proximal]
         travel = np.abs(target - self.measured().hand_q[[0, 2, 3, 4]])
         speed = np.r_[PHYSICS.spread_speed, np.full(3, HAND.close_speed)]
-        deadline = time.monotonic() + float(np.max(travel / speed)) + 2.0
-        still_since = None
-        while time.monotonic() < deadline:
-            self.wait_joint_state(0.02)
-            self.check_hand_motion()
-            m = self.measured()
+        timeout = float(np.max(travel / speed)) + 2.0
+        still = 0.0  # [s] of driver time every commanded joint has been slow
+        what = f"reach {np.round(target, 3).tolist()} rad"
+        for dt, m in self.hand_states(since, timeout, what):
             q, v = m.hand_q[[0, 2, 3, 4]], m.hand_v[[0, 2, 3, 4]]
             if np.all(np.abs(q - target) < BRIDGE.hand_position_tolerance):
                 return
-            if np.all(np.abs(v) < PHYSICS.stall_speed):
-                still_since = still_since or time.monotonic()
-                if time.monotonic() - still_since > BRIDGE.hand_still_time:
-                    return
-            else:
-                still_since = None
-        raise TimeoutError(f"the hand did not reach {np.round(target, 3).tolist()} rad in time")
+            still = still + dt if np.all(np.abs(v) < PHYSICS.stall_speed) else 0.0
+            if still > BRIDGE.hand_still_time:
+                return
 
     def close_hand(self, guarded: bool) -> np.ndarray:
         """Close every finger until it stops (rrg_sim.hand_sensing.FingerClosing, as the
-        simulator's closing); returns the sensors (10,) fired at any time while closing."""
+        simulator's closing, fed each driver joint state on the driver's clock); returns the
+        sensors (10,) fired at any time while closing."""
         closing = FingerClosing(guarded)
         self._hand_motion.closing = True  # the ceiling now limits each finger's squeeze
         velocity = np.full(3, closing.speed)
+        since = self.ros_time()
         self.command_fingers(velocity, wait=True)
-        sent = last = time.monotonic()
+        sent = time.monotonic()
+        # the driver's clock bounds the closing; the wall clock only a driver that stalls
+        states = self.hand_states(since, 2.0 * closing.timeout + 2.0, "finish closing")
         try:
-            while not closing.done and closing.elapsed < closing.timeout:
-                self.wait_joint_state(0.02)
+            for dt, m in states:
                 now = time.monotonic()
-                self.check_hand_motion()
-                m = self.measured()
-                new = closing.update(now - last, m.hand_v[2:5], self.hand.fired())
+                new = closing.update(dt, m.hand_v[2:5], self.hand.fired())
                 squeezed = self._hand_motion.squeezed & ~closing.stopped
                 if squeezed.any():
                     self.get_logger().info(
@@ -1344,7 +1385,8 @@ class BridgeNode(Node):
                     )
                     closing.stopped |= squeezed
                     new = new | squeezed
-                last = now
+                if closing.done or closing.elapsed >= closing.timeout:
+                    break
                 if new.any():
                     velocity[closing.stopped] = 0.0
                     self.command_fingers(velocity, wait=False)
@@ -1353,6 +1395,7 @@ class BridgeNode(Node):
                     self.command_fingers(velocity, wait=False)
                     sent = now
         finally:
+            states.close()
             self.hand_driver.finger_velocities(np.zeros(3))
         return closing.touched
 
