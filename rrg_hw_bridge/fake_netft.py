@@ -11,6 +11,7 @@ import socket
 import struct
 import threading
 import time
+import urllib.parse
 from collections import deque
 from collections.abc import Callable
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -20,11 +21,13 @@ import numpy as np
 from .config import RDT_RECORD_FORMAT
 from .rdt import (
     CONFIG_PAGE,
+    RATE_PAGE,
     RDT_CMD_RESET_THRESHOLD_LATCH,
     RDT_CMD_SET_SOFTWARE_BIAS,
     RDT_CMD_START_REALTIME,
     RDT_CMD_STOP,
     RDT_PORT,
+    RDT_RATE_RANGE_HZ,
     RECORD_SIZE,
     Calibration,
     RdtProtocolError,
@@ -57,8 +60,9 @@ class FakeNetFtBox:
     START and counts every record generated, also those dropped or silenced, so a loss shows as
     a gap; ft_sequence counts internal samples at ``rate_hz`` since the box was created.
     ``port=0`` binds a free port (see ``.port``). With ``http_port`` the box also serves its
-    configuration page, /netftapi2.xml (its calibration in N and N m, and its RDT rate), over
-    HTTP on (host, http_port) (0: a free port, see ``.http_port``).
+    configuration page, /netftapi2.xml (its calibration in N and N m, and its RDT rate), and
+    comm.cgi, which sets the RDT rate, over HTTP on (host, http_port) (0: a free port, see
+    ``.http_port``).
     """
 
     def __init__(
@@ -175,17 +179,40 @@ class FakeNetFtBox:
         """Whether a START_REALTIME stream is running."""
         return self._target is not None
 
+    def set_rate(self, rate_hz: float) -> None:
+        """Stream at ``rate_hz`` [Hz] from the next record on (comm.cgi's comrdtrate)."""
+        if rate_hz <= 0:
+            raise ValueError(f"rate_hz must be positive, got {rate_hz}")
+        with self._lock:
+            self.rate_hz, self._period = float(rate_hz), 1.0 / float(rate_hz)
+
     def _serve_config_page(self, host: str, port: int) -> None:
-        """Serve /netftapi2.xml over HTTP on (host, port) from a daemon thread."""
-        page = box_config_xml(self.calibration, self.rate_hz).encode()
+        """Serve /netftapi2.xml, and comm.cgi?comrdtrate=<Hz> (sets the RDT rate, clamped to
+        RDT_RATE_RANGE_HZ; the emulated box does not round it), over HTTP on (host, port)
+        from a daemon thread."""
+        box = self
 
         class ConfigPage(BaseHTTPRequestHandler):
             def do_GET(self) -> None:
-                if self.path.lstrip("/") != CONFIG_PAGE:
+                url = urllib.parse.urlsplit(self.path)
+                if url.path.lstrip("/") == RATE_PAGE:
+                    query = urllib.parse.parse_qs(url.query)
+                    try:
+                        rate = float(query["comrdtrate"][0])
+                    except (KeyError, ValueError):
+                        self.send_error(400)
+                        return
+                    box.set_rate(float(np.clip(rate, *RDT_RATE_RANGE_HZ)))
+                    page = b"<html><body>Communication settings saved</body></html>"
+                    content_type = "text/html"
+                elif url.path.lstrip("/") == CONFIG_PAGE:
+                    page = box_config_xml(box.calibration, box.rate_hz).encode()
+                    content_type = "text/xml"
+                else:
                     self.send_error(404)
                     return
                 self.send_response(200)
-                self.send_header("Content-Type", "text/xml")
+                self.send_header("Content-Type", content_type)
                 self.send_header("Content-Length", str(len(page)))
                 self.end_headers()
                 self.wfile.write(page)

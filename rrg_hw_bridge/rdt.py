@@ -257,6 +257,26 @@ def read_box_config(host: str, port: int = 80, timeout_s: float = 2.0) -> BoxCon
         raise ValueError(f"{CONFIG_PAGE} is not XML: {exc}") from exc
 
 
+#: The box's communication settings page; ``comm.cgi?comrdtrate=<Hz>`` sets the RDT output rate
+#: (ATI's Net F/T manual, "Communication Settings Page (comm.htm)": the box may round the value
+#: up; ros2_net_ft_driver's AtiFTInterface::set_sampling_rate, range 1 to 7000 Hz).
+RATE_PAGE = "comm.cgi"
+RDT_RATE_RANGE_HZ = (1.0, 7000.0)
+
+
+def set_box_rdt_rate(host: str, port: int, rate_hz: float, timeout_s: float = 2.0) -> BoxConfig:
+    """Set a box's RDT output rate [Hz] through comm.cgi and read its configuration back
+    (OSError when unreachable, ValueError for a rate out of range or a page that is not one);
+    the caller checks the rate the box took (it may round up)."""
+    lo, hi = RDT_RATE_RANGE_HZ
+    if not lo <= rate_hz <= hi:
+        raise ValueError(f"an RDT rate of {rate_hz:g} Hz is outside [{lo:g}, {hi:g}] Hz")
+    url = f"http://{host}:{port}/{RATE_PAGE}?comrdtrate={int(round(rate_hz))}"
+    with urllib.request.urlopen(url, timeout=timeout_s) as r:
+        r.read()
+    return read_box_config(host, port, timeout_s)
+
+
 def box_config_xml(
     calibration: Calibration, rdt_rate_hz: float, force_unit: str = "N", torque_unit: str = "N-m"
 ) -> str:
@@ -296,6 +316,9 @@ class RdtHealth:
     rate_hz: float  # well-formed records over the last RDT_RATE_WINDOW [Hz]
     out_of_order: int = 0  # records older than the newest (dropped)
     socket_errors: int = 0  # receive errors, e.g. ICMP port unreachable when no box listens
+    #: CPU time [s] of the receive thread while handling records (decode and on_sample: the
+    #: bridge's guard), from its own thread clock (time.thread_time)
+    cpu_s: float = 0.0
 
 
 class RdtClient:
@@ -337,6 +360,7 @@ class RdtClient:
         self._last_seq: int | None = None
         self._received = self._lost = self._status_errors = self._length_errors = 0
         self._out_of_order = self._socket_errors = 0
+        self._cpu_s = 0.0  # [s] the receive thread spent on records (RdtHealth.cpu_s)
         self._last_status = 0
         self._last_rx = -np.inf
         self._started_s = time.monotonic()
@@ -427,6 +451,7 @@ class RdtClient:
                 socket_errors=self._socket_errors,
                 last_rx=self._last_rx,
             )
+        h["cpu_s"] = self._cpu_s
         window = min(RDT_RATE_WINDOW, now - self._started_s)
         recent = len(times) - int(np.searchsorted(times, now - window, side="right"))
         last_rx = h.pop("last_rx")
@@ -450,7 +475,7 @@ class RdtClient:
         buf = bytearray(RECORD_SIZE + 28)  # room to see (and refuse) longer datagrams
         head = _RECORD_HEAD.unpack_from
         frombuffer, dtype = np.frombuffer, _COUNTS_DTYPE  # the scale may change (set_calibration)
-        monotonic, box, ip = time.monotonic, self.name, self._addr[0]
+        monotonic, thread_time, box, ip = time.monotonic, time.thread_time, self.name, self._addr[0]
         while self._running:
             try:
                 n, addr = sock.recvfrom_into(buf)
@@ -462,7 +487,7 @@ class RdtClient:
                 self._socket_errors += 1
                 self._fault("socket", str(e))
                 continue
-            now = monotonic()
+            busy_since, now = thread_time(), monotonic()
             if addr[0] != ip:  # not our box
                 continue
             if n != RECORD_SIZE:
@@ -503,3 +528,4 @@ class RdtClient:
                 except Exception as e:
                     log.exception("%s: RDT on_sample callback raised", box)
                     self._fault("callback", repr(e))
+            self._cpu_s += thread_time() - busy_since

@@ -36,6 +36,7 @@ from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from rrg_hw_bridge.fake.fake_hw_node import FAULTS
+from rrg_hw_bridge.rdt import read_box_config, set_box_rdt_rate
 from rrg_hw_bridge.ros.bridge_node import ARM_ON_START_DELAY_S
 from rrg_msgs.action import GuardedMove
 from rrg_msgs.srv import HandCommand, ResetSim
@@ -82,7 +83,7 @@ class Rig:
     bridge's upward interface and the fake's fault parameters."""
 
     def __init__(self, env: dict, domain_id: int, log_dir: Path):
-        self.env, self.log_dir = env, log_dir
+        self.env, self.log_dir, self.domain_id = env, log_dir, domain_id
         hosts = fmt_list(rdt_addresses(domain_id))
         self.fake_params = {
             "object_name": "box",
@@ -839,6 +840,31 @@ def test_a_box_whose_page_cannot_be_read_is_not_used(hw):
         assert hw.client.spin_until(said, WAIT)  # armed, and waiting for the boxes' pages
         res = assert_refused(hw, short_move(hw), R.STALE_DATA)
         assert "netftapi2.xml not read" in res.error_msg, res.error_msg
+
+
+def test_the_bridge_sets_the_boxes_rdt_rate(hw):
+    """rdt_rate 2000: the bridge sets every box to 2 kHz through comm.cgi, its status says so,
+    and the records come faster than the boxes' 1 kHz before."""
+    started = time.monotonic()
+    hosts = rdt_addresses(hw.domain_id)
+    try:
+        with hw.bridge_with(rdt_rate="2000.0"):
+            said = lambda: [
+                t
+                for t, m in hw.seen["status"]
+                if t > started
+                and all("RDT at 2000 Hz" in v.value for v in m.values if v.key.startswith("fing"))
+            ]
+            assert hw.client.spin_until(said, WAIT)
+            for host in hosts:
+                assert read_box_config(host, FAKE_NETFT_HTTP_PORT).rdt_rate_hz == 2000.0
+            since = time.monotonic()
+            hw.spin(1.0)
+            tips = [t for t, _ in hw.seen["tip1"] if t > since]
+            assert tips  # the boxes stream on at the new rate
+    finally:  # the boxes as the other tests expect them
+        for host in hosts:
+            set_box_rdt_rate(host, FAKE_NETFT_HTTP_PORT, 1000.0)
 
 
 # ---------------------------------------------------------------------- recovery, escalation

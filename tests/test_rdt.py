@@ -27,6 +27,7 @@ from rrg_hw_bridge.rdt import (
     encode_request,
     parse_box_config,
     read_box_config,
+    set_box_rdt_rate,
 )
 
 #: rdt_sequence 1, ft_sequence 258, status 0; Fx 1 000 000, Fy -1 000 000, Fz 2 500 000,
@@ -405,3 +406,91 @@ def test_the_emulated_box_serves_its_page_over_http():
     assert config.calibration == cal and config.rdt_rate_hz == 3000.0
     with pytest.raises(OSError):
         read_box_config("127.0.0.1", box.http_port, timeout_s=0.5)  # closed with the box
+
+
+def test_comm_cgi_sets_the_emulated_box_rdt_rate_and_its_stream_follows():
+    with FakeNetFtBox("127.0.0.1", lambda: np.zeros(6), port=0, http_port=0) as box:
+        config = set_box_rdt_rate("127.0.0.1", box.http_port, 2500.0)
+        assert config.rdt_rate_hz == 2500.0 and box.rate_hz == 2500.0
+        with pytest.raises(ValueError, match="outside"):
+            set_box_rdt_rate("127.0.0.1", box.http_port, 8000.0)
+        client = RdtClient("127.0.0.1", box.port, Calibration())
+        client.start()
+        try:
+            time.sleep(0.6)
+            health = client.health()
+        finally:
+            client.stop()
+    # above the 1 kHz it started at (a loaded host lags 2.5 kHz)
+    assert health.rate_hz > 1200.0, health.rate_hz
+    assert 0.0 < health.cpu_s / health.received < 1e-3  # the thread's CPU [s] per record
+
+
+class _PageOnlyBox:
+    """An HTTP server with a box's netftapi2.xml at 1000 Hz and no comm.cgi (404)."""
+
+    def __init__(self):
+        from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+        page = box_config_xml(Calibration(), 1000.0).encode()
+
+        class Handler(BaseHTTPRequestHandler):
+            def do_GET(self) -> None:
+                if not self.path.endswith("netftapi2.xml"):
+                    self.send_error(404)
+                    return
+                self.send_response(200)
+                self.send_header("Content-Length", str(len(page)))
+                self.end_headers()
+                self.wfile.write(page)
+
+            def log_message(self, *args) -> None:
+                pass
+
+        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.port = self.server.server_address[1]
+        threading.Thread(target=self.server.serve_forever, daemon=True).start()
+
+    def close(self) -> None:
+        self.server.shutdown()
+        self.server.server_close()
+
+
+def test_the_bridge_sets_each_box_rate_and_does_not_use_a_box_that_refuses_it():
+    """RdtSensors with rdt_rate_hz: an emulated box is set to it and used; a box without
+    comm.cgi keeps 1 kHz and is not used, with the reason."""
+    from rrg_hw_bridge.ros.drivers import RdtSensors
+
+    def wait_for_page(sensors: RdtSensors) -> None:
+        deadline = time.monotonic() + 5.0
+        while sensors.configs[0] is None and not sensors.config_errors[0]:
+            if time.monotonic() > deadline:
+                return
+            time.sleep(0.02)
+
+    with FakeNetFtBox("127.0.0.1", lambda: np.zeros(6), port=0, http_port=0) as box:
+        page_only = _PageOnlyBox()
+        try:
+            for http_port, rate in ((box.http_port, 2000.0), (page_only.port, 3000.0)):
+                sensors = RdtSensors(
+                    ["127.0.0.1"],
+                    box.port,
+                    Calibration(),
+                    on_wrench=lambda *a: None,
+                    on_fault=lambda *a: None,
+                    http_port=http_port,
+                    rdt_rate_hz=rate,
+                )
+                try:
+                    sensors.start()
+                    wait_for_page(sensors)
+                    if http_port == box.http_port:
+                        assert sensors.configs[0] is not None, sensors.config_errors
+                        assert sensors.configs[0].rdt_rate_hz == 2000.0 == box.rate_hz
+                    else:
+                        assert sensors.configs[0] is None
+                        assert "RDT rate not set to 3000 Hz" in sensors.unread()["fingertip1"]
+                finally:
+                    sensors.stop()
+        finally:
+            page_only.close()

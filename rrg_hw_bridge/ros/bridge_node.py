@@ -83,7 +83,12 @@ from ..guard import (
     VelocityEstimate,
     path_index,
 )
-from ..rdt import DEFAULT_COUNTS_PER_FORCE, DEFAULT_COUNTS_PER_TORQUE, Calibration
+from ..rdt import (
+    DEFAULT_COUNTS_PER_FORCE,
+    DEFAULT_COUNTS_PER_TORQUE,
+    RDT_RATE_RANGE_HZ,
+    Calibration,
+)
 from ..safety import (
     EStop,
     ForceCeiling,
@@ -339,6 +344,7 @@ class BridgeNode(Node):
                 self.on_sensor_fault,
                 http_port=int(p("netft_http_port")),
                 on_config=self.on_box_config,
+                rdt_rate_hz=float(p("rdt_rate")),
             )
         else:
             self.sensors = WrenchTopicSensors(
@@ -461,6 +467,15 @@ class BridgeNode(Node):
                 "and counts_per_torque then hold for every box)",
                 read_only=True,
             ),
+        )
+        _float_param(
+            self,
+            "rdt_rate",
+            0.0,
+            "RDT output rate [Hz] each Net F/T box is set to (comm.cgi) before its records are "
+            "used; needs netft_http_port (0: the boxes' own setting)",
+            0.0,
+            RDT_RATE_RANGE_HZ[1],
         )
         _float_param(
             self,

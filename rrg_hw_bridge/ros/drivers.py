@@ -31,7 +31,15 @@ from wam_msgs.msg import RTJointPositions
 
 from rrg_sim.ros_common.futures import ThreadSafeActionClient, WaitTimeout, wait_for
 
-from ..rdt import CONFIG_PAGE, BoxConfig, Calibration, RdtClient, RdtSample, read_box_config
+from ..rdt import (
+    CONFIG_PAGE,
+    BoxConfig,
+    Calibration,
+    RdtClient,
+    RdtSample,
+    read_box_config,
+    set_box_rdt_rate,
+)
 
 #: A box's netftapi2.xml request times out after this long [s], and an unread page is asked
 #: for again this often [s] (chosen: a box on the lab network answers within milliseconds).
@@ -535,16 +543,21 @@ class RdtSensors:
         on_fault: Callable[[int, str, str], None],
         http_port: int = 0,
         on_config: Callable[[int, BoxConfig | None, str], None] | None = None,
+        rdt_rate_hz: float = 0.0,
     ):
         """http_port > 0: each box's calibration is read from its netftapi2.xml over HTTP on
         that port (``on_config(finger, config or None, error)`` reports each attempt), and its
-        records are not used until then; 0: ``calibration`` holds for every box."""
+        records are not used until then; 0: ``calibration`` holds for every box. With
+        ``rdt_rate_hz`` > 0 (and http_port) a box streaming at another rate is set to it
+        (comm.cgi) and used once its page says it streams at least that fast."""
         self.clients = []
         self.http_port = http_port
+        self.rdt_rate_hz = rdt_rate_hz
         self.on_config = on_config
         #: per box: its configuration once read (None: not yet), or the last reading error
         self.configs: list[BoxConfig | None] = [None] * len(hosts)
         self.config_errors = [""] * len(hosts)
+        self._cpu_seen = [(0.0, 0)] * len(hosts)  # per box: (cpu_s, received) at the last status
         self._stopping = threading.Event()
         for i, host in enumerate(hosts):
 
@@ -585,6 +598,10 @@ class RdtSensors:
                     if self.on_config is not None:
                         self.on_config(i, None, self.config_errors[i])
                     continue
+                if self.rdt_rate_hz and config.rdt_rate_hz != self.rdt_rate_hz:
+                    config = self._set_rate(i, config)
+                    if config is None:
+                        continue
                 c.set_calibration(config.calibration)
                 self.configs[i], self.config_errors[i] = config, ""
                 if self.on_config is not None:
@@ -592,6 +609,29 @@ class RdtSensors:
             if all(cfg is not None for cfg in self.configs):
                 return
             self._stopping.wait(CONFIG_RETRY_S)
+
+    def _set_rate(self, i: int, config: BoxConfig) -> BoxConfig | None:
+        """Set box i to stream at rdt_rate_hz and restart its stream; its configuration read
+        back, or None (the reason in config_errors, reported) when the box did not take it."""
+        c = self.clients[i]
+        try:
+            after = set_box_rdt_rate(c.host, self.http_port, self.rdt_rate_hz, CONFIG_TIMEOUT_S)
+        except (OSError, ValueError) as exc:
+            self.config_errors[i] = f"RDT rate not set to {self.rdt_rate_hz:g} Hz: {exc}"
+            after = None
+        else:
+            if after.rdt_rate_hz < self.rdt_rate_hz:  # a box may round up, never down
+                self.config_errors[i] = (
+                    f"RDT rate {after.rdt_rate_hz:g} Hz after setting {self.rdt_rate_hz:g} Hz "
+                    f"(it was {config.rdt_rate_hz:g} Hz)"
+                )
+                after = None
+        if after is None:
+            if self.on_config is not None:
+                self.on_config(i, None, self.config_errors[i])
+            return None
+        c.restream()  # the stream runs at the new rate from its restart
+        return after
 
     def revive(self, silent_s: float) -> list[str]:
         """Ask every box silent for longer than ``silent_s`` [s] to stream again (it was not up
@@ -619,13 +659,21 @@ class RdtSensors:
         return ", ".join(f"{c.name}@{c.host}" for c in self.clients)
 
     def status(self) -> dict[str, str]:
-        """Each box's receive rate [Hz], lost records, status and length errors, and age [s]."""
+        """Each box's receive rate [Hz], lost records, status and length errors, age [s], and
+        the CPU [µs] its receive thread spent per record (decode and the guard) since the
+        previous call."""
         out = {}
         for i, c in enumerate(self.clients):
             h = c.health()
+            cpu0, received0 = self._cpu_seen[i]
+            self._cpu_seen[i] = (h.cpu_s, h.received)
+            per_record = (
+                (h.cpu_s - cpu0) / (h.received - received0) if h.received > received0 else 0
+            )
             out[c.name] = (
                 f"{h.rate_hz:.0f} Hz, {h.lost} lost, {h.status_errors} status errors, "
-                f"{h.length_errors} length errors, age {h.age_s:.3f} s"
+                f"{h.length_errors} length errors, age {h.age_s:.3f} s, "
+                f"{per_record * 1e6:.1f} µs CPU/record"
             )
             if self.http_port:
                 cfg = self.configs[i]

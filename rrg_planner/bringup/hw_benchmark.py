@@ -1,8 +1,8 @@
 """``rrg-bench hw``: the hardware bridge's stop latency and sensor streaming, on the emulated
 drivers (speed is printed, never asserted in tests).
 
-    rrg-bench hw [--trials 50] [--force 2.0] [--idle 5] [--domain-id N] [--log-dir DIR]
-                 [--seed 0] [--json]
+    rrg-bench hw [--trials 50] [--force 2.0] [--idle 5] [--rdt-rates 1000,3000,7000]
+                 [--guard-window 4] [--domain-id N] [--log-dir DIR] [--seed 0] [--json]
 
 It starts the emulated WAM, BarrettHand and Net F/T drivers (``rrg_hw_bridge.fake.fake_hw_node``)
 and the bridge (``rrg_hw_bridge.ros.bridge_node``) as ``rrg-launch --mode hw --fake-hw`` does:
@@ -10,7 +10,10 @@ the launcher's ``Graph`` starts only the arm/hand interface (``--domain-id``, de
 the Net F/T boxes at ``rdt_addresses(domain)``. It waits until the bridge reports every
 stream fresh on ``/rrg/bridge/status``, places the object (``/rrg/reset_sim``, arm home), and
 measures the CPU use of both processes (``/proc/<pid>/stat``) over ``--idle`` seconds of plain
-streaming. Then, per trial:
+streaming. At each of ``--rdt-rates`` it sets the boxes' RDT rate through comm.cgi and measures,
+during ``--guard-window`` seconds of a guarded move without contact (the guard checks every
+record), the records the bridge receives and the CPU its receive threads spend per record
+(``HwBench.guard_cost``). Then, with the boxes back at 1 kHz, per trial:
 
 1. a slow guarded move from the arm's measured configuration (``stop_on_contact``, tip
    threshold SENSING.tip_force_threshold): J1 turns by MOVE_J1 rad on a minimum-jerk profile
@@ -35,7 +38,8 @@ machine (it warns when other work is busy), and the load average.
 With ``--json`` the last line is one JSON object: ``latency_median_ms``, ``latency_p99_ms``,
 ``latency_max_ms``, ``latency_ms`` (per trial), ``rdt_rate_hz``, ``rdt_rate_min_hz`` and
 ``rdt_rate_idle_hz`` (per box), ``lost`` (per box, during the trials), ``trials``, ``failed``,
-``failures``, ``cpu``, ``incidents``, ``load_average`` and the settings. Exit status 1 when a
+``failures``, ``cpu``, ``guard_cost``, ``incidents``,
+``load_average`` and the settings. Exit status 1 when a
 trial failed or the processes could not be run.
 
 Ctrl-C (or SIGTERM) stops both processes as rrg-launch stops its graph: SIGINT, then SIGTERM
@@ -67,9 +71,16 @@ from tqdm import tqdm
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from rrg_hw_bridge.config import BRIDGE as BRIDGE_DEFAULTS
+from rrg_hw_bridge.rdt import set_box_rdt_rate
 from rrg_msgs.action import GuardedMove
 from rrg_msgs.srv import ResetSim
-from rrg_planner.bringup.graph import Graph, LaunchError, ros_environment
+from rrg_planner.bringup.graph import (
+    FAKE_NETFT_HTTP_PORT,
+    Graph,
+    LaunchError,
+    rdt_addresses,
+    ros_environment,
+)
 from rrg_sim.config import SENSING, SENSOR_NAMES, WORLD
 from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES, planar_to_msg
 
@@ -98,7 +109,10 @@ BUSY_OTHER_PCT = 20.0
 BACK_ATTEMPTS = 3
 BACK_RETRY_S = 0.5
 BOXES = ("fingertip1", "fingertip2", "fingertip3")
+#: After the boxes' RDT rate changes, the bridge's 1 s rate window refills for this long [s].
+RATE_SETTLE_S = 1.5
 _BOX_STATUS = re.compile(r"([\d.]+) Hz, (\d+) lost")
+_BOX_CPU = re.compile(r"([\d.]+) µs CPU/record")
 
 
 def cpu_seconds(pid: int) -> float:
@@ -211,6 +225,7 @@ class HwBench:
     benchmark's own subscriptions and clients on the graph's node."""
 
     def __init__(self, domain_id: int, log_dir: Path):
+        self.domain_id = domain_id
         # a process that dies ends the benchmark (no restarts)
         self.graph = Graph(ros_environment(domain_id), None, log_dir, "fake_hw", respawn_max=0)
         self.obs = Observed()
@@ -337,6 +352,58 @@ class HwBench:
         self.move_back(q_home)
         return (None if problem else latency), problem
 
+    def guard_cost(
+        self, q_home: np.ndarray, rate_hz: float, window_s: float, pids: dict[str, int]
+    ) -> dict[str, float]:
+        """The bridge's CPU while its guard checks every record: the boxes set to ``rate_hz``
+        through comm.cgi (as a lab would), then a guarded move without contact during which
+        the processes' CPU and the records the bridge receives are measured over ``window_s``.
+        Returns the rate set, the records received per second (all boxes), the CPU [% of a
+        core] of each process and the median CPU [µs] the bridge's receive threads spent per
+        record (their thread clocks, in the bridge's status: decode and guard), which other
+        work competing for the cores does not inflate."""
+        for host in rdt_addresses(self.domain_id):
+            config = set_box_rdt_rate(host, FAKE_NETFT_HTTP_PORT, rate_hz)
+            if config.rdt_rate_hz < rate_hz:
+                raise LaunchError(f"the box at {host} took {config.rdt_rate_hz:g} Hz")
+        self.wait(RATE_SETTLE_S)
+        figures: dict[str, float] = {"rate_set_hz": rate_hz}
+
+        def measure() -> None:
+            self.wait(0.3)  # the move is under way
+            meter = CpuMeter(pids)
+            meter.start()
+            since = time.monotonic()
+            self.wait(window_s)
+            cpu = meter.stop()
+            # each status counts the second before it: those wholly inside the window
+            values = [v for t, _, v in self.obs.status if since + 1.0 < t <= since + window_s]
+            received = sum(
+                statistics.mean(r) if r else 0.0 for r, _ in box_figures(values).values()
+            )
+            per_record = [
+                float(m.group(1))
+                for v in values
+                for b in BOXES
+                if (m := _BOX_CPU.search(v.get(b, "")))
+            ]
+            figures.update({f"cpu_{k}_pct": v for k, v in cpu.items()})
+            figures["records_per_s"] = received
+            figures["guard_us_per_record"] = (
+                statistics.median(per_record) if per_record else float("nan")
+            )
+
+        q_to = q_home.copy()
+        q_to[0] += MOVE_J1
+        result = self.run_move(q_to, window_s + 1.0, True, measure)
+        if result.error_code != GuardedMove.Result.NONE or result.stopped_on_contact:
+            self.incidents.append(
+                f"the {rate_hz:g} Hz guard-cost move ended with {result.error_code} "
+                f"{result.error_msg!r} (stopped on contact: {result.stopped_on_contact})"
+            )
+        self.move_back(q_home)
+        return figures
+
     def move_back(self, q_home: np.ndarray) -> None:
         """Back to where the trials start (the tips unloaded before the next tare). A refusal
         (e.g. the watchdog's, on a loaded machine) is noted and the move tried again; the next
@@ -374,6 +441,15 @@ def bench_hw(argv: list[str]) -> int:
         "--force", type=float, default=2.0, help="force [N] added to fingertip 1 in each trial"
     )
     ap.add_argument("--idle", type=float, default=5.0, help="seconds of idle streaming timed")
+    ap.add_argument(
+        "--rdt-rates",
+        default="1000,3000,7000",
+        help="RDT rates [Hz] at which the guard's CPU per record is measured, comma-separated "
+        "(empty: not measured)",
+    )
+    ap.add_argument(
+        "--guard-window", type=float, default=4.0, help="seconds of guarded move timed per rate"
+    )
     ap.add_argument("--domain-id", type=int, default=98, help="DDS domain of the processes")
     ap.add_argument("--log-dir", type=Path, help="keep the two processes' logs here")
     ap.add_argument("--seed", type=int, default=0, help="seeds the sensor noise and fault delays")
@@ -381,6 +457,12 @@ def bench_hw(argv: list[str]) -> int:
         "--json", action="store_true", help="print the figures as JSON on the last line"
     )
     args = ap.parse_args(argv)
+    try:
+        args.rdt_rates = [float(r) for r in args.rdt_rates.split(",") if r.strip()]
+    except ValueError:
+        ap.error(f"--rdt-rates must be numbers separated by commas, got {args.rdt_rates!r}")
+    if any(not 1.0 <= r <= 7000.0 for r in args.rdt_rates):
+        ap.error("each --rdt-rates value must be within 1-7000 Hz (the Net F/T's range)")
     if args.trials < 1 or not (
         SENSING.tip_force_threshold < args.force < BRIDGE_DEFAULTS.force_ceiling
     ):
@@ -396,6 +478,7 @@ def run_bench(args: argparse.Namespace) -> int:
     latencies: list[float] = []
     problems: list[str] = []
     cpu: dict[str, dict[str, float]] = {}
+    guard: list[dict[str, float]] = []  # per RDT rate (guard_cost)
     with (
         tempfile.TemporaryDirectory(prefix="rrg_bench_hw_") as tmp,
     ):
@@ -432,6 +515,19 @@ def run_bench(args: argparse.Namespace) -> int:
                 )
             q_home = obs.arm_q.copy()
             idle_status = [v for t, _, v in obs.status if t > idle_start + 1.0]
+            for rate in args.rdt_rates:
+                cost = bench.guard_cost(q_home, rate, args.guard_window, pids)
+                guard.append(cost)
+                print(
+                    f"[hw] boxes at {rate:.0f} Hz, guarded move: the bridge receives "
+                    f"{cost['records_per_s']:.0f} records/s, {cost['guard_us_per_record']:.1f} "
+                    f"µs CPU per record, {cost[f'cpu_{BRIDGE}_pct']:.0f} % of a core in all",
+                    flush=True,
+                )
+            if args.rdt_rates:  # the trials at the boxes' 1 kHz
+                for host in rdt_addresses(domain):
+                    set_box_rdt_rate(host, FAKE_NETFT_HTTP_PORT, RATE_TARGET_HZ)
+                bench.wait(RATE_SETTLE_S)
             first_status = len(obs.status)
             meter.start()
             bar = tqdm(range(args.trials), desc="[hw] trials", unit="trial", file=sys.stderr)
@@ -485,6 +581,7 @@ def run_bench(args: argparse.Namespace) -> int:
         "failed": len(problems),
         "failures": problems,
         "cpu": cpu,
+        "guard_cost": guard,
         "force_n": args.force,
         "threshold_n": SENSING.tip_force_threshold,
         "incidents": bench.incidents,
@@ -514,6 +611,13 @@ def run_bench(args: argparse.Namespace) -> int:
         print(
             f"| CPU of {what.get(k, k)}, streaming idle / during the trials "
             f"| {v['idle_pct']:.0f} % / {v['trials_pct']:.0f} % of a core | – |"
+        )
+    for g in guard:
+        print(
+            f"| the bridge with the boxes at {g['rate_set_hz']:.0f} Hz during a guarded move: "
+            f"records received (all boxes), CPU per record of its receive threads (decode and "
+            f"guard), its whole CPU | {g['records_per_s']:.0f} /s, "
+            f"{g['guard_us_per_record']:.1f} µs, {g[f'cpu_{BRIDGE}_pct']:.0f} % of a core | – |"
         )
     if problems:
         print(f"| failed trials | {len(problems)} of {args.trials} | 0 |")
