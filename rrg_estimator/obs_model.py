@@ -166,18 +166,24 @@ def sensor_log_likelihood(
 ) -> tuple[np.ndarray, np.ndarray]:
     """(silent (N,), gain (10, N)) float32: every sensor silent, Σ_s log P(silent | q_s), per
     entry, and log P(fired | q) - log P(silent | q) per sensor (``sensor_prediction``); a
-    reading's sensor term is silent + o @ gain. Cached per table (weakly referenced)."""
+    reading's sensor term is silent + o @ gain. The params' unsensed sensors have no term (their
+    gain is 0). Cached per table (weakly referenced)."""
 
     def build() -> tuple[np.ndarray, np.ndarray]:
         q = sensor_prediction(table)
         fired = q * params.p_detect + (1.0 - q) * params.p_false_alarm
         silent = np.log1p(-fired)
+        gain = np.log(fired) - silent
+        unsensed = list(params.unsensed)
+        silent[:, unsensed] = 0.0
+        gain[:, unsensed] = 0.0
         return (
             silent.sum(axis=1).astype(np.float32),
-            np.ascontiguousarray((np.log(fired) - silent).T.astype(np.float32)),
+            np.ascontiguousarray(gain.T.astype(np.float32)),
         )
 
-    return _per_table(_SENSOR_LOG, table, (params.p_detect, params.p_false_alarm), build)
+    key = (params.p_detect, params.p_false_alarm, tuple(params.unsensed))
+    return _per_table(_SENSOR_LOG, table, key, build)
 
 
 def likelihood_params(wrt: WRT, params: LikelihoodParams = LIKELIHOOD) -> LikelihoodParams:

@@ -23,7 +23,7 @@ from typing import Protocol
 
 import numpy as np
 
-from rrg_estimator.config import LEVELS, UncertaintyLevel
+from rrg_estimator.config import LEVELS, LIKELIHOOD, LikelihoodParams, UncertaintyLevel
 from rrg_estimator.grid import Grid
 from rrg_sim.config import REORIENT_MIN_FINGERS
 from rrg_sim.objects import ObjectModel, get_object
@@ -58,11 +58,19 @@ def closest_level(sigma) -> UncertaintyLevel:
     return min(LEVELS.values(), key=lambda lv: float(np.sum((s - np.log(lv.sigma)) ** 2)))
 
 
-def wrt_posterior(belief: Belief, table: TableLike, wrt: WRT, e, obs: Observation) -> Belief:
+def wrt_posterior(
+    belief: Belief,
+    table: TableLike,
+    wrt: WRT,
+    e,
+    obs: Observation,
+    params: LikelihoodParams = LIKELIHOOD,
+) -> Belief:
     """The belief after executing ``wrt`` at estimate e and observing ``obs``: the Bayes update
-    with the WRT's table, then the reorientation's rotation about e for a reorient WRT whose
+    with the WRT's table (``params``: the robot's likelihood parameters, adjusted per WRT by
+    likelihood_params), then the reorientation's rotation about e for a reorient WRT whose
     grasp held the object (observation.holds_object; otherwise nothing was turned)."""
-    post = update(belief, table, e, obs, params=likelihood_params(wrt))
+    post = update(belief, table, e, obs, params=likelihood_params(wrt, params))
     if wrt.kind == "reorient" and holds_object(obs.contact, obs.sensors, REORIENT_MIN_FINGERS):
         e = np.asarray(e, dtype=float)
         post = reorient(
@@ -125,6 +133,7 @@ class BeliefTracker:
     tables: the WRTs and their tables (default: the object's own, from the disk cache).
     levels: the uncertainty levels a concentrated belief may be re-gridded to (variable resolution).
     calibration: the frames of the object's WRTs (default: none, the nominal world's robot).
+    likelihood: the robot's likelihood parameters (e.g. the sensors it has no reading of).
     """
 
     def __init__(
@@ -135,8 +144,10 @@ class BeliefTracker:
         levels: Iterable[UncertaintyLevel] = LEVELS.values(),
         variable_resolution: bool = True,
         calibration: PostureCalibration | None = None,
+        likelihood: LikelihoodParams = LIKELIHOOD,
     ):
         self.obj = obj
+        self.likelihood = likelihood
         self.calibration = calibration or PostureCalibration.none()
         self.belief = belief
         self.tables = tables if tables is not None else CachedTables(obj)
@@ -175,7 +186,8 @@ class BeliefTracker:
         cannot explain; the belief (and a pending retreat) is kept then."""
         wrt = self.tables.wrt(wrt_name)
         prior = self.in_frame_of(self._after_retreat(), wrt_name)
-        post = wrt_posterior(prior, self.tables.table(wrt_name, prior.grid), wrt, e, obs)
+        table = self.tables.table(wrt_name, prior.grid)
+        post = wrt_posterior(prior, table, wrt, e, obs, self.likelihood)
         self.belief, self.pending = post, (wrt, np.asarray(e, dtype=float), bool(obs.contact))
         return post
 

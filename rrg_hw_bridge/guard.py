@@ -24,6 +24,11 @@ from rrg_sim.hand_sensing import StopConfirmation, fired_sensors, reading_from_j
 #: Pads a BarrettHand without pad feedback cannot sense; with derived pads the distal pads
 #: take the fingertip Nano17s' force magnitude (the sensor sits in the distal link's tip).
 DERIVED_PADS_UNSENSED = ("palm", "prox1", "prox2", "prox3")
+#: Where the bridge's pad forces come from (its parameter pad_source), and the pads each source
+#: has no reading of (a ContactPads topic is taken to carry all seven).
+UNSENSED_PADS = {"topic": (), "derived": DERIVED_PADS_UNSENSED}
+PAD_SOURCES = tuple(UNSENSED_PADS)
+DEFAULT_PAD_SOURCE = "topic"
 
 
 def derived_pads(tip_wrench: np.ndarray) -> np.ndarray:

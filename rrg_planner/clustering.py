@@ -47,10 +47,17 @@ class ObservationClusters:
         return len(self.representatives)
 
 
-def signature_keys(table: ObservationTable, closure: bool = True) -> np.ndarray:
+def signature_keys(
+    table: ObservationTable, closure: bool = True, unsensed: tuple[int, ...] = ()
+) -> np.ndarray:
     """(N,) int64 key of each entry's contact signature (equal keys = same cluster);
-    closure False: the closure angles do not split clusters (the likelihood ignores them)."""
-    bits = table.sensors.astype(np.int64) @ (1 << np.arange(table.sensors.shape[1], dtype=np.int64))
+    closure False: the closure angles do not split clusters (the likelihood ignores them);
+    the unsensed sensors do not split them either (the robot cannot tell them apart)."""
+    sensed = np.ones(table.sensors.shape[1], dtype=np.int64)
+    sensed[list(unsensed)] = 0
+    bits = table.sensors.astype(np.int64) @ (
+        sensed << np.arange(table.sensors.shape[1], dtype=np.int64)
+    )
     prog = np.rint(table.progress / PROGRESS_BIN).astype(np.int64)
     clos = (
         np.rint(table.closure / CLOSURE_BIN).astype(np.int64)
@@ -78,7 +85,7 @@ def cluster_table(
 ) -> ObservationClusters:
     """Group a table's predicted observations and precompute their likelihood rows
     (``params``: the WRT's likelihood parameters, obs_model.likelihood_params)."""
-    keys = signature_keys(table, closure=bool(np.isfinite(params.sigma_closure)))
+    keys = signature_keys(table, np.isfinite(params.sigma_closure), tuple(params.unsensed))
     prior = offset_prior(table, level)
     mass = np.bincount(keys, weights=prior)
     kept = np.flatnonzero(mass >= prune)

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from rrg_estimator.config import LEVELS, UncertaintyLevel
+from rrg_estimator.config import LEVELS, LIKELIHOOD, LikelihoodParams, UncertaintyLevel
 from rrg_estimator.grid import Grid
 from rrg_estimator.obs_model import likelihood_params
 from rrg_estimator.obs_tables import ObservationTable, load_or_build
@@ -183,6 +183,7 @@ class PlanningModel:
         wrt_names: tuple[str, ...] | None = None,
         closures_as_predicted: bool = False,
         world: WorldProfile | str = NOMINAL,
+        likelihood: LikelihoodParams = LIKELIHOOD,
     ):
         """levels: level names from config.LEVELS, or UncertaintyLevel objects (e.g. small test
         grids).
@@ -192,7 +193,9 @@ class PlanningModel:
         grasp's are used (WRT.closure_informative); physics and the robot drag the object.
         world: the world profile (or its spec, config.world_profile) the robot acts in: its
         calibration error puts the WRTs' readings in frames (rrg_sim.posture_calibration), and
-        a goal grasp from a belief in another frame than its own is valued with that error."""
+        a goal grasp from a belief in another frame than its own is valued with that error.
+        likelihood: the robot's likelihood parameters, as its estimator's (e.g. the sensors it
+        has no reading of)."""
         self.obj = get_object(object_name)
         self.world = world_profile(world)
         self.calibration = PostureCalibration.for_object(self.obj, self.world)
@@ -215,7 +218,9 @@ class PlanningModel:
                     self.obj, wrt, Grid.for_level(level), workers=workers, progress=progress
                 )
                 act.tables[name] = table
-                act.clusters[name] = cluster_table(table, level, params=likelihood_params(wrt))
+                act.clusters[name] = cluster_table(
+                    table, level, params=likelihood_params(wrt, likelihood)
+                )
                 if wrt.kind == "goal":
                     act.goal[name] = goal_indicator(self.obj, table, settling=settling)
                     own = self.calibration.frame_of(wrt.name)

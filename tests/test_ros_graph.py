@@ -213,6 +213,21 @@ def test_hw_options_are_checked(args, message):
     assert message in out.stderr
 
 
+def test_the_launcher_tells_the_belief_which_pads_the_bridge_cannot_read(tmp_path):
+    """The bridge's pad_source, from --hw-param or its parameters file, gives the pads the
+    estimator and the planner leave out."""
+    from rrg_hw_bridge.guard import DERIVED_PADS_UNSENSED, UNSENSED_PADS
+    from rrg_planner.bringup.graph import LaunchError, bridge_pad_source
+
+    params = tmp_path / "bridge.yaml"
+    params.write_text("/**:\n  ros__parameters:\n    pad_source: derived\n")
+    assert bridge_pad_source({}, None) == "topic" and UNSENSED_PADS["topic"] == ()
+    assert UNSENSED_PADS[bridge_pad_source({}, params)] == DERIVED_PADS_UNSENSED
+    assert bridge_pad_source({"pad_source": "topic"}, params) == "topic"  # the CLI wins
+    with pytest.raises(LaunchError, match="pad_source"):
+        bridge_pad_source({"pad_source": "gloves"}, None)
+
+
 def test_an_unknown_world_profile_is_a_usage_error():
     out = subprocess.run(
         [*LAUNCH, "--world", "perfect"], capture_output=True, text=True, timeout=60, cwd=ROOT

@@ -5,6 +5,7 @@ observation varies smoothly with the offset Δ, so likelihoods are informative i
 """
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -233,6 +234,18 @@ def test_likelihood_is_floored_batched_and_float32(high_table):
         )  # its own offset explains it best (ties: the same reading)
 
 
+def assert_left_out(table, prior: Belief, params, feats, other) -> list[np.ndarray]:
+    """Two readings that differ in one term update ``prior`` alike under ``params`` (the term
+    is left out) and differently under the default parameters; the two posteriors' weights."""
+    left_out = [
+        update(prior, table, E, f, transition=False, params=params).weights for f in (feats, other)
+    ]
+    np.testing.assert_array_equal(left_out[0], left_out[1])
+    used = update(prior, table, E, other, transition=False).weights
+    assert np.abs(used - left_out[1]).max() > 1e-3 * left_out[1].max()
+    return left_out
+
+
 def test_a_wrt_whose_closures_are_not_informative_is_updated_without_them(high_table):
     """A firm goal grasp drags the object as it closes (WRT.closure_informative False): its
     closure angles must not move the belief, while every other term still does."""
@@ -244,17 +257,40 @@ def test_a_wrt_whose_closures_are_not_informative_is_updated_without_them(high_t
     other = features_from_table_rows(high_table, [row])
     other.closure[0] += np.float32(0.4)
     prior = Belief.for_level(HIGH, E)
-    ignored = [
-        update(prior, high_table, E, f, transition=False, params=params).weights
-        for f in (feats, other)
-    ]
-    np.testing.assert_array_equal(ignored[0], ignored[1])
-    used = update(prior, high_table, E, other, transition=False).weights
-    assert np.abs(used - ignored[1]).max() > 1e-3 * ignored[1].max()
+    ignored = assert_left_out(high_table, prior, params, feats, other)
     # the sensors still speak: sensor 1 fired (Δy > 1 cm), so the states at Δy < -1 cm lose
     # most of their prior mass
     far = relative_planar(E, prior.grid.points())[:, 1] < -0.01
     assert ignored[0][far].sum() < 0.25 * prior.weights[far].sum()
+
+
+def test_an_unsensed_sensor_does_not_move_the_belief(high_table):
+    """A robot without a reading of sensor 1 (likelihood_without): its silence, where the table
+    predicts it fires, leaves the belief as if it had fired; the other sensors still speak."""
+    from rrg_estimator.config import likelihood_without
+    from rrg_planner.clustering import signature_keys
+    from rrg_sim.config import SENSOR_NAMES
+
+    params = likelihood_without([SENSOR_NAMES[1]])
+    assert params.unsensed == (1,)
+    with pytest.raises(ValueError, match="unknown sensors"):
+        likelihood_without(["elbow"])
+    row = high_table.grid.nearest_index(np.array([0.0, 0.03, 0.3]))  # sensor 1 fires there
+    fired = features_from_table_rows(high_table, [row])
+    assert fired.sensors[0, 1]
+    silent = features_from_table_rows(high_table, [row])
+    silent.sensors[0, 1] = False
+    assert_left_out(high_table, Belief.for_level(HIGH, E), params, fired, silent)
+    # the planner's clusters do not split on it either: two entries that differ in sensor 1
+    pair = SimpleNamespace(
+        contact=np.zeros(2, bool),
+        sensors=np.zeros((2, 10), bool),
+        progress=np.zeros(2),
+        closure=np.zeros((2, 3)),
+    )
+    pair.sensors[0, 1] = True
+    assert len(set(signature_keys(pair))) == 2
+    assert len(set(signature_keys(pair, unsensed=(1,)))) == 1
 
 
 # ------------------------------------------------------------------------ update

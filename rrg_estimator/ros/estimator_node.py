@@ -39,6 +39,7 @@ from visualization_msgs.msg import MarkerArray
 from rrg_estimator.config import LEVELS
 from rrg_estimator.persistence import EstimatorState, StateError, load_state, save_state
 from rrg_estimator.ros.belief_msgs import belief_markers, belief_to_msg
+from rrg_estimator.ros.likelihood_param import declare_unsensed_sensors
 from rrg_estimator.tracker import BeliefTracker, CachedTables
 from rrg_msgs.msg import BeliefGrid, Retreated
 from rrg_msgs.msg import Observation as ObservationMsg
@@ -115,6 +116,7 @@ class EstimatorNode(Node):
                 read_only=True,
             ),
         )
+        self.likelihood = declare_unsensed_sensors(self)
         self.frame_id = self.get_parameter("frame_id").value
         self.world_profile = world_profile(self.get_parameter("world_profile").value)
         state_file = self.get_parameter("state_file").value
@@ -148,6 +150,7 @@ class EstimatorNode(Node):
                 CachedTables(obj, workers=1),
                 variable_resolution=self.get_parameter("variable_resolution").value,
                 calibration=PostureCalibration.for_object(obj, self.world_profile),
+                likelihood=self.likelihood,
             )
         except FileNotFoundError:
             return
@@ -310,6 +313,7 @@ class EstimatorNode(Node):
                     calibration=self.tracker.calibration
                     if same_object
                     else PostureCalibration.for_object(obj, self.world_profile),
+                    likelihood=self.likelihood,
                 )
             except KeyError as exc:
                 resp.error_code, resp.error_msg = (

@@ -76,7 +76,9 @@ from ..arm_limits import DEFAULT_ARM_LIMITS, load_arm_limits
 from ..config import BRIDGE
 from ..external_torque import ExternalTorqueObserver
 from ..guard import (
+    DEFAULT_PAD_SOURCE,
     DERIVED_PADS_UNSENSED,
+    PAD_SOURCES,
     ContactGuard,
     HandState,
     Trip,
@@ -353,7 +355,8 @@ class BridgeNode(Node):
         if derive:
             self.get_logger().warn(
                 "pad_source 'derived': the hand has no pad feedback; the distal pads read the "
-                f"fingertip forces and {', '.join(DERIVED_PADS_UNSENSED)} never fire"
+                f"fingertip forces and {', '.join(DERIVED_PADS_UNSENSED)} never fire (the "
+                "estimator and the planner leave them out: unsensed_sensors, set by rrg-launch)"
             )
         else:
             self.io.create_subscription(ContactPads, p("pads_topic"), self.on_driver_pads, 10)
@@ -500,10 +503,10 @@ class BridgeNode(Node):
         )
         text(
             "pad_source",
-            "topic",
+            DEFAULT_PAD_SOURCE,
             "Where the pad forces come from: an rrg_msgs/ContactPads "
             "topic, or derived from the fingertip sensors",
-            ("topic", "derived"),
+            PAD_SOURCES,
         )
         text("pads_topic", "/bhand/contact_pads", "rrg_msgs/ContactPads topic of the hand's pads")
         text("estop_topic", "/rrg/estop", "Latched E-stop (std_msgs/Bool, true = stop)")

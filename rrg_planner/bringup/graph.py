@@ -17,8 +17,10 @@ from pathlib import Path
 from typing import TextIO
 
 import numpy as np
+import yaml
 
 from rrg_estimator.config import LEVELS
+from rrg_hw_bridge.guard import DEFAULT_PAD_SOURCE, UNSENSED_PADS
 from rrg_sim.config import WORLD
 from rrg_sim.poses import compose_planar
 
@@ -290,10 +292,18 @@ class Graph:
             self.state_dir.mkdir(parents=True)
             state = {n: {"state_file": str(self.state_dir / f"{n}.state")} for n in NODES}
         assumed = world_profile if self.simulated else "realistic"
+        # the pads the bridge has no reading of are left out of the belief's likelihood
+        unsensed = (
+            ()
+            if self.interface == "sim"
+            else UNSENSED_PADS[bridge_pad_source(hw_params or {}, hw_params_file)]
+        )
+        sensing = {"unsensed_sensors": f"[{','.join(map(repr, unsensed or ('',)))}]"}
         params = {
             "executor": {},
-            "estimator": {"world_profile": assumed, **state.get("estimator", {})},
+            "estimator": {"world_profile": assumed, **sensing, **state.get("estimator", {})},
             "planner": {
+                **sensing,
                 "world_profile": assumed,
                 "levels": f"[{','.join(repr(lv) for lv in levels)}]",
                 "preload": f"[{','.join(repr(o) for o in preload or [object_name])}]",
@@ -720,6 +730,20 @@ class Graph:
 #: TCP port the emulated Net F/T boxes serve their netftapi2.xml on (a real box: 80, which
 #: only root may bind).
 FAKE_NETFT_HTTP_PORT = 8080
+
+
+def bridge_pad_source(hw_params: dict[str, str], hw_params_file: Path | None) -> str:
+    """The bridge's pad_source: from ``hw_params``, else from the parameters file (any node
+    section's ros__parameters), else its default; LaunchError for an unknown one."""
+    source = hw_params.get("pad_source")
+    if source is None and hw_params_file is not None:
+        sections = yaml.safe_load(Path(hw_params_file).read_text()) or {}
+        for section in sections.values():
+            source = ((section or {}).get("ros__parameters") or {}).get("pad_source", source)
+    source = str(source if source is not None else DEFAULT_PAD_SOURCE).strip("'\"")
+    if source not in UNSENSED_PADS:
+        raise LaunchError(f"pad_source must be one of {list(UNSENSED_PADS)}, got {source!r}")
+    return source
 
 
 def rdt_addresses(domain_id: int) -> list[str]:

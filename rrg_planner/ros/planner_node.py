@@ -45,6 +45,7 @@ from rclpy.parameter import Parameter
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import LEVELS
 from rrg_estimator.ros.belief_msgs import InvalidBelief, InvalidGrid, belief_from_msg
+from rrg_estimator.ros.likelihood_param import declare_unsensed_sensors
 from rrg_msgs.action import RobustGrasp
 from rrg_msgs.msg import GraspStep
 from rrg_msgs.srv import GetBelief, SelectAction
@@ -172,6 +173,7 @@ class PlannerNode(Node):
                 read_only=True,
             ),
         )
+        self.likelihood = declare_unsensed_sensors(self)
         state_file = self.get_parameter("state_file").value
         self.state_file = Path(state_file) if state_file else None
         self.levels = tuple(self.get_parameter("levels").value)
@@ -232,6 +234,7 @@ class PlannerNode(Node):
                     workers=1,
                     progress=False,
                     world=self.world_profile,
+                    likelihood=self.likelihood,
                 )
                 self.get_logger().info(
                     f"model of {object_name} loaded in {time.monotonic() - t0:.1f} s: "
