@@ -723,7 +723,7 @@ class BridgeNode(Node):
         return "; ".join(parts)
 
     def stale_message(self, stale: list[str]) -> str:
-        unread = getattr(self.sensors, "unread", dict)()
+        unread = self.sensors.unread()
         why = "".join(f" ({name}: {unread[name]})" for name in stale if name in unread)
         return (
             f"no fresh data from {', '.join(stale)} within {self.watchdog_timeout * 1e3:.0f} ms"

@@ -736,3 +736,7 @@ class WrenchTopicSensors:
 
     def status(self) -> dict[str, str]:
         return {}
+
+    def unread(self) -> dict[str, str]:
+        """Topic drivers publish calibrated wrenches: nothing to read first."""
+        return {}

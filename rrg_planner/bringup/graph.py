@@ -328,10 +328,10 @@ class Graph:
         hosts = f"[{','.join(repr(h) for h in rdt_addresses(int(self.env['ROS_DOMAIN_ID'])))}]"
         # The emulated robot's bridge arms itself at start; its latch lives as long as the run
         # (a restarted bridge keeps an E-stop). On a real arm the operator arms it.
-        emulated_estop = {"arm_on_start": "true", "netft_http_port": str(FAKE_NETFT_HTTP_PORT)}
+        emulated_bridge = {"arm_on_start": "true", "netft_http_port": str(FAKE_NETFT_HTTP_PORT)}
         run_dir = self.state_dir or self.log_dir
         if run_dir is not None:
-            emulated_estop["estop_latch_file"] = str(Path(run_dir) / "estop.latched")
+            emulated_bridge["estop_latch_file"] = str(Path(run_dir) / "estop.latched")
         params = {
             "sim": {**world, "real_time_factor": real_time_factor, "world_profile": world_profile},
             "fake_hw": {
@@ -340,7 +340,7 @@ class Graph:
                 "netft_http_port": str(FAKE_NETFT_HTTP_PORT),
             },
             "hw_bridge": {
-                **({"rdt_hosts": hosts, **emulated_estop} if self.interface == "fake_hw" else {}),
+                **({"rdt_hosts": hosts, **emulated_bridge} if self.interface == "fake_hw" else {}),
                 **(hw_params or {}),
             },
         }
