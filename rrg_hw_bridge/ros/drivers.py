@@ -594,9 +594,7 @@ class RdtSensors:
                 try:
                     config = read_box_config(c.host, self.http_port, CONFIG_TIMEOUT_S)
                 except (OSError, ValueError) as exc:
-                    self.config_errors[i] = f"{CONFIG_PAGE} not read: {exc}"
-                    if self.on_config is not None:
-                        self.on_config(i, None, self.config_errors[i])
+                    self._not_used(i, f"{CONFIG_PAGE} not read: {exc}")
                     continue
                 if self.rdt_rate_hz and config.rdt_rate_hz != self.rdt_rate_hz:
                     config = self._set_rate(i, config)
@@ -617,21 +615,21 @@ class RdtSensors:
         try:
             after = set_box_rdt_rate(c.host, self.http_port, self.rdt_rate_hz, CONFIG_TIMEOUT_S)
         except (OSError, ValueError) as exc:
-            self.config_errors[i] = f"RDT rate not set to {self.rdt_rate_hz:g} Hz: {exc}"
-            after = None
-        else:
-            if after.rdt_rate_hz < self.rdt_rate_hz:  # a box may round up, never down
-                self.config_errors[i] = (
-                    f"RDT rate {after.rdt_rate_hz:g} Hz after setting {self.rdt_rate_hz:g} Hz "
-                    f"(it was {config.rdt_rate_hz:g} Hz)"
-                )
-                after = None
-        if after is None:
-            if self.on_config is not None:
-                self.on_config(i, None, self.config_errors[i])
-            return None
+            return self._not_used(i, f"RDT rate not set to {self.rdt_rate_hz:g} Hz: {exc}")
+        if after.rdt_rate_hz < self.rdt_rate_hz:  # a box may round up, never down
+            return self._not_used(
+                i,
+                f"RDT rate {after.rdt_rate_hz:g} Hz after setting {self.rdt_rate_hz:g} Hz "
+                f"(it was {config.rdt_rate_hz:g} Hz)",
+            )
         c.restream()  # the stream runs at the new rate from its restart
         return after
+
+    def _not_used(self, i: int, error: str) -> None:
+        """Box i's configuration could not be read or set: keep why, and report it."""
+        self.config_errors[i] = error
+        if self.on_config is not None:
+            self.on_config(i, None, error)
 
     def revive(self, silent_s: float) -> list[str]:
         """Ask every box silent for longer than ``silent_s`` [s] to stream again (it was not up

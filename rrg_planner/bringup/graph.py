@@ -170,11 +170,14 @@ def ros_environment(
 
 
 def ros_args(params: dict[str, object], params_file: Path | None = None) -> list[str]:
-    """``--ros-args [--params-file FILE] -p k:=v ...`` (the -p values override the file's)."""
+    """``--ros-args [--params-file FILE] -p k:=v ...`` (the -p values override the file's; a
+    list or tuple becomes a ROS list of its items' Python literals)."""
     args = ["--ros-args"]
     if params_file is not None:
         args += ["--params-file", str(params_file)]
     for k, v in params.items():
+        if isinstance(v, (list, tuple)):
+            v = f"[{','.join(map(repr, v))}]"
         args += ["-p", f"{k}:={v}"]
     return args
 
@@ -268,7 +271,7 @@ class Graph:
                         {
                             "discovery_period": 0.1,
                             **(
-                                {"exclude_topics": f"[{','.join(map(repr, DRIVER_TOPICS))}]"}
+                                {"exclude_topics": list(DRIVER_TOPICS)}
                                 if self.interface != "sim"
                                 else {}
                             ),
@@ -298,15 +301,15 @@ class Graph:
             if self.interface == "sim"
             else UNSENSED_PADS[bridge_pad_source(hw_params or {}, hw_params_file)]
         )
-        sensing = {"unsensed_sensors": f"[{','.join(map(repr, unsensed or ('',)))}]"}
+        sensing = {"unsensed_sensors": list(unsensed or ("",))}
         params = {
             "executor": {},
             "estimator": {"world_profile": assumed, **sensing, **state.get("estimator", {})},
             "planner": {
                 **sensing,
                 "world_profile": assumed,
-                "levels": f"[{','.join(repr(lv) for lv in levels)}]",
-                "preload": f"[{','.join(repr(o) for o in preload or [object_name])}]",
+                "levels": list(levels),
+                "preload": list(preload or [object_name]),
                 **state.get("planner", {}),
             },
         }
@@ -325,7 +328,7 @@ class Graph:
     ) -> None:
         """Start the arm/hand interface's processes (INTERFACE[self.interface])."""
         world = {"object_name": object_name, "seed": seed, "sensor_noise": sensor_noise}
-        hosts = f"[{','.join(repr(h) for h in rdt_addresses(int(self.env['ROS_DOMAIN_ID'])))}]"
+        hosts = rdt_addresses(int(self.env["ROS_DOMAIN_ID"]))
         # The emulated robot's bridge arms itself at start; its latch lives as long as the run
         # (a restarted bridge keeps an E-stop). On a real arm the operator arms it.
         emulated_bridge = {"arm_on_start": "true", "netft_http_port": str(FAKE_NETFT_HTTP_PORT)}

@@ -352,6 +352,15 @@ class HwBench:
         self.move_back(q_home)
         return (None if problem else latency), problem
 
+    def set_rdt_rate(self, rate_hz: float) -> None:
+        """Set every emulated box's RDT rate [Hz] through comm.cgi, as a lab would; then wait
+        until the bridge's 1 s rate window has refilled."""
+        for host in rdt_addresses(self.domain_id):
+            config = set_box_rdt_rate(host, FAKE_NETFT_HTTP_PORT, rate_hz)
+            if config.rdt_rate_hz < rate_hz:
+                raise LaunchError(f"the box at {host} took {config.rdt_rate_hz:g} Hz")
+        self.wait(RATE_SETTLE_S)
+
     def guard_cost(
         self, q_home: np.ndarray, rate_hz: float, window_s: float, pids: dict[str, int]
     ) -> dict[str, float]:
@@ -362,11 +371,7 @@ class HwBench:
         core] of each process and the median CPU [µs] the bridge's receive threads spent per
         record (their thread clocks, in the bridge's status: decode and guard), which other
         work competing for the cores does not inflate."""
-        for host in rdt_addresses(self.domain_id):
-            config = set_box_rdt_rate(host, FAKE_NETFT_HTTP_PORT, rate_hz)
-            if config.rdt_rate_hz < rate_hz:
-                raise LaunchError(f"the box at {host} took {config.rdt_rate_hz:g} Hz")
-        self.wait(RATE_SETTLE_S)
+        self.set_rdt_rate(rate_hz)
         figures: dict[str, float] = {"rate_set_hz": rate_hz}
 
         def measure() -> None:
@@ -525,9 +530,7 @@ def run_bench(args: argparse.Namespace) -> int:
                     flush=True,
                 )
             if args.rdt_rates:  # the trials at the boxes' 1 kHz
-                for host in rdt_addresses(domain):
-                    set_box_rdt_rate(host, FAKE_NETFT_HTTP_PORT, RATE_TARGET_HZ)
-                bench.wait(RATE_SETTLE_S)
+                bench.set_rdt_rate(RATE_TARGET_HZ)
             first_status = len(obs.status)
             meter.start()
             bar = tqdm(range(args.trials), desc="[hw] trials", unit="trial", file=sys.stderr)
