@@ -21,14 +21,21 @@ from rrg_sim.config import SENSING
 from rrg_sim.executor.wrt_executor import Reading
 from rrg_sim.hand_sensing import StopConfirmation, fired_sensors, reading_from_joints
 
+from .tactile import TACTILE_PADS_UNSENSED
+
 #: Pads a BarrettHand without pad feedback cannot sense; with derived pads the distal pads
 #: take the fingertip Nano17s' force magnitude (the sensor sits in the distal link's tip).
 DERIVED_PADS_UNSENSED = ("palm", "prox1", "prox2", "prox3")
 #: Where the bridge's pad forces come from (its parameter pad_source), and the pads each source
-#: has no reading of (a ContactPads topic is taken to carry all seven).
-UNSENSED_PADS = {"topic": (), "derived": DERIVED_PADS_UNSENSED}
+#: has no reading of: Barrett's tactile pucks cover the fingertips and the palm
+#: (tactile.TACTILE_PADS_UNSENSED); a ContactPads topic is taken to carry all seven.
+UNSENSED_PADS = {
+    "tactile": TACTILE_PADS_UNSENSED,
+    "topic": (),
+    "derived": DERIVED_PADS_UNSENSED,
+}
 PAD_SOURCES = tuple(UNSENSED_PADS)
-DEFAULT_PAD_SOURCE = "topic"
+DEFAULT_PAD_SOURCE = "tactile"
 
 
 def derived_pads(tip_wrench: np.ndarray) -> np.ndarray:

@@ -219,8 +219,8 @@ def fake_hw(tmp_path_factory, ros_domain):
     from ros_testing import RosClient, node_processes, ros_env
     from sensor_msgs.msg import JointState
     from std_srvs.srv import Trigger
+    from wam_msgs.msg import TactilePressureArray
 
-    from rrg_msgs.msg import ContactPads
     from rrg_msgs.srv import ResetSim
 
     env = ros_env(ros_domain)
@@ -255,7 +255,7 @@ def fake_hw(tmp_path_factory, ros_domain):
             return store
 
         n.create_subscription(JointState, "/joint_states", keep("joints"), 10)
-        n.create_subscription(ContactPads, "/bhand/contact_pads", keep("pads"), 10)
+        n.create_subscription(TactilePressureArray, "/bhand/tactile_states", keep("pads"), 10)
         n.create_subscription(DiagnosticStatus, "/fake_hw/events", keep("events", 1000), 100)
         n.create_subscription(PoseStamped, "/rrg/eval/object_pose", keep("truth"), 10)
         assert client.spin_until(lambda: seen["joints"] and seen["pads"], 10.0)
@@ -390,8 +390,9 @@ def test_bhand_services_move_the_hand(fake_hw):
     assert client.call(c["open"], Trigger.Request()).success
     fresh(client, seen, 1.2)
     np.testing.assert_allclose(latest(seen, prox), 0.0, atol=0.02)
-    pads = seen["pads"][-1]
-    assert len(pads.force) == 7 and not any(pads.in_contact)
+    pucks = seen["pads"][-1].tactile_pressures  # Barrett's layout: 4 pucks of 24 cells
+    assert [len(p.pressure) for p in pucks] == [24] * 4
+    assert not np.any([p.pressure for p in pucks])  # the open hand touches nothing
 
 
 @pytest.mark.slow

@@ -1009,3 +1009,17 @@ def test_a_latched_net_ft_status_is_reset_and_the_arm_is_ready_again(hw):
     assert any("RESET_THRESHOLD_LATCH sent" in m.message for m in reports)
     hw.wait_ready(5.0)
     assert_runs(hw)
+
+
+def test_a_silent_tactile_topic_is_a_fault_that_holds_the_arm(hw):
+    """The pads come from Barrett's tactile pucks; when their topic falls silent the watchdog
+    holds the arm and refuses goals until it streams again."""
+    handle = hw.started(slow_move(hw))
+    since = time.monotonic()
+    hw.set_fault("fault.silent_tactile", True)
+    assert_stopped(hw, handle, R.STALE_DATA, since)
+    res = assert_refused(hw, short_move(hw), R.STALE_DATA)
+    assert "pads" in res.error_msg
+    hw.set_fault("fault.silent_tactile", False)
+    hw.wait_ready()
+    assert_runs(hw)

@@ -92,6 +92,8 @@ def test_a_robust_grasp_runs_end_to_end_through_the_bridge(tmp_path):
     texts = {p.name: p.read_text() for p in logs.glob("*.log")}
     assert {"fake_hw.log", "hw_bridge.log"} <= set(texts)
     assert "watchdog 150 ms" in texts["hw_bridge.log"]  # from the parameters file
+    # the pads came from the emulated hand's tactile pucks, as Barrett's node publishes them
+    assert "pads from Barrett's tactile pucks" in texts["hw_bridge.log"]
     assert "discovery range SUBNET" in stdout
     texts["stdout+stderr"] = stdout + stderr
     assert not [name for name, text in texts.items() if "Traceback" in text]

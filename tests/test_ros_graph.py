@@ -221,7 +221,9 @@ def test_the_launcher_tells_the_belief_which_pads_the_bridge_cannot_read(tmp_pat
 
     params = tmp_path / "bridge.yaml"
     params.write_text("/**:\n  ros__parameters:\n    pad_source: derived\n")
-    assert bridge_pad_source({}, None) == "topic" and UNSENSED_PADS["topic"] == ()
+    # by default the bridge reads Barrett's tactile pucks, which have no proximal pads
+    assert UNSENSED_PADS[bridge_pad_source({}, None)] == ("prox1", "prox2", "prox3")
+    assert UNSENSED_PADS["topic"] == ()
     assert UNSENSED_PADS[bridge_pad_source({}, params)] == DERIVED_PADS_UNSENSED
     assert bridge_pad_source({"pad_source": "topic"}, params) == "topic"  # the CLI wins
     with pytest.raises(LaunchError, match="pad_source"):

@@ -24,7 +24,8 @@ JointTrajectoryController and under Barrett's wam_node, Barrett's BarrettHand se
   ``/bhand/moveToFingerVelocities``, ``/bhand/moveToGraspPosition`` (bhand_srvs) and
   ``/bhand/openGrasp``, ``/bhand/closeGrasp``, ``/bhand/idle`` (std_srvs/Trigger): the move
   starts and the call returns at once, as wam_node's do.
-* ``/bhand/contact_pads`` (rrg_msgs/ContactPads) at pad_rate.
+* ``/bhand/tactile_states`` (wam_msgs/TactilePressureArray, as Barrett's BarrettHand node) at
+  pad_rate: the pads' forces on the fingertip and palm pucks' cells (rrg_hw_bridge.tactile).
 * three emulated Net F/T boxes (RDT over UDP on rdt_hosts:rdt_port) streaming the fingertip
   loads at rdt_rate.
 * ``/fake_hw/events`` (diagnostic_msgs/DiagnosticStatus): goal_accepted, cancel_received,
@@ -65,10 +66,9 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectoryPoint
-from wam_msgs.msg import RTJointPositions
+from wam_msgs.msg import RTJointPositions, TactilePressure, TactilePressureArray
 from wam_srvs.srv import JointMove
 
-from rrg_msgs.msg import ContactPads
 from rrg_sim.config import HAND, PHYSICS, SENSING
 from rrg_sim.ros.eval_services import EvalNames, EvalServices
 from rrg_sim.ros_common.arm_hand_interface import START_TOLERANCE
@@ -77,6 +77,7 @@ from rrg_sim.ros_common.qos import RESULT_TIMEOUT_S
 
 from ..fake_netft import FakeNetFtBox
 from ..rdt import Calibration
+from ..tactile import CELLS, pucks_from_pads
 from .emulated_robot import PREEMPTED_MESSAGE, EmulatedRobot, Event, GoalState
 
 NODE_NAME = "fake_hw"
@@ -93,7 +94,6 @@ ARM_INTERFACES = ("follow_joint_trajectory", "wam_node", "both")
 WAM_NODE_ARM_JOINTS = tuple(f"q{i}" for i in range(1, 8))
 #: Efforts of the hand joints in wam_node's /joint_states: never set, so 0.
 WAM_NODE_HAND_EFFORT = np.zeros(8)
-HAND_FRAME = "bhand_palm_link"
 #: Efforts of the hand joints in /joint_states: not measured.
 UNMEASURED_EFFORT = np.full(8, np.nan)
 #: Feedback period [s] of a trajectory goal (chosen; JTC's action_monitor_rate default, 20 Hz,
@@ -128,6 +128,7 @@ FAULTS: dict[str, _Fault] = {
     "fault.zero_drift": _Fault(
         0.0, "Drift [N] of every Net F/T box's unloaded Fx (temperature)", -20.0, 20.0
     ),
+    "fault.silent_tactile": _Fault(False, "Stop publishing the tactile pucks (a hand driver hung)"),
     "fault.ignore_cancel": _Fault(
         False, "The trajectory controller accepts a cancel and keeps the goal running"
     ),
@@ -207,7 +208,8 @@ class FakeHwNode(Node):
         self.unmeasured = set(p("unmeasured_interfaces")) - {""}
         if not self.unmeasured <= {"arm_effort", "hand_velocity"}:
             raise ValueError(f"unmeasured_interfaces: unknown {self.unmeasured}")
-        self.pads_pub = self.create_publisher(ContactPads, "/bhand/contact_pads", 10)
+        self.tactile_pub = self.create_publisher(TactilePressureArray, "/bhand/tactile_states", 10)
+        self._tactile_rng = np.random.default_rng(p("seed") + 100)  # where a contact presses
         action = f"/{p('controller_name')}/follow_joint_trajectory"
         if self.arm_interface != "wam_node":
             self._action = ActionServer(
@@ -458,8 +460,8 @@ class FakeHwNode(Node):
                 base = np.asarray(self.get_parameter("tip_zero_offset").value, dtype=float)
                 for box in self.boxes:
                     box.zero_offset = base + np.array([v, 0.0, 0.0, 0.0, 0.0, 0.0])
-            elif name == "fault.ignore_cancel":
-                pass  # read by the action server's cancel callback
+            elif name in ("fault.ignore_cancel", "fault.silent_tactile"):
+                pass  # read where they act: the cancel callback, the publishing loop
             elif name == "fault.extra_force":
                 self.robot.set_extra_force(v)
             elif name == "fault.palm_push":
@@ -539,12 +541,8 @@ class FakeHwNode(Node):
                         self.joint_pub.publish(self._joint_state(state, self._stamp(state)))
                     next_js = max(next_js + js_period, now - js_period)
                 if pads_due:
-                    pads = ContactPads(
-                        in_contact=[bool(f) for f in s.pads > SENSING.pad_force_threshold],
-                        force=s.pads.tolist(),
-                    )
-                    pads.header.stamp, pads.header.frame_id = stamp, HAND_FRAME
-                    self.pads_pub.publish(pads)
+                    if not self.get_parameter("fault.silent_tactile").value:
+                        self.tactile_pub.publish(self._tactile(s.pads))
                     self.eval.publish_truth(stamp, self.robot.object_pose())
                     next_pad = max(next_pad + pad_period, now - pad_period)
             except Exception as exc:
@@ -552,6 +550,16 @@ class FakeHwNode(Node):
                     return
                 self.get_logger().error(f"state publishing failed: {type(exc).__name__}: {exc}")
                 time.sleep(0.1)
+
+    def _tactile(self, pads: np.ndarray) -> TactilePressureArray:
+        """Barrett's tactile message carrying the pads' forces (7,) [N] on the pucks' cells."""
+        levels = [0] * CELLS  # the node's display levels: not emulated
+        return TactilePressureArray(
+            tactile_pressures=[
+                TactilePressure(pressure=cells.tolist(), normalized_pressure=levels)
+                for cells in pucks_from_pads(pads, self._tactile_rng)
+            ]
+        )
 
     def _joint_names(self) -> tuple[str, ...]:
         """The /joint_states names: the trajectory controller's arm joints (effort: the

@@ -48,6 +48,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
+from wam_msgs.msg import TactilePressureArray
 
 from rrg_msgs.action import GuardedMove
 from rrg_msgs.msg import ContactPads
@@ -103,6 +104,7 @@ from ..safety import (
     slowdown_to_limits,
 )
 from ..safety import scale_time as scaled_times
+from ..tactile import TACTILE_PADS_UNSENSED, TactileError, pads_from_pucks
 from .drivers import (
     BarrettHandServices,
     DriverError,
@@ -269,7 +271,10 @@ class BridgeNode(Node):
         self.spread_sign = float(p("spread_sign"))
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self.watchdog_timeout = float(p("watchdog_timeout"))
-        derive = p("pad_source") == "derived"
+        pad_source = p("pad_source")
+        if pad_source not in PAD_SOURCES:
+            raise ValueError(f"pad_source must be one of {PAD_SOURCES}, got {pad_source!r}")
+        derive = pad_source == "derived"
         self.hand = HandState(derive_pads=derive)
         self.ceiling = ForceCeiling(p("force_ceiling"), p("torque_ceiling"))
         self.estop = EStop(
@@ -277,9 +282,10 @@ class BridgeNode(Node):
         )
         #: when arm_on_start arms the bridge: after a transient-local E-stop could have arrived
         self._arm_at = time.monotonic() + ARM_ON_START_DELAY_S if p("arm_on_start") else None
-        self.watchdog = Watchdog(
-            self.watchdog_timeout, ("joint_states", "fingertip1", "fingertip2", "fingertip3")
-        )
+        # a silent pad topic is a fault, not a hand that never touches anything
+        streams = ("joint_states", "fingertip1", "fingertip2", "fingertip3")
+        self.watchdog = Watchdog(self.watchdog_timeout, streams + (() if derive else ("pads",)))
+        self._pad_count = 0
         self._lock = threading.Lock()
         self._measured = Measured()
         self._joint_event = threading.Condition()
@@ -358,6 +364,14 @@ class BridgeNode(Node):
                 f"fingertip forces and {', '.join(DERIVED_PADS_UNSENSED)} never fire (the "
                 "estimator and the planner leave them out: unsensed_sensors, set by rrg-launch)"
             )
+        elif pad_source == "tactile":
+            self.get_logger().info(
+                f"pads from Barrett's tactile pucks on {p('tactile_topic')}: "
+                f"{', '.join(TACTILE_PADS_UNSENSED)} have none and never fire"
+            )
+            self.io.create_subscription(
+                TactilePressureArray, p("tactile_topic"), self.on_tactile, 10
+            )
         else:
             self.io.create_subscription(ContactPads, p("pads_topic"), self.on_driver_pads, 10)
         self.io.create_subscription(Bool, p("estop_topic"), self.on_estop, 10)
@@ -381,7 +395,7 @@ class BridgeNode(Node):
         self.io.create_timer(1.0 / p("state_rate"), self.publish_state)
         self.status_pub = self.create_publisher(DiagnosticStatus, "bridge/status", 10)
         self._joint_count = 0
-        self._status_last = (time.monotonic(), 0)
+        self._status_last = (time.monotonic(), 0, 0)
         self.io.create_timer(1.0, self.publish_status)
         self._io_thread = threading.Thread(target=self._spin_io, name="bridge-io", daemon=True)
         self._io_thread.start()
@@ -504,11 +518,17 @@ class BridgeNode(Node):
         text(
             "pad_source",
             DEFAULT_PAD_SOURCE,
-            "Where the pad forces come from: an rrg_msgs/ContactPads "
-            "topic, or derived from the fingertip sensors",
+            "Where the pad forces come from: Barrett's tactile pucks (wam_msgs/"
+            "TactilePressureArray), an rrg_msgs/ContactPads topic (an adapter of the lab's), or "
+            "derived from the fingertip sensors",
             PAD_SOURCES,
         )
-        text("pads_topic", "/bhand/contact_pads", "rrg_msgs/ContactPads topic of the hand's pads")
+        text(
+            "tactile_topic",
+            "/bhand/tactile_states",
+            "wam_msgs/TactilePressureArray topic of Barrett's BarrettHand node",
+        )
+        text("pads_topic", "/bhand/contact_pads", "rrg_msgs/ContactPads topic (pad_source topic)")
         text("estop_topic", "/rrg/estop", "Latched E-stop (std_msgs/Bool, true = stop)")
         text(
             "estop_latch_file",
@@ -897,24 +917,47 @@ class BridgeNode(Node):
         stream has been clean for BRIDGE.sensor_fault_hold); one that persists after the reset
         is a real condition of the box, and the refusal says so."""
         now = time.monotonic()
-        self._sensor_fault_s = now
-        self._sensor_fault = f"fingertip{finger + 1} Net F/T {kind}: {detail}"
+        message = f"fingertip{finger + 1} Net F/T {kind}: {detail}"
         if kind == "status":
             since_reset = now - self._latch_reset_s[finger]
             if since_reset > BRIDGE.sensor_fault_hold:
                 self._latch_reset_s[finger] = now
                 self.sensors.reset_latch(finger)
-                self._sensor_fault += " (RESET_THRESHOLD_LATCH sent)"
+                message += " (RESET_THRESHOLD_LATCH sent)"
             else:
-                self._sensor_fault += (
+                message += (
                     f", still there {since_reset:.2f} s after RESET_THRESHOLD_LATCH: a condition "
                     "of the box, not a latched threshold (its status page says which)"
                 )
-        self.get_logger().warn(self._sensor_fault, throttle_duration_sec=1.0)
-        self.stop_all(SafetyCode.SENSOR_FAULT, "sensor", self._sensor_fault)
+        self.sensor_fault(message)
+
+    def sensor_fault(self, message: str) -> None:
+        """A sensor stream's fault: the arm holds, the hand stops, and commands are refused
+        until the stream has been clean for BRIDGE.sensor_fault_hold."""
+        self._sensor_fault_s = time.monotonic()
+        self._sensor_fault = message
+        self.get_logger().warn(message, throttle_duration_sec=1.0)
+        self.stop_all(SafetyCode.SENSOR_FAULT, "sensor", message)
+
+    def on_tactile(self, msg: TactilePressureArray) -> None:
+        """Barrett's tactile pucks → the pads (rrg_hw_bridge.tactile); a malformed message is
+        a sensor fault."""
+        try:
+            pads = pads_from_pucks([puck.pressure for puck in msg.tactile_pressures])
+        except TactileError as exc:
+            topic = self.get_parameter("tactile_topic").value
+            self.sensor_fault(f"tactile pucks on {topic}: {exc}")
+            return
+        self.on_pads(pads)
 
     def on_driver_pads(self, msg: ContactPads) -> None:
-        self.hand.set_pads(np.asarray(msg.force, dtype=float))
+        self.on_pads(np.asarray(msg.force, dtype=float))
+
+    def on_pads(self, forces: np.ndarray) -> None:
+        """A pad sample (7,) [N]: fed to the watchdog, and to the running guarded move."""
+        self.watchdog.feed("pads", time.monotonic())
+        self._pad_count += 1
+        self.hand.set_pads(forces)
         move = self._move
         if move is not None and move.guard is not None:
             trip = move.guard.check_sensors(self.hand.pads(), self.hand.tips(), True)
@@ -1021,11 +1064,14 @@ class BridgeNode(Node):
                 f"no data from {', '.join(revived)}: asked again to stream",
                 throttle_duration_sec=10.0,
             )
-        now, count = time.monotonic(), self._joint_count
-        then, before = self._status_last
-        self._status_last = (now, count)
+        now, count, pads = time.monotonic(), self._joint_count, self._pad_count
+        then, before, pads_before = self._status_last
+        self._status_last = (now, count, pads)
         values = {
             "joint_states": f"{(count - before) / (now - then):.0f} Hz",
+            "pads": "derived from the fingertips"
+            if self.hand.derive_pads
+            else f"{(pads - pads_before) / (now - then):.0f} Hz",
             **self.sensors.status(),
             "estop": self.estop.reason or "armed",
             "stale": ", ".join(self.watchdog.stale(now)) or "none",

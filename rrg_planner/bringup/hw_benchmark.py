@@ -30,7 +30,8 @@ record), the records the bridge receives and the CPU its receive threads spend p
    the watchdog's on a loaded machine, is retried and listed as an incident).
 
 A trial fails when the move does not stop on that contact or stops before the force is applied.
-It prints the median and p99 latency against LATENCY_TARGET_MS, each Net F/T box's receive rate
+It prints the median and p99 latency against LATENCY_MEDIAN_TARGET_MS and
+LATENCY_P99_TARGET_MS, each Net F/T box's receive rate
 at the bridge (``/rrg/bridge/status``: median and lowest second during the trials, idle median)
 and the records it lost, against RATE_TARGET_HZ, the CPU use of both processes, streaming idle
 and during the trials [% of one core], with the benchmark's own and everything else's on the
@@ -84,7 +85,9 @@ from rrg_planner.bringup.graph import (
 from rrg_sim.config import SENSING, SENSOR_NAMES, WORLD
 from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES, planar_to_msg
 
-LATENCY_TARGET_MS = 10.0  # the target: wrench crossing → cancel at the controller
+#: Targets [ms] of the wrench crossing → cancel at the controller latency: its median and p99.
+LATENCY_MEDIAN_TARGET_MS = 5.0
+LATENCY_P99_TARGET_MS = 10.0
 RATE_TARGET_HZ = 1000.0  # the target: every Net F/T box streaming at ≥ 1 kHz
 #: The bridge counts a box's records over a 1 s window, so a steady 1 kHz stream reads 995-1005
 #: Hz: the median rate meets the target within this fraction.
@@ -596,11 +599,12 @@ def run_bench(args: argparse.Namespace) -> int:
     print("|---|---|---|")
     print(
         f"| crossing → cancel at the controller, median of {len(latencies)} "
-        f"| {med:.2f} ms | ≤ {LATENCY_TARGET_MS:.0f} ms ({ok(med <= LATENCY_TARGET_MS)}) |"
+        f"| {med:.2f} ms | ≤ {LATENCY_MEDIAN_TARGET_MS:.0f} ms "
+        f"({ok(med <= LATENCY_MEDIAN_TARGET_MS)}) |"
     )
     print(
         f"| crossing → cancel at the controller, p99 (max {out['latency_max_ms']:.2f} ms) "
-        f"| {p99:.2f} ms | ≤ {LATENCY_TARGET_MS:.0f} ms ({ok(p99 <= LATENCY_TARGET_MS)}) |"
+        f"| {p99:.2f} ms | ≤ {LATENCY_P99_TARGET_MS:.0f} ms ({ok(p99 <= LATENCY_P99_TARGET_MS)}) |"
     )
     for b in BOXES:
         met = rate[b] >= RATE_TARGET_HZ * (1.0 - RATE_COUNT_TOL)
