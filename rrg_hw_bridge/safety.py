@@ -460,6 +460,7 @@ class EStop:
         self._reason = self.NOT_ARMED
         self._message_engaged = False
         self._last_message_s = float(now_s)  # the heartbeat's grace starts at construction
+        self._listening_s = float(now_s)  # since when the bridge has run without a stall
         self.latched_s = -np.inf  # monotonic time of the newest latch by a message or silence
         if self.latch_file is not None and self.latch_file.exists():
             text = self.latch_file.read_text(encoding="utf-8", errors="replace").strip()
@@ -477,13 +478,20 @@ class EStop:
                 return self._latch("the E-stop topic said engaged", now_s)
             return False
 
+    def resumed(self, now_s: float) -> None:
+        """The bridge itself did not run until now_s [s] (a stalled process or host): the
+        heartbeat's silence counts from here, so a publisher that stalled with it has a whole
+        timeout to be heard again."""
+        with self._lock:
+            self._listening_s = max(self._listening_s, float(now_s))
+
     def check_heartbeat(self, now_s: float) -> bool:
-        """Latch when the topic has been silent longer than the heartbeat timeout; True when
-        this call latched it."""
+        """Latch when the topic has been silent longer than the heartbeat timeout while the
+        bridge listened; True when this call latched it."""
         if self.heartbeat_timeout_s <= 0.0:
             return False
         with self._lock:
-            silent = now_s - self._last_message_s
+            silent = now_s - max(self._last_message_s, self._listening_s)
             if silent > self.heartbeat_timeout_s:
                 return self._latch(f"no E-stop heartbeat for {silent:.2f} s", now_s)
             return False

@@ -600,6 +600,24 @@ def test_a_silent_heartbeat_latches_and_blocks_the_reset():
     assert not EStop(heartbeat_timeout_s=0.0).check_heartbeat(1e9)  # off
 
 
+def test_a_heartbeat_that_stalled_with_the_bridge_has_a_timeout_to_return():
+    """The host stalled 2.4 s (the bridge and the E-stop's publisher alike): the silence counts
+    from when the bridge runs again, so the next beat, 50 ms later, comes in time; a publisher
+    that stays silent still latches a timeout later."""
+    stalled = EStop(heartbeat_timeout_s=0.3, now_s=0.0)
+    assert stalled.reset(0.05)[0]
+    stalled.on_message(False, 0.1)
+    plain = EStop(heartbeat_timeout_s=0.3, now_s=0.0)
+    assert plain.reset(0.05)[0]
+    plain.on_message(False, 0.1)
+    stalled.resumed(2.5)  # the watchdog's first tick after the stall
+    assert plain.check_heartbeat(2.51)  # without it: 2.41 s of "silence" latch at once
+    assert not stalled.check_heartbeat(2.51) and not stalled.engaged
+    stalled.on_message(False, 2.55)  # the publisher's next beat
+    assert not stalled.check_heartbeat(2.8) and not stalled.engaged
+    assert stalled.check_heartbeat(2.9) and "0.35 s" in stalled.reason  # silent since 2.55
+
+
 def test_a_latch_survives_a_restart_through_its_file(tmp_path):
     path = tmp_path / "estop.latched"
     first = EStop(latch_file=path)

@@ -984,6 +984,7 @@ class BridgeNode(Node):
         self._watchdog_tick_s = now
         if stalled and not self._watchdog_skipped:  # the bridge was not running: read first
             self._watchdog_skipped = True
+            self.estop.resumed(now)  # a heartbeat that stalled with it gets a whole timeout
             return
         self._watchdog_skipped = False
         if self._arm_at is not None and now >= self._arm_at:
