@@ -25,7 +25,9 @@ JointTrajectoryController and under Barrett's wam_node, Barrett's BarrettHand se
   ``/bhand/openGrasp``, ``/bhand/closeGrasp``, ``/bhand/idle`` (std_srvs/Trigger): the move
   starts and the call returns at once, as wam_node's do.
 * ``/bhand/tactile_states`` (wam_msgs/TactilePressureArray, as Barrett's BarrettHand node) at
-  pad_rate: the pads' forces on the fingertip and palm pucks' cells (rrg_hw_bridge.tactile).
+  pad_rate: the pads' forces on the fingertip and palm pucks' cells (rrg_hw_bridge.tactile);
+  and ``/bhand/contact_pads`` (rrg_msgs/ContactPads), all seven pads as a lab's adapter for the
+  paper's hand (pads on the proximal links too) would publish them.
 * three emulated Net F/T boxes (RDT over UDP on rdt_hosts:rdt_port) streaming the fingertip
   loads at rdt_rate.
 * ``/fake_hw/events`` (diagnostic_msgs/DiagnosticStatus): goal_accepted, cancel_received,
@@ -69,6 +71,7 @@ from trajectory_msgs.msg import JointTrajectoryPoint
 from wam_msgs.msg import RTJointPositions, TactilePressure, TactilePressureArray
 from wam_srvs.srv import JointMove
 
+from rrg_msgs.msg import ContactPads
 from rrg_sim.config import HAND, PHYSICS, SENSING
 from rrg_sim.ros.eval_services import EvalNames, EvalServices
 from rrg_sim.ros_common.arm_hand_interface import START_TOLERANCE
@@ -94,6 +97,7 @@ ARM_INTERFACES = ("follow_joint_trajectory", "wam_node", "both")
 WAM_NODE_ARM_JOINTS = tuple(f"q{i}" for i in range(1, 8))
 #: Efforts of the hand joints in wam_node's /joint_states: never set, so 0.
 WAM_NODE_HAND_EFFORT = np.zeros(8)
+HAND_FRAME = "bhand_palm_link"
 #: Efforts of the hand joints in /joint_states: not measured.
 UNMEASURED_EFFORT = np.full(8, np.nan)
 #: Feedback period [s] of a trajectory goal (chosen; JTC's action_monitor_rate default, 20 Hz,
@@ -128,7 +132,9 @@ FAULTS: dict[str, _Fault] = {
     "fault.zero_drift": _Fault(
         0.0, "Drift [N] of every Net F/T box's unloaded Fx (temperature)", -20.0, 20.0
     ),
-    "fault.silent_tactile": _Fault(False, "Stop publishing the tactile pucks (a hand driver hung)"),
+    "fault.silent_tactile": _Fault(
+        False, "Stop publishing the pads, tactile pucks and ContactPads (a hand driver hung)"
+    ),
     "fault.ignore_cancel": _Fault(
         False, "The trajectory controller accepts a cancel and keeps the goal running"
     ),
@@ -209,6 +215,7 @@ class FakeHwNode(Node):
         if not self.unmeasured <= {"arm_effort", "hand_velocity"}:
             raise ValueError(f"unmeasured_interfaces: unknown {self.unmeasured}")
         self.tactile_pub = self.create_publisher(TactilePressureArray, "/bhand/tactile_states", 10)
+        self.pads_pub = self.create_publisher(ContactPads, "/bhand/contact_pads", 10)
         self._tactile_rng = np.random.default_rng(p("seed") + 100)  # where a contact presses
         action = f"/{p('controller_name')}/follow_joint_trajectory"
         if self.arm_interface != "wam_node":
@@ -543,6 +550,12 @@ class FakeHwNode(Node):
                 if pads_due:
                     if not self.get_parameter("fault.silent_tactile").value:
                         self.tactile_pub.publish(self._tactile(s.pads))
+                        pads = ContactPads(
+                            in_contact=[bool(f) for f in s.pads > SENSING.pad_force_threshold],
+                            force=s.pads.tolist(),
+                        )
+                        pads.header.stamp, pads.header.frame_id = stamp, HAND_FRAME
+                        self.pads_pub.publish(pads)
                     self.eval.publish_truth(stamp, self.robot.object_pose())
                     next_pad = max(next_pad + pad_period, now - pad_period)
             except Exception as exc:

@@ -373,6 +373,7 @@ class BridgeNode(Node):
                 TactilePressureArray, p("tactile_topic"), self.on_tactile, 10
             )
         else:
+            self.get_logger().info(f"pads from rrg_msgs/ContactPads on {p('pads_topic')}")
             self.io.create_subscription(ContactPads, p("pads_topic"), self.on_driver_pads, 10)
         self.io.create_subscription(Bool, p("estop_topic"), self.on_estop, 10)
         self.io.create_subscription(Bool, p("estop_topic"), self.on_estop, ESTOP_LATCHED_QOS)
