@@ -685,8 +685,13 @@ def test_a_restarted_bridge_keeps_the_latch_and_starts_not_armed(hw):
         assert_runs(hw)
 
 
+#: The heartbeat test's timeout [s]: 20 of its beats, so that a loaded host's pause in the test
+#: process or in DDS delivery (0.31 s once in a CI run) is not a silence.
+HEARTBEAT_TIMEOUT_S = 1.0
+
+
 def test_a_silent_estop_heartbeat_latches_and_stops_the_arm(hw):
-    with hw.bridge_with(ready=False, estop_heartbeat_timeout="0.3"):
+    with hw.bridge_with(ready=False, estop_heartbeat_timeout=str(HEARTBEAT_TIMEOUT_S)):
         # a thread of its own beats every 50 ms, whatever the test's executor is doing
         beating = threading.Event()
         beating.set()
@@ -707,7 +712,7 @@ def test_a_silent_estop_heartbeat_latches_and_stops_the_arm(hw):
             beater.join()
         silent = time.monotonic()
         cancel = assert_stopped(hw, handle, R.ESTOP, silent)
-        assert cancel - silent < 0.3 + 0.1
+        assert cancel - silent < HEARTBEAT_TIMEOUT_S + 0.1
         assert any("heartbeat" in m.message for m in hw.safety(silent))
 
 
