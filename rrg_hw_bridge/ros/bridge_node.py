@@ -257,8 +257,6 @@ class BridgeNode(Node):
         p = lambda name: self.get_parameter(name).value
         self.limits = load_arm_limits(p("limits_file") or DEFAULT_ARM_LIMITS)
         self.arm_driver_joints = tuple(p("arm_joint_names"))
-        if p("arm_backend") not in ARM_BACKENDS:
-            raise ValueError(f"arm_backend must be one of {ARM_BACKENDS}, got {p('arm_backend')!r}")
         wam_node = p("arm_backend") == "wam_node"
         if wam_node and list(self.arm_driver_joints) == DEFAULT_ARM_DRIVER_JOINTS:
             self.arm_driver_joints = tuple(WAM_NODE_ARM_JOINTS)
@@ -272,8 +270,6 @@ class BridgeNode(Node):
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self.watchdog_timeout = float(p("watchdog_timeout"))
         pad_source = p("pad_source")
-        if pad_source not in PAD_SOURCES:
-            raise ValueError(f"pad_source must be one of {PAD_SOURCES}, got {pad_source!r}")
         derive = pad_source == "derived"
         self.hand = HandState(derive_pads=derive)
         self.ceiling = ForceCeiling(p("force_ceiling"), p("torque_ceiling"))
@@ -290,8 +286,6 @@ class BridgeNode(Node):
         self._measured = Measured()
         self._joint_event = threading.Condition()
         self._efforts: deque[np.ndarray] = deque(maxlen=EFFORT_BASELINE_SAMPLES)
-        if p("effort_kind") not in EFFORT_KINDS:
-            raise ValueError(f"effort_kind must be one of {EFFORT_KINDS}, got {p('effort_kind')!r}")
         #: the arm's external torques from its joint torques (effort_kind joint_torque)
         self.observer = ExternalTorqueObserver() if p("effort_kind") == EFFORT_KINDS[0] else None
         #: per joint-name list, for drivers whose joint states carry no velocities
@@ -423,6 +417,9 @@ class BridgeNode(Node):
             self.declare_parameter(
                 name, value, ParameterDescriptor(description=description + extra, read_only=True)
             )
+            given = self.get_parameter(name).value
+            if choices and given not in choices:
+                raise ValueError(f"{name} must be one of {tuple(choices)}, got {given!r}")
 
         text(
             "arm_backend",
