@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import time
 
 import pytest
 from ros_testing import ArmWatch, Launcher, RosClient, ros_env
@@ -18,13 +19,18 @@ from rrg_msgs.action import RobustGrasp
 from rrg_planner.bags.bag_info import bag_info
 from rrg_planner.bags.bag_read import read_messages
 
+#: How long the stall test stops the planner [s]: three liveliness leases
+#: (rrg_sim.ros_common.liveliness.ALIVE_LEASE_S), so its peers see it go away.
+STALL_S = 3.0
+
 
 def kill_mid_grasp(
-    tmp_path, domain_id: int, node: str, *extra: str
+    tmp_path, domain_id: int, node: str, *extra: str, stall: bool = False
 ) -> tuple[int, str, dict | None, Launcher]:
     """Run a robust grasp of the box (high uncertainty, the simulator at real time), SIGKILL
-    ``node`` once step 2 is under way and the arm has left home, and return (exit status, the
-    launcher's output, the JSON outcome or None, the launcher)."""
+    ``node`` once step 2 is under way and the arm has left home (``stall``: SIGSTOP it for
+    STALL_S instead, then SIGCONT), and return (exit status, the launcher's output, the JSON
+    outcome or None, the launcher)."""
     env = ros_env(domain_id)
     watcher = RosClient(env, f"kill_{node}_watcher")
     arm = ArmWatch(watcher)
@@ -41,7 +47,12 @@ def kill_mid_grasp(
         launcher.read_until("step 2:")
         arm.states.clear()
         assert watcher.spin_until(arm.left_home, 120.0), "the arm did not move"
-        os.kill(launcher.pid(node), signal.SIGKILL)
+        if stall:
+            os.kill(launcher.pid(node), signal.SIGSTOP)
+            time.sleep(STALL_S)
+            os.kill(launcher.pid(node), signal.SIGCONT)
+        else:
+            os.kill(launcher.pid(node), signal.SIGKILL)
         text = launcher.finish()
     except BaseException:
         launcher.proc.kill()
@@ -99,6 +110,23 @@ def test_a_node_killed_mid_grasp_is_respawned_and_the_grasp_completes(
     for m in read_messages(bag, topics=["/rrg/observation", "/rrg/belief"]):
         stamps.setdefault(m.topic, set()).add((m.msg.header.stamp.sec, m.msg.header.stamp.nanosec))
     assert stamps["/rrg/observation"] and stamps["/rrg/observation"] <= stamps["/rrg/belief"]
+
+
+@pytest.mark.slow  # a robust grasp of the ROS graph at real time
+def test_a_planner_that_stalls_mid_grasp_is_waited_on_not_sent_the_grasp_again(
+    tmp_path, ros_domain
+):
+    """A stalled planner loses its liveliness like a dead one; the launcher tells them apart by
+    its own child process, so the grasp it runs is not sent again (which it would refuse)."""
+    status, text, outcome, launcher = kill_mid_grasp(tmp_path, ros_domain, "planner", stall=True)
+    assert status == 0, text
+    assert "the planner went away" in text, text  # the stall was long enough to be seen
+    assert "the planner had stalled, not died (same process)" in text, text
+    assert outcome is not None and outcome["error"] == "", text
+    assert outcome["actions"] and outcome["actions"][-1] == "goal", text
+    assert not restarts_in_bag(launcher.bag, "planner")
+    assert "resumed after" not in (launcher.log_dir / "planner.log").read_text()
+    assert_no_traceback(launcher)
 
 
 @pytest.mark.slow  # a robust grasp of the ROS graph at real time

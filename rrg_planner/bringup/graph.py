@@ -351,6 +351,13 @@ class Graph:
             params_file = hw_params_file if name == "hw_bridge" else None
             self.spawn(name, ["-m", NODES[name], *ros_args(params[name], params_file)])
 
+    def process(self, name: str) -> subprocess.Popen | None:
+        """The running process of child ``name`` (None if it is not running, or not a child)."""
+        for c in self.children:
+            if c.name == name and c.proc.poll() is None:
+                return c.proc
+        return None
+
     def supervise(self) -> None:
         """Restart the children that died, each after its backoff; LaunchError when one has died
         more often than ``respawn_max`` allows."""
@@ -657,15 +664,21 @@ class Graph:
             )
 
         client = self.actions["/rrg/robust_grasp"]
-        for resumes in range(self.respawn_max + 1):
-            losses = self.planner.losses
-            goal.resume = resumes > 0
-            self.goal_handle = self.result(
-                client.send_goal_async(goal, feedback_callback=feedback), 30.0, "robust_grasp"
-            )
-            if not self.goal_handle.accepted:
-                raise LaunchError("the planner rejected the robust_grasp goal")
-            future = self.goal_handle.get_result_async()
+        resumes = 0  # goals sent again to a restarted planner
+        future = None
+        while future is None or not future.done():
+            if future is None:
+                planner_proc = self.process("planner")
+                losses = self.planner.losses
+                goal.resume = resumes > 0
+                self.goal_handle = self.result(
+                    client.send_goal_async(goal, feedback_callback=feedback),
+                    30.0,
+                    "robust_grasp",
+                )
+                if not self.goal_handle.accepted:
+                    raise LaunchError("the planner rejected the robust_grasp goal")
+                future = self.goal_handle.get_result_async()
             self.spin_until(
                 lambda f=future, n=losses: f.done() or self.planner.lost_since(n),
                 timeout_s,
@@ -683,8 +696,20 @@ class Graph:
                 RESUME_WAIT_S,
                 "the restarted planner",
             )
-        else:
-            raise LaunchError("the planner kept going away: the grasp was not completed")
+            if planner_proc is not None and self.process("planner") is planner_proc:
+                # its liveliness lapsed (a stalled host), but the process that runs the grasp
+                # lives: a second goal would be refused, so wait on the first
+                print(
+                    "[rrg-launch] the planner had stalled, not died (same process): waiting on "
+                    "its grasp",
+                    flush=True,
+                )
+                losses = self.planner.losses
+                continue
+            resumes += 1
+            if resumes > self.respawn_max:
+                raise LaunchError("the planner kept going away: the grasp was not completed")
+            future = None
         answer = future.result()
         self.goal_handle = None
         res = answer.result
