@@ -398,3 +398,107 @@ def test_calibration_counts_declared_grasps_bins_and_leaves_out_other_cells():
     assert bins[0.95, 0.99]["observed_failures"] == 1
     assert bins[0.95, 0.99]["predicted_failures"] == pytest.approx(0.1)
     assert cal["objects"]["box"]["declared"]["k"] == 1 and cal["objects"]["cup"]["undeclared"] == 2
+
+
+def test_the_ablation_pairs_each_switched_off_capability_with_every_capability_on():
+    """Hand-made records: without ``verify`` the box loses 2 of 10 trials and the cup none;
+    the table gives the paired change per object and over both, and leaves out an object
+    with no ablation cell; records with no ablation give no ablation."""
+    from rrg_planner.experiment.report import ablation, ablation_table
+
+    def rec(obj, i, success, without=()):
+        return dict(
+            object=obj,
+            level="high",
+            strategy="rrg-info",
+            horizon=2,
+            delta=0.1,
+            without=list(without),
+            trial=i,
+            success=success,
+            n_actions=4,
+        )
+
+    on = [rec(o, i, True) for o in ("box", "cup", "can") for i in range(10)]
+    off = [rec("box", i, i >= 2, ["verify"]) for i in range(10)]
+    off += [rec("cup", i, True, ["verify"]) for i in range(10)]
+    ab = ablation(on + off)
+    row = ab["high"]["verify"]
+    assert set(row) == {"box", "cup", "all"}
+    assert row["box"]["pairs"] == 10 and row["box"]["success"]["diff"] == pytest.approx(-0.2)
+    assert row["cup"]["success"]["diff"] == 0.0
+    assert row["all"]["pairs"] == 20 and row["all"]["success"]["diff"] == pytest.approx(-0.1)
+    table = ablation_table(ab)
+    assert "| box | 10 | 100% | -20 (" in table and "| **all** | 20 | 100% | -10 (" in table
+    assert "can" not in table
+    assert ablation(on) == {}
+
+
+def test_the_sensed_finger_judge_counts_what_the_robot_sensed_not_what_touched():
+    """The judge before it counted true contacts: a grasp held in its region with three
+    fingers touching but two sensed fails it (the box needs three), and passes the true one."""
+    from rrg_planner.experiment.report import sensed_judge_success, summarize
+
+    judge = dict(held=True, in_region=True, required_ok=True, fingers=3, fingers_ok=True)
+    missed_pad = dict(
+        object="box",
+        level="high",
+        strategy="rrg-info",
+        horizon=2,
+        delta=0.1,
+        cell="box/high/rrg-info",
+        success=True,
+        n_actions=3,
+        planning_time_s=0.1,
+        error="",
+        judge=dict(judge, sensed_fingers=2),
+    )
+    sensed_all = dict(missed_pad, judge=dict(judge, sensed_fingers=3))
+    assert not sensed_judge_success(missed_pad) and sensed_judge_success(sensed_all)
+    assert not sensed_judge_success(dict(missed_pad, judge={}))  # no goal grasp judged
+    s = summarize([missed_pad, sensed_all])["box/high/rrg-info"]
+    assert s["success_rate"] == 1.0 and s["sensed_judge_rate"] == 0.5
+
+
+def test_report_rewrites_the_outputs_of_recorded_trials_without_running_any(tmp_path, capsys):
+    """--report reads trials.jsonl, keeps the records' own code version, seed and world, and
+    runs nothing; with no records it exits with status 2."""
+    from rrg_planner.experiment.experiment_cli import main
+
+    assert main(["--report", "--out", str(tmp_path)]) == 2
+    rec = dict(
+        id="box/high/rrg-info#0",
+        cell="box/high/rrg-info",
+        object="box",
+        level="high",
+        strategy="rrg-info",
+        horizon=2,
+        delta=0.1,
+        without=[],
+        trial=0,
+        base_seed=123,
+        world="realistic",
+        commit="abc1234",
+        success=True,
+        declared=True,
+        p_goal=0.95,
+        n_actions=3,
+        planning_time_s=0.1,
+        error="",
+        judge=dict(
+            held=True,
+            in_region=True,
+            required_ok=True,
+            fingers=3,
+            fingers_ok=True,
+            sensed_fingers=3,
+            strict_success=True,
+        ),
+    )
+    (tmp_path / "trials.jsonl").write_text(json.dumps(rec) + "\n")
+    assert main(["--report", "--out", str(tmp_path)]) == 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["campaign"]["commit"] == "abc1234" and summary["campaign"]["seed"] == 123
+    assert summary["campaign"]["world"] == "realistic" and summary["campaign"]["trials"] == 1
+    assert (tmp_path / "fig8_high.png").exists() and not (tmp_path / "fig7_low.png").exists()
+    assert "| box | – | – | 100% (1/1" in capsys.readouterr().out

@@ -30,6 +30,7 @@ from rrg_planner.experiment.trials import (
     CampaignMismatch,
     Cell,
     TrialSpec,
+    load_records,
     run_campaign,
     run_trial,
 )
@@ -153,6 +154,12 @@ def main(argv: list[str] | None = None) -> int:
         "--out", type=Path, help="output folder (default: results/paper, or results/realistic)"
     )
     ap.add_argument(
+        "--report",
+        action="store_true",
+        help="run nothing: write the tables and figures again from <out>/trials.jsonl, "
+        "for the code version, seed and world its records were made with",
+    )
+    ap.add_argument(
         "--replay",
         metavar="TRIAL_ID",
         help="run one trial alone (id as in trials.jsonl: cell key#index)",
@@ -196,6 +203,8 @@ def main(argv: list[str] | None = None) -> int:
     if set(ablate) - set(CAPABILITIES):
         ap.error(f"--ablate: unknown {sorted(set(ablate) - set(CAPABILITIES))}")
     out = args.out or DEFAULT_OUT[args.world]
+    if args.report:
+        return report_only(out, objects, levels)
     specs = campaign_specs(
         objects, levels, strategies, trials, fig9_trials, seed, args.world, ablate
     )
@@ -208,6 +217,26 @@ def main(argv: list[str] | None = None) -> int:
         args.workers,
         args.ray,
     )
+
+
+def report_only(out: Path, objects: list[str], levels: list[str]) -> int:
+    """Write the outputs of the records in ``out`` again (status 2 when there are none)."""
+    records = load_records(out / "trials.jsonl")
+    if not records:
+        print(f"error: no trial records in {out / 'trials.jsonl'}", file=sys.stderr)
+        return 2
+    first = records[0]
+    campaign = dict(
+        commit=first["commit"],
+        seed=first["base_seed"],
+        seed_source="as recorded",
+        world=first["world"],
+    )
+    objects = [o for o in objects if any(r["object"] == o for r in records)]
+    levels = [lv for lv in levels if any(r["level"] == lv for r in records)]
+    write_outputs(records, out, objects, levels, campaign)
+    print((out / "table.md").read_text())
+    return 0
 
 
 def run_and_report(

@@ -22,6 +22,7 @@ from rrg_planner.experiment.calibration import (
     wilson,
 )
 from rrg_sim.objects import PAPER_OBJECTS
+from rrg_sim.objects.catalogue import get_object
 
 STRATEGY_LABELS = {"open-loop": "Open-loop", "rrg-goal": "RRG-Goal", "rrg-info": "RRG-Info"}
 
@@ -36,8 +37,20 @@ def paper_rrg_info(obj: str, level: str) -> str:
     return "<95%" if obj in ("cup", "teabox") else ">95%"
 
 
+def sensed_judge_success(record: dict) -> bool:
+    """The trial's verdict under the judge that counted the fingers the robot *sensed* (a pad
+    or fingertip fired) instead of those truly touching: kept so that a campaign shows what
+    judging the truth changed (rrg_sim.physics.judge)."""
+    j = record.get("judge") or {}
+    if not j:
+        return False
+    enough = j["sensed_fingers"] >= get_object(record["object"]).goal.min_fingers
+    return bool(j["held"] and j["in_region"] and j["required_ok"] and enough)
+
+
 def summarize(records: list[dict]) -> dict[str, dict]:
-    """Per cell key: trials, successes, rate, 95 % interval, mean actions, planning time, errors."""
+    """Per cell key: trials, successes, rate, 95 % interval, the success under the sensed-finger
+    judge, mean actions, planning time, errors."""
     by_cell: dict[str, list[dict]] = defaultdict(list)
     for r in records:
         by_cell[r["cell"]].append(r)
@@ -59,6 +72,7 @@ def summarize(records: list[dict]) -> dict[str, dict]:
             strict_successes=strict,
             strict_rate=strict / len(rs),
             strict_ci95=list(wilson(strict, len(rs))),
+            sensed_judge_rate=sum(sensed_judge_success(r) for r in rs) / len(rs),
             mean_actions=float(np.mean([r["n_actions"] for r in rs])),
             mean_planning_s=float(np.mean([r["planning_time_s"] for r in rs])),
             errors=sum(bool(r["error"]) for r in rs),
@@ -118,8 +132,8 @@ def markdown_table(summary: dict[str, dict], objects: list[str], levels: list[st
             f"**{level} uncertainty**",
             "",
             "| object | open-loop | RRG-Goal | RRG-Info (H=2) | RRG-Info, strict "
-            "| paper RRG-Info | mean actions (Info) |",
-            "|---|---|---|---|---|---|---|",
+            "| RRG-Info, sensed-finger judge | paper RRG-Info | mean actions (Info) |",
+            "|---|---|---|---|---|---|---|---|",
         ]
         for obj in objects:
             cells = []
@@ -138,10 +152,11 @@ def markdown_table(summary: dict[str, dict], objects: list[str], levels: list[st
                 if info
                 else "–"
             )
+            sensed = f"{100 * info['sensed_judge_rate']:.0f}%" if info else "–"
             lines.append(
                 f"| {obj} | "
                 + " | ".join(cells)
-                + f" | {strict} | {paper_rrg_info(obj, level)} | {acts} |"
+                + f" | {strict} | {sensed} | {paper_rrg_info(obj, level)} | {acts} |"
             )
         lines.append("")
     return "\n".join(lines)
@@ -249,11 +264,16 @@ def campaign_header(campaign: dict) -> str:
 def paired_difference(
     a: list[dict], b: list[dict], n_boot: int = 10_000, seed: int = 0
 ) -> dict | None:
-    """Trials of two cells paired by trial index (the same true poses): the mean difference
-    b − a in success and in the number of actions, each with a 95 % percentile bootstrap
-    interval over the pairs (``n_boot`` resamples, seeded). None without common trials."""
-    by_trial = {r["trial"]: r for r in a}
-    pairs = [(by_trial[r["trial"]], r) for r in b if r["trial"] in by_trial]
+    """Trials of two sets paired by object, level and trial index (the same true poses): the
+    mean difference b − a in success and in the number of actions, each with a 95 % percentile
+    bootstrap interval over the pairs (``n_boot`` resamples, seeded). None without common
+    trials."""
+
+    def key(r: dict) -> tuple:
+        return r.get("object"), r.get("level"), r["trial"]
+
+    by_trial = {key(r): r for r in a}
+    pairs = [(by_trial[key(r)], r) for r in b if key(r) in by_trial]
     if not pairs:
         return None
     success = np.array([[ra["success"], rb["success"]] for ra, rb in pairs], dtype=float)
@@ -304,6 +324,78 @@ def fig9_paired_table(paired: dict) -> str:
     return "\n".join(rows) + "\n"
 
 
+def ablation(records: list[dict]) -> dict:
+    """Per level and switched-off capability: RRG-Info's main cells (every capability on)
+    against the same trials without it (paired_difference), per object and over all objects
+    that ran both. Empty without ablation cells."""
+
+    def main_cell(r: dict) -> bool:
+        return (r["strategy"], r["horizon"], r["delta"]) == (
+            "rrg-info",
+            SEARCH.horizon,
+            SEARCH.delta,
+        )
+
+    full = [r for r in records if main_cell(r) and not r.get("without")]
+    out: dict = {}
+    for r in records:
+        if main_cell(r) and len(r.get("without") or []) == 1:
+            out.setdefault(r["level"], {}).setdefault(r["without"][0], {}).setdefault(
+                r["object"], []
+            ).append(r)
+    result: dict = {}
+    for level, by_capability in sorted(out.items()):
+        for capability, by_object in sorted(by_capability.items()):
+            row = {}
+            for obj, off in sorted(by_object.items()):
+                on = [r for r in full if (r["object"], r["level"]) == (obj, level)]
+                row[obj] = paired_difference(on, off)
+            both = [o for o, d in row.items() if d is not None]
+            on = [r for r in full if r["level"] == level and r["object"] in both]
+            off = [r for o in both for r in by_object[o]]
+            row["all"] = paired_difference(on, off)
+            result.setdefault(level, {})[capability] = row
+    return result
+
+
+def ablation_table(ab: dict) -> str:
+    """Markdown: per level, RRG-Info's success with every capability on, and the change when
+    each one is switched off (paired points, 95 % bootstrap interval), per object."""
+    rows = []
+    for level, by_capability in ab.items():
+        capabilities = list(by_capability)
+        objects = sorted({o for row in by_capability.values() for o in row if o != "all"})
+        rows += [
+            f"**Ablation, {level} uncertainty**: RRG-Info success with every capability on, and "
+            "the change without each (paired by trial, 95 % bootstrap interval)",
+            "",
+            "| object | pairs | all on | "
+            + " | ".join(f"without {c}" for c in capabilities)
+            + " |",
+            "|---|---|---|" + "---|" * len(capabilities),
+        ]
+        for obj in [*objects, "all"]:
+            ds = [by_capability[c].get(obj) for c in capabilities]
+            first = next((d for d in ds if d is not None), None)
+            if first is None:
+                continue
+            cells = [
+                "–"
+                if d is None
+                else f"{100 * d['success']['diff']:+.0f} ({100 * d['success']['ci95'][0]:+.0f} "
+                f"to {100 * d['success']['ci95'][1]:+.0f})"
+                for d in ds
+            ]
+            name = "**all**" if obj == "all" else obj
+            rows.append(
+                f"| {name} | {first['pairs']} | {first['success']['a']:.0%} | "
+                + " | ".join(cells)
+                + " |"
+            )
+        rows.append("")
+    return "\n".join(rows)
+
+
 def write_outputs(
     records: list[dict], out_dir: Path, objects: list[str], levels: list[str], campaign: dict
 ) -> dict:
@@ -314,11 +406,13 @@ def write_outputs(
     paired = fig9_paired(records)
     info = main_rrg_info(records)
     cal = calibration(info) if info else None
+    ab = ablation(records)
     summary = dict(
         campaign=dict(campaign, trials=len(records)),
         cells=cells,
         fig9_paired=paired,
         calibration=cal,
+        ablation=ab,
     )
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=1))
     fig9_cells = any(
@@ -333,6 +427,7 @@ def write_outputs(
         + ("\n" + fig9_table(cells) if fig9_cells else "")
         + ("\n" + fig9_paired_table(paired) if paired else "")
         + ("\n" + calibration_table(cal) if cal else "")
+        + ("\n" + ablation_table(ab) if ab else "")
     )
     if cal:
         reliability_diagram(
