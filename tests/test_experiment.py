@@ -500,5 +500,6 @@ def test_report_rewrites_the_outputs_of_recorded_trials_without_running_any(tmp_
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["campaign"]["commit"] == "abc1234" and summary["campaign"]["seed"] == 123
     assert summary["campaign"]["world"] == "realistic" and summary["campaign"]["trials"] == 1
+    assert summary["campaign"]["seed_source"] == "--seed"  # not the one drawn from abc1234
     assert (tmp_path / "fig8_high.png").exists() and not (tmp_path / "fig7_low.png").exists()
     assert "| box | – | – | 100% (1/1" in capsys.readouterr().out

@@ -226,12 +226,9 @@ def report_only(out: Path, objects: list[str], levels: list[str]) -> int:
         print(f"error: no trial records in {out / 'trials.jsonl'}", file=sys.stderr)
         return 2
     first = records[0]
-    campaign = dict(
-        commit=first["commit"],
-        seed=first["base_seed"],
-        seed_source="as recorded",
-        world=first["world"],
-    )
+    seed = first["base_seed"]
+    source = {campaign_seed(first["commit"]): "code version", DEV_SEED: "--dev"}.get(seed, "--seed")
+    campaign = dict(commit=first["commit"], seed=seed, seed_source=source, world=first["world"])
     objects = [o for o in objects if any(r["object"] == o for r in records)]
     levels = [lv for lv in levels if any(r["level"] == lv for r in records)]
     write_outputs(records, out, objects, levels, campaign)

@@ -44,8 +44,11 @@ def sensed_judge_success(record: dict) -> bool:
     j = record.get("judge") or {}
     if not j:
         return False
-    enough = j["sensed_fingers"] >= get_object(record["object"]).goal.min_fingers
-    return bool(j["held"] and j["in_region"] and j["required_ok"] and enough)
+    if "sensed_fingers" in j:
+        enough = j["sensed_fingers"] >= get_object(record["object"]).goal.min_fingers
+    else:  # a record of that judge itself: its fingers were the sensed ones
+        enough = j.get("fingers_ok", True)
+    return bool(j.get("held") and j.get("in_region") and j.get("required_ok", True) and enough)
 
 
 def summarize(records: list[dict]) -> dict[str, dict]:
@@ -165,19 +168,33 @@ def markdown_table(summary: dict[str, dict], objects: list[str], levels: list[st
 def bar_chart(
     summary: dict[str, dict], objects: list[str], level: str, path: Path, title: str
 ) -> None:
-    """Fig. 7/8: success % per object for the three strategies, with 95 % intervals."""
+    """Fig. 7/8: success % per object for the strategies that ran, with 95 % intervals (a
+    strategy with no cell at this level is left out, not drawn at 0 %)."""
     fig, ax = plt.subplots(figsize=(11, 4))
     width = 0.27
     x = np.arange(len(objects))
     for i, strat in enumerate(("open-loop", "rrg-goal", "rrg-info")):
-        rates, err = [], [[], []]
-        for obj in objects:
-            s = summary.get(f"{obj}/{level}/{strat}")
-            r = 100 * s["success_rate"] if s else 0.0
-            rates.append(r)
-            err[0].append(max(0.0, r - 100 * s["ci95"][0]) if s else 0.0)  # ≥ 0 despite rounding
-            err[1].append(max(0.0, 100 * s["ci95"][1] - r) if s else 0.0)
-        ax.bar(x + (i - 1) * width, rates, width, yerr=err, capsize=2, label=STRATEGY_LABELS[strat])
+        cells = [summary.get(f"{obj}/{level}/{strat}") for obj in objects]
+        if not any(cells):
+            continue
+        rates = np.array([100 * s["success_rate"] if s else np.nan for s in cells])
+        err = np.array(
+            [  # ≥ 0 despite rounding
+                [max(0.0, r - 100 * s["ci95"][0]), max(0.0, 100 * s["ci95"][1] - r)]
+                if s
+                else [np.nan, np.nan]
+                for r, s in zip(rates, cells)
+            ]
+        ).T
+        ax.bar(
+            x + (i - 1) * width,
+            rates,
+            width,
+            yerr=err,
+            capsize=2,
+            color=f"C{i}",  # one colour per strategy in every figure
+            label=STRATEGY_LABELS[strat],
+        )
     ax.axhline(95, color="k", lw=0.8, ls="--", label="95 % target")
     ax.set_xticks(x, objects, rotation=20)
     ax.set_ylabel("success (%)")
