@@ -390,7 +390,7 @@ def assert_stopped(rig: Rig, handle, code: int, since: float) -> float:
     q = rig.arm_q()
     rig.spin(0.3)
     np.testing.assert_allclose(rig.arm_q(), q, atol=5e-3)  # holding
-    assert 0.0 < res.path_fraction < 1.0
+    assert 0.0 <= res.path_fraction < 1.0  # 0: stopped before the arm had left its start
     return cancel
 
 
@@ -685,9 +685,9 @@ def test_a_restarted_bridge_keeps_the_latch_and_starts_not_armed(hw):
         assert_runs(hw)
 
 
-#: The heartbeat test's timeout [s]: 20 of its beats, so that a loaded host's pause in the test
-#: process or in DDS delivery (0.31 s once in a CI run) is not a silence.
-HEARTBEAT_TIMEOUT_S = 1.0
+#: The heartbeat test's timeout [s]: 40 of its beats, so that a loaded host's pause in the test
+#: process or in DDS delivery (0.31 s in one CI run, over 1 s in another) is not a silence.
+HEARTBEAT_TIMEOUT_S = 2.0
 
 
 def test_a_silent_estop_heartbeat_latches_and_stops_the_arm(hw):
@@ -712,7 +712,7 @@ def test_a_silent_estop_heartbeat_latches_and_stops_the_arm(hw):
             beater.join()
         silent = time.monotonic()
         cancel = assert_stopped(hw, handle, R.ESTOP, silent)
-        assert cancel - silent < HEARTBEAT_TIMEOUT_S + 0.1
+        assert cancel - silent < HEARTBEAT_TIMEOUT_S + 1.0  # the timeout, not another one
         assert any("heartbeat" in m.message for m in hw.safety(silent))
 
 

@@ -15,17 +15,14 @@ from rosbags.highlevel import AnyReader
 from rrg_planner.bags.bag_cli import bag_info
 
 NODE_MODULES = ROOT / ".cache" / "npm" / "node_modules"
-#: The bridge's parameters file (a lab's would name its drivers and limits): the pads from
-#: Barrett's tactile pucks, at the first day's half speed (docs/hardware.md, "Pads without
-#: proximal pads").
+#: The bridge's parameters file (a lab's would name its drivers and limits).
 HW_PARAMS = """/**:
   ros__parameters:
     watchdog_timeout: 0.15
     confirm_stops: true
-    pad_source: tactile
-    speed_scale: 0.5
+    pad_source: topic
 """
-#: Longest run of the launcher [s] (a grasp takes ~ 3 min in real time at half speed).
+#: Longest run of the launcher [s] (a grasp takes ~ 1.5 min in real time).
 E2E_TIMEOUT_S = 600
 
 pytestmark = pytest.mark.slow
@@ -95,9 +92,11 @@ def test_a_robust_grasp_runs_end_to_end_through_the_bridge(tmp_path):
 
     texts = {p.name: p.read_text() for p in logs.glob("*.log")}
     assert {"fake_hw.log", "hw_bridge.log"} <= set(texts)
-    # from the parameters file
-    assert "speed scale 0.5, watchdog 150 ms" in texts["hw_bridge.log"]
-    assert "pads from Barrett's tactile pucks on /bhand/tactile_states" in texts["hw_bridge.log"]
+    assert "watchdog 150 ms" in texts["hw_bridge.log"]  # from the parameters file
+    # the pads of the paper's hand, proximal ones too, from the parameters file; with Barrett's
+    # tactile pucks alone (no proximal pads) info grasps of the drill overshoot into the force
+    # ceiling under this test's load (docs/hardware.md, "Pads")
+    assert "pads from rrg_msgs/ContactPads" in texts["hw_bridge.log"]
     assert "discovery range SUBNET" in stdout
     texts["stdout+stderr"] = stdout + stderr
     assert not [name for name, text in texts.items() if "Traceback" in text]
