@@ -257,3 +257,53 @@ def test_hand_command_and_reset_sim_reject_bad_requests(graph):
     assert reset(client, c, pose=[np.nan, 0.0, 0.0]).error_code == ResetSim.Response.INVALID_POSE
     assert reset(client, c, name="can", pose=[0.6, 0.05, 0.0]).error_code == ResetSim.Response.NONE
     assert reset(client, c).error_code == ResetSim.Response.NONE
+
+
+@pytest.mark.parametrize(
+    "target, answers, sent, raised",
+    [
+        (0.2, ["stopped", "ok"], 2, None),  # an opening stopped once: opened again
+        (0.2, ["stopped", "stopped"], 2, "HandStopped"),  # stopped again: for good
+        (0.2, ["refused"], 1, "MotionFailed"),  # refused (E-stop, stale data): no retry
+        (1.5, ["stopped"], 1, "HandStopped"),  # a closing is never sent again
+    ],
+)
+def test_an_opening_the_safety_layer_stopped_is_tried_once_more(
+    monkeypatch, target, answers, sent, raised
+):
+    """The robot client's policy on the bridge's answers to a hand position command, with the
+    fingers at 1.0 rad: an opening that was stopped midway is sent once more; a refusal, a
+    closing, or a second stop is the caller's."""
+    from rrg_sim.executor import robot_client
+    from rrg_sim.ros_common.msg_conversions import PROXIMAL_JOINT_NAMES, SPREAD_JOINT_NAME
+
+    monkeypatch.setattr(robot_client, "OPEN_RETRY_PAUSE_S", 0.0)
+    robot = object.__new__(robot_client.RosRobot)
+    robot._joints = {SPREAD_JOINT_NAME: 0.0, **{n: 1.0 for n in PROXIMAL_JOINT_NAMES}}
+    robot.node = rclpy_logger_stub()
+    calls = []
+
+    def hand(mode, spread, proximal):
+        answer = answers[len(calls)]
+        calls.append(proximal)
+        if answer == "stopped":
+            raise robot_client.HandStopped("hand_command failed (206): force ceiling")
+        if answer == "refused":
+            raise robot_client.MotionFailed("hand_command failed (204): E-stop latched")
+
+    robot._hand = hand
+    if raised is None:
+        robot.move_hand(0.0, target)
+    else:
+        with pytest.raises(getattr(robot_client, raised)) as info:
+            robot.move_hand(0.0, target)
+        assert type(info.value).__name__ == raised
+    assert len(calls) == sent
+
+
+def rclpy_logger_stub():
+    """A stand-in for the node: only its logger is used."""
+    import logging
+    from types import SimpleNamespace
+
+    return SimpleNamespace(get_logger=lambda: logging.getLogger("robot_client_test"))
