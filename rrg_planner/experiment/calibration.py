@@ -38,17 +38,20 @@ def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
     return (max(0.0, mid - half), min(1.0, mid + half))
 
 
+def rrg_info_at_defaults(record: dict) -> bool:
+    """Whether a record is RRG-Info at the default H and δ (not Fig. 9's sweep), with every
+    capability on or some switched off (an ablation's cell)."""
+    return (record["strategy"], record["horizon"], record["delta"]) == (
+        "rrg-info",
+        SEARCH.horizon,
+        SEARCH.delta,
+    )
+
+
 def main_rrg_info(records: list[dict]) -> list[dict]:
     """The RRG-Info records of the main cells (H and δ the defaults, not Fig. 9's sweep, and
     every capability on, not an ablation's cell)."""
-    return [
-        r
-        for r in records
-        if r["strategy"] == "rrg-info"
-        and r["horizon"] == SEARCH.horizon
-        and r["delta"] == SEARCH.delta
-        and not r.get("without")
-    ]
+    return [r for r in records if rrg_info_at_defaults(r) and not r.get("without")]
 
 
 def _judged(records: list[dict]) -> list[dict]:

@@ -19,6 +19,7 @@ from rrg_planner.experiment.calibration import (
     calibration_table,
     main_rrg_info,
     reliability_diagram,
+    rrg_info_at_defaults,
     wilson,
 )
 from rrg_sim.objects import PAPER_OBJECTS
@@ -345,18 +346,10 @@ def ablation(records: list[dict]) -> dict:
     """Per level and switched-off capability: RRG-Info's main cells (every capability on)
     against the same trials without it (paired_difference), per object and over all objects
     that ran both. Empty without ablation cells."""
-
-    def main_cell(r: dict) -> bool:
-        return (r["strategy"], r["horizon"], r["delta"]) == (
-            "rrg-info",
-            SEARCH.horizon,
-            SEARCH.delta,
-        )
-
-    full = [r for r in records if main_cell(r) and not r.get("without")]
+    full = main_rrg_info(records)
     out: dict = {}
     for r in records:
-        if main_cell(r) and len(r.get("without") or []) == 1:
+        if rrg_info_at_defaults(r) and len(r.get("without") or []) == 1:
             out.setdefault(r["level"], {}).setdefault(r["without"][0], {}).setdefault(
                 r["object"], []
             ).append(r)
