@@ -163,9 +163,13 @@ class ContactGuard:
         threshold in this pad sample and the one before (``new_pad_sample``: the pads were
         just read afresh; a lone pad that the next sample does not confirm is not a trip)."""
         self._pad_sample += bool(new_pad_sample)
-        fired = fired_sensors(pads, tips, self.thresholds)
+        fired = self.fired(pads, tips)
         stop = self.confirmation.update(fired if fired.any() else None, False, self._pad_sample)
         return Trip(fired) if stop else None
+
+    def fired(self, pads: np.ndarray, tips: np.ndarray) -> np.ndarray:
+        """(10,) bool: the pads (7,) [N] and fingertip loads (3,6) over this move's thresholds."""
+        return fired_sensors(pads, tips, self.thresholds)
 
     def check_effort(self, effort: np.ndarray) -> Trip | None:
         """A trip when a joint's effort (7,) changed by more than the threshold."""

@@ -103,6 +103,7 @@ class Rig:
         }
         self.procs: dict[str, object] = {}
         self.bridge_runs = 0
+        self.last_result: GuardedMove.Result | None = None  # of the last assert_stopped
         self.client = RosClient(env, "hw_bridge_test")
         try:
             self._connect()
@@ -383,8 +384,9 @@ def assert_runs(rig: Rig) -> None:
 
 def assert_stopped(rig: Rig, handle, code: int, since: float) -> float:
     """The running goal ends with ``code``, the fake's controller got a cancel after ``since``
-    and the arm holds; returns the cancel's time [s, monotonic]."""
+    and the arm holds; returns the cancel's time [s, monotonic] (the result: rig.last_result)."""
     status, res = rig.result(handle)
+    rig.last_result = res
     assert status == GoalStatus.STATUS_ABORTED and res.error_code == code, res.error_msg
     cancel = rig.wait_event("cancel_received", since)
     q = rig.arm_q()
@@ -466,12 +468,19 @@ def test_the_estop_cancels_a_running_move_and_holds_until_reset(hw):
     assert_runs(hw)
 
 
-def test_the_force_ceiling_aborts_a_move(hw):
-    handle = hw.started(slow_move(hw))
+@pytest.mark.parametrize("guarded", [False, True])
+def test_the_force_ceiling_aborts_a_move(hw, guarded):
+    """A fingertip load over the ceiling stops the move with FORCE_LIMIT. A guarded move's
+    first contact that is already over the ceiling (an impact's spike) is also its stop on
+    contact, naming the fingertip; an unguarded move reports no stop on contact."""
+    handle = hw.started(slow_move(hw, stop_on_contact=guarded))
     since = time.monotonic()
     hw.set_fault("fault.extra_force", 25.0)  # N on fingertip 1; the ceiling is 20 N
     assert_stopped(hw, handle, R.FORCE_LIMIT, since)
     assert any("fingertip 1" in m.message for m in hw.safety(since))
+    res = hw.last_result
+    assert res.stopped_on_contact == guarded
+    assert res.sensors[7]  # fingertip 1 (rrg_msgs/Observation SENSOR_* order)
 
 
 def test_status_word_errors_and_sequence_gaps_are_reported_and_stop_the_arm(hw):

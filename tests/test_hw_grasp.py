@@ -20,7 +20,7 @@ HW_PARAMS = """/**:
   ros__parameters:
     watchdog_timeout: 0.15
     confirm_stops: true
-    pad_source: topic
+    pad_source: tactile
 """
 #: Longest run of the launcher [s] (a grasp takes ~ 1.5 min in real time).
 E2E_TIMEOUT_S = 600
@@ -93,10 +93,8 @@ def test_a_robust_grasp_runs_end_to_end_through_the_bridge(tmp_path):
     texts = {p.name: p.read_text() for p in logs.glob("*.log")}
     assert {"fake_hw.log", "hw_bridge.log"} <= set(texts)
     assert "watchdog 150 ms" in texts["hw_bridge.log"]  # from the parameters file
-    # the pads of the paper's hand, proximal ones too, from the parameters file; with Barrett's
-    # tactile pucks alone (no proximal pads) info grasps of the drill overshoot into the force
-    # ceiling under this test's load (docs/hardware.md, "Pads")
-    assert "pads from rrg_msgs/ContactPads" in texts["hw_bridge.log"]
+    # the pads as Barrett's hand publishes them: its tactile pucks, no proximal pads
+    assert "pads from Barrett's tactile pucks on /bhand/tactile_states" in texts["hw_bridge.log"]
     assert "discovery range SUBNET" in stdout
     texts["stdout+stderr"] = stdout + stderr
     assert not [name for name, text in texts.items() if "Traceback" in text]

@@ -301,6 +301,44 @@ def test_an_opening_the_safety_layer_stopped_is_tried_once_more(
     assert len(calls) == sent
 
 
+@pytest.mark.parametrize(
+    "guard, code, on_contact, stop",
+    [
+        (True, "NONE", True, 1.0),  # a guarded move stopped halfway along 3 via-points
+        (True, "FORCE_LIMIT", True, 1.0),  # its first contact spiked over the ceiling
+        (False, "FORCE_LIMIT", False, "MotionFailed"),  # an unguarded move struck something
+        (True, "FORCE_LIMIT", False, "MotionFailed"),  # the ceiling, but no contact trip
+        (True, "STALE_DATA", False, "MotionFailed"),
+    ],
+)
+def test_a_guarded_move_the_force_ceiling_stopped_on_contact_is_its_stop(
+    guard, code, on_contact, stop
+):
+    """The robot client's policy on the bridge's guarded-move results: a guarded move that
+    the force ceiling stopped at its contact stopped where it touched; any other error is
+    the caller's."""
+    from types import SimpleNamespace
+
+    from rrg_msgs.action import GuardedMove
+    from rrg_sim.executor import robot_client
+
+    R = GuardedMove.Result
+    res = R(error_code=getattr(R, code), stopped_on_contact=on_contact, path_fraction=0.5)
+    robot = object.__new__(robot_client.RosRobot)
+    robot.node = rclpy_logger_stub()
+    robot.unconfirmed_stops = 0
+    robot.move_client = SimpleNamespace(send_goal_async=lambda goal: "sent")
+    handle = SimpleNamespace(accepted=True, get_result_async=lambda: "result")
+    robot._wait = lambda future, what: handle if future == "sent" else SimpleNamespace(result=res)
+    robot._sensed = lambda joint_state, sensors, tip_contacts: None
+    q, t = np.zeros((3, 7)), np.array([0.0, 1.0, 2.0])
+    if isinstance(stop, str):
+        with pytest.raises(robot_client.MotionFailed, match=f"({getattr(R, code)})"):
+            robot.follow(q, t, guard)
+    else:
+        assert robot.follow(q, t, guard) == pytest.approx(stop)
+
+
 def rclpy_logger_stub():
     """A stand-in for the node: only its logger is used."""
     import logging

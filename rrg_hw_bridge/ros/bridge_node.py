@@ -782,7 +782,7 @@ class BridgeNode(Node):
             handle = move.handle
         if handle is not None:
             handle.cancel_goal_async()
-        if trip is None and code != R.CANCELED:
+        if code not in (R.NONE, R.CANCELED):  # a contact's trip (NONE) is no safety event
             self.report(code, check, message, refused=False)
 
     def stop_hand(self, code: int, check: str, message: str) -> bool:
@@ -903,7 +903,13 @@ class BridgeNode(Node):
         if over is not None and move is None and motion.closing and np.isfinite(loads).all():
             motion.squeezed |= self.ceiling.over(loads)  # the squeeze's limit: that finger stops
         elif over is not None:
-            self.stop_all(over.code, over.check, over.message)
+            # a guarded move stopped by the ceiling stopped on a contact too (its trip names
+            # the sensors that crossed; the result's sensors are those firing at the hold)
+            trip = None
+            if move is not None and move.guard is not None and over.code == R.FORCE_LIMIT:
+                trip = Trip(move.guard.fired(self.hand.pads(), tips))
+            self.stop_move(over.code, over.check, over.message, trip)
+            self.stop_hand(over.code, over.check, over.message)
         elif move is not None and move.guard is not None:  # derived pads: read afresh per sample
             trip = move.guard.check_sensors(self.hand.pads(), tips, self.hand.derive_pads)
             if trip is not None:
@@ -1295,6 +1301,7 @@ class BridgeNode(Node):
             reading.tip_points, reading.tip_normals, self.hand.tips()
         )
         result.final_joint_state = self.joint_state()
+        result.stopped_on_contact = move.trip is not None
         controller = answer.result().result if answer.done() else None
         if move.code is None and controller is not None and controller.error_code != 0:
             result.error_code = R.CONTROLLER_FAILED
@@ -1304,7 +1311,6 @@ class BridgeNode(Node):
             self.report(R.CONTROLLER_FAILED, "controller", result.error_msg, refused=False)
             handle.abort()
         elif move.code is None or move.code == R.NONE:
-            result.stopped_on_contact = move.trip is not None
             if move.guard is not None:
                 result.unconfirmed_stops = move.guard.confirmation.rejected
                 if move.guard.effort_threshold > 0.0 and move.trip is None:

@@ -178,7 +178,15 @@ class RosRobot:
             wait_for(handle.cancel_goal_async(), 10.0)
             raise MotionCanceled("guarded move canceled") from exc
         res = answer.result
-        if res.error_code != GuardedMove.Result.NONE:
+        R = GuardedMove.Result
+        if guard and res.error_code == R.FORCE_LIMIT and res.stopped_on_contact:
+            # the safety layer held the arm at a contact whose first samples spiked over the
+            # force ceiling (an impact): the guarded move still stopped where it touched
+            self.node.get_logger().warn(
+                f"guarded move stopped by the force ceiling ({res.error_msg}): taken as its "
+                "stop on contact"
+            )
+        elif res.error_code != R.NONE:
             raise MotionFailed(f"guarded_move failed ({res.error_code}): {res.error_msg}")
         self._sensed(res.final_joint_state, res.sensors, res.tip_contacts)
         self.unconfirmed_stops += int(res.unconfirmed_stops)
