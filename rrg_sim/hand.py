@@ -227,9 +227,13 @@ def joint_angles(spread, proximal) -> dict[str, np.ndarray]:
 
 def body_poses(spread, proximal) -> dict[str, np.ndarray]:
     """Hand-frame poses (…,4,4) of every body for spread (…) and proximal angles (…,3)."""
-    proximal = np.asarray(proximal, dtype=float)
-    batch = proximal.shape[:-1]
-    q = joint_angles(spread, proximal)
+    return body_poses_at(joint_angles(spread, proximal))
+
+
+def body_poses_at(q: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Hand-frame poses (…,4,4) of every body at every joint's angle (…) [rad] (joint_angles'
+    keys: a measured distal angle, say, instead of its coupling)."""
+    batch = np.shape(q["f1_spread"])
     poses: dict[str, np.ndarray] = {}
     for body in hand_tree():
         parent = (

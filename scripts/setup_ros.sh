@@ -5,7 +5,8 @@
 #   - the ros-jazzy-* wheels, their undeclared build dependencies, and the bag libraries,
 #     re-installed only when the package list below changes;
 #   - the manylinux interpreter paths in <venv>/share/**/*.cmake rewritten to this venv's;
-#   - the interface packages (control_msgs and bhand_srvs for the hardware bridge, then rrg_msgs)
+#   - the interface packages (control_msgs, Barrett's wam_msgs, wam_srvs and bhand_srvs for the
+#     hardware bridge, tf2_msgs for the robot's frames, then rrg_msgs)
 #     configured, built and installed into the venv, each only when missing or stale;
 #   - Foxglove's bag readers (npm) in .cache/npm/node_modules, used by the bag tests.
 # Facts behind each step: shared/notes/ros2-on-pip.md.
@@ -135,6 +136,7 @@ build_interfaces rrg_hw_bridge/interfaces/control_msgs .rrg-control_msgs-stamp \
 build_interfaces rrg_hw_bridge/interfaces/bhand_srvs .rrg-bhand_srvs-stamp bhand_srvs.srv
 build_interfaces rrg_hw_bridge/interfaces/wam_msgs .rrg-wam_msgs-stamp wam_msgs.msg
 build_interfaces rrg_hw_bridge/interfaces/wam_srvs .rrg-wam_srvs-stamp wam_srvs.srv
+build_interfaces rrg_sim/interfaces/tf2_msgs .rrg-tf2_msgs-stamp tf2_msgs.msg
 build_interfaces rrg_msgs .rrg-msgs-stamp rrg_msgs.msg rrg_msgs.srv rrg_msgs.action
 
 # ------------------------------------------------------------------ Foxglove readers (npm)

@@ -15,14 +15,18 @@ import pytest
 import yaml
 from ros_testing import ROOT, ArmWatch, RosClient, ros_env
 from rosbags.highlevel import AnyReader
+from scipy.spatial.transform import Rotation
 
 from rrg_planner.bags.bag_cli import bag_info
 from rrg_planner.bags.bag_cli import main as bag_cli
 from rrg_sim import wam
+from rrg_sim.hand import FINGERS, body_poses_at
+from rrg_sim.robot_frames import compose
 from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES
 
 NODE_MODULES = ROOT / ".cache" / "npm" / "node_modules"
 LAUNCH = [sys.executable, "-m", "rrg_planner.bringup.launch"]
+JOINTS = "/rrg/joint_states"
 #: Every topic the graph publishes during a grasp (the recorder must have them all).
 GRAPH_TOPICS = {
     "/rrg/joint_states",
@@ -37,6 +41,9 @@ GRAPH_TOPICS = {
     "/rrg/belief_markers",
     "/rrg/grasp_step",
     "/rosout",
+    "/tf",
+    "/tf_static",
+    "/robot_description",
 }
 
 
@@ -111,6 +118,62 @@ def test_bag_records_every_topic_and_rosbags_decodes_every_message(grasp_run):
     assert decoded["/rrg/belief"][-1].weights.size == 31 * 31 * 25
     assert decoded["/rrg/eval/grasp_outcome"][-1].message.startswith("SUCCESS")
     assert decoded["/rrg/joint_states"][-1].name[:7] == [f"wam_j{i}" for i in range(1, 8)]
+
+
+@pytest.mark.slow  # the launcher's node processes
+def test_the_bags_frames_put_the_fingertips_where_the_models_do(grasp_run):
+    """The bag's /tf_static and the /tf of each recorded joint state (the same stamp), composed
+    from ``world`` by the test's own small tf buffer, put the palm where rrg_sim.wam.fk puts the
+    hand and each fingertip where rrg_sim.hand puts it at those joint angles (within 1e-6 m);
+    the object's estimated and true frames are in /tf too."""
+    _, bag, _ = grasp_run
+    static, by_stamp, states = [], {}, []
+    with AnyReader([bag]) as reader:
+        conns = [c for c in reader.connections if c.topic in ("/tf", "/tf_static", JOINTS)]
+        for conn, _, raw in reader.messages(connections=conns):
+            msg = reader.deserialize(raw, conn.msgtype)
+            if conn.topic == JOINTS:
+                states.append(msg)
+                continue
+            for t in msg.transforms:
+                entry = (t.header.frame_id, t.child_frame_id, transform_matrix(t.transform))
+                if conn.topic == "/tf_static":
+                    static.append(entry)
+                else:
+                    by_stamp.setdefault(stamp_key(t.header.stamp), {})[t.child_frame_id] = entry
+    children = {child for frames in by_stamp.values() for child in frames}
+    assert {"object_estimate", "object_true"} <= children
+    checked = 0
+    for msg in states:
+        frames = by_stamp.get(stamp_key(msg.header.stamp), {})
+        if "wam_link1" not in frames:
+            continue
+        poses = compose([*static, *frames.values()], "world")
+        angles = dict(zip(msg.name, msg.position))
+        palm = wam.fk([angles[n] for n in ARM_JOINT_NAMES])
+        hand = body_poses_at(
+            {n.removeprefix("bh_"): angles[n] for n in msg.name if n.startswith("bh_")}
+        )
+        np.testing.assert_allclose(poses["bh_palm"], palm, atol=1e-6)
+        for i in FINGERS:
+            np.testing.assert_allclose(
+                poses[f"bh_f{i}_tip"][:3, 3], (palm @ hand[f"f{i}_tip"])[:3, 3], atol=1e-6
+            )
+        checked += 1
+    assert checked > 0.9 * len(states) > 100, (checked, len(states))
+
+
+def stamp_key(stamp) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def transform_matrix(t) -> np.ndarray:
+    """A geometry_msgs/Transform as a (4,4) matrix."""
+    T = np.eye(4)
+    q = t.rotation
+    T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+    T[:3, 3] = t.translation.x, t.translation.y, t.translation.z
+    return T
 
 
 @pytest.mark.slow  # the launcher's node processes

@@ -46,7 +46,9 @@ from rrg_msgs.msg import Observation as ObservationMsg
 from rrg_msgs.srv import GetBelief, ResetBelief
 from rrg_sim.config import WORLD_PROFILES, world_profile
 from rrg_sim.objects import get_object
+from rrg_sim.poses import planar_pose
 from rrg_sim.posture_calibration import PostureCalibration
+from rrg_sim.ros_common.frames import OBJECT_ESTIMATE_FRAME, TfPublisher
 from rrg_sim.ros_common.liveliness import announce
 from rrg_sim.ros_common.msg_conversions import (
     WORLD_FRAME,
@@ -128,6 +130,7 @@ class EstimatorNode(Node):
         self._belief_msg: BeliefGrid | None = None
         self.belief_pub = self.create_publisher(BeliefGrid, "belief", STREAM)
         self.marker_pub = self.create_publisher(MarkerArray, "belief_markers", LATCHED)
+        self.tf = TfPublisher(self)  # world → object_estimate, the belief's most likely pose
         self.restore()
         self.create_subscription(ObservationMsg, "observation", self.on_observation, STREAM)
         self.create_subscription(Retreated, "retreated", self.on_retreated, STREAM)
@@ -211,6 +214,8 @@ class EstimatorNode(Node):
         msg = belief_to_msg(belief, stamp, self._map_load_time, self.frame_id)
         self._belief_msg = msg
         self.belief_pub.publish(msg)
+        estimate = planar_pose(belief.w_star())
+        self.tf.publish([(self.frame_id, OBJECT_ESTIMATE_FRAME, estimate)], stamp)
         self.marker_pub.publish(
             belief_markers(
                 belief,

@@ -1048,7 +1048,7 @@ class BridgeNode(Node):
         if not np.isfinite(m.arm_q).all():
             return
         js = self.joint_state()
-        self.state_pubs.joints.publish(js)
+        self.state_pubs.publish_joints(js)
         tips = self.hand.tips()
         for i, pub in enumerate(self.state_pubs.wrenches):
             w = WrenchStamped()

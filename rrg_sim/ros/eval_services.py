@@ -24,6 +24,7 @@ from std_srvs.srv import Trigger
 from rrg_msgs.msg import GraspOutcome
 from rrg_msgs.msg import Observation as ObservationMsg
 from rrg_msgs.srv import ResetSim
+from rrg_sim.ros_common.frames import OBJECT_TRUE_FRAME, TfPublisher
 from rrg_sim.ros_common.msg_conversions import (
     WORLD_FRAME,
     observation_from_msg,
@@ -73,6 +74,7 @@ class EvalServices:
         self.reset_world, self.on_change = reset_world, on_change
         self.last_observation: ObservationMsg | None = None
         self.truth_pub = node.create_publisher(PoseStamped, names.object_pose, 10)
+        self.tf = TfPublisher(node)  # world → object_true
         self.outcome_pub = node.create_publisher(GraspOutcome, names.outcome, 10)
         node.create_subscription(
             ObservationMsg, names.observation, self.on_observation, 10, callback_group=group
@@ -86,9 +88,11 @@ class EvalServices:
     def publish_truth(self, stamp: Time, pose: np.ndarray | None = None) -> None:
         """The true object pose (4,4) (evaluation only; default: read from the world, so call
         where the world may be read)."""
-        truth = PoseStamped(pose=pose_to_msg(self.world().object_pose() if pose is None else pose))
+        pose = self.world().object_pose() if pose is None else pose
+        truth = PoseStamped(pose=pose_to_msg(pose))
         truth.header.stamp, truth.header.frame_id = stamp, WORLD_FRAME
         self.truth_pub.publish(truth)
+        self.tf.publish([(WORLD_FRAME, OBJECT_TRUE_FRAME, pose)], stamp)
 
     def _changed(self) -> None:
         if self.on_change is not None:

@@ -61,6 +61,7 @@ from .. import wam
 from ..config import SENSING, WORLD_PROFILES, world_profile
 from ..physics.mjcf_robot import TIP_BODIES
 from ..physics.sensing import HandSensors
+from ..physics.urdf_robot import ros_name
 from ..physics.world import PhysicsWorld, WorldsByObject
 from .eval_services import EvalServices
 
@@ -70,11 +71,6 @@ NAMESPACE = "rrg"
 SPREAD_TOLERANCE = 0.01
 #: Control periods between checks of pacing, publishing and cancellation (20 ms simulated).
 CHECK_EVERY = 10
-
-
-def ros_joint_name(mujoco_name: str) -> str:
-    """'wam/j1' → 'wam_j1' (ROS joint names carry no slashes)."""
-    return mujoco_name.replace("/", "_")
 
 
 class SimNode(Node):
@@ -174,7 +170,7 @@ class SimNode(Node):
         self._arm_rows = np.array(
             [k for k, j in enumerate(robot) if m.joint(j).name.startswith("wam/")]
         )
-        self._joint_names = [ros_joint_name(m.joint(j).name) for j in robot]
+        self._joint_names = [ros_name(m.joint(j).name) for j in robot]
         self._qadr = np.array([m.jnt_qposadr[j] for j in robot])
         self._vadr = np.array([m.jnt_dofadr[j] for j in robot])
         self._state_sensors = HandSensors(m, world.data, np.random.default_rng(0), noise=0.0)
@@ -197,12 +193,12 @@ class SimNode(Node):
         stamp = self.get_clock().now().to_msg()
         js = self.joint_state()
         js.header.stamp = stamp
-        self.state_pubs.joints.publish(js)
+        self.state_pubs.publish_joints(js)
         self._state_sensors.bias = self.world.sensors.bias  # the same tare as the guarded moves
         pads, wrench = self._state_sensors.read()
         for i, pub in enumerate(self.state_pubs.wrenches):
             w = WrenchStamped()
-            w.header.stamp, w.header.frame_id = stamp, ros_joint_name(TIP_BODIES[i])
+            w.header.stamp, w.header.frame_id = stamp, ros_name(TIP_BODIES[i])
             w.wrench.force, w.wrench.torque = (
                 vector_to_msg(wrench[i, :3]),
                 vector_to_msg(wrench[i, 3:]),
@@ -211,7 +207,7 @@ class SimNode(Node):
         p = ContactPads(
             in_contact=[bool(f) for f in pads > SENSING.pad_force_threshold], force=pads.tolist()
         )
-        p.header.stamp, p.header.frame_id = stamp, ros_joint_name("bh/palm")
+        p.header.stamp, p.header.frame_id = stamp, ros_name("bh/palm")
         self.state_pubs.pads.publish(p)
         self.eval.publish_truth(stamp)
 

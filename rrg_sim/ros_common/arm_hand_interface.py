@@ -20,6 +20,8 @@ from rrg_msgs.srv import HandCommand
 from rrg_sim import wam
 from rrg_sim.config import HAND
 from rrg_sim.executor.trajectory import DensePath, sample_times
+from rrg_sim.physics.urdf_robot import robot_urdf
+from rrg_sim.ros_common.frames import RobotFramesPublisher
 from rrg_sim.ros_common.liveliness import announce
 from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES
 from rrg_sim.ros_common.qos import RESULT_TIMEOUT_S
@@ -97,11 +99,14 @@ def client_fraction(index: float, n: int) -> float:
 @dataclass
 class StatePublishers:
     """The interface's state topics: ``joint_states``, ``fingertip{1,2,3}/wrench`` (each Nano17 in
-    its own frame) and ``contact_pads`` (relative names: the node's namespace applies)."""
+    its own frame) and ``contact_pads`` (relative names: the node's namespace applies), and the
+    robot's description and frames (ros_common.frames: ``/robot_description``, ``/tf_static``,
+    and ``/tf`` from each joint state)."""
 
     joints: Publisher
     wrenches: list[Publisher]
     pads: Publisher
+    frames: RobotFramesPublisher
 
     @classmethod
     def create(cls, node: Node) -> StatePublishers:
@@ -109,7 +114,13 @@ class StatePublishers:
             node.create_publisher(JointState, "joint_states", 10),
             [node.create_publisher(WrenchStamped, f"fingertip{i}/wrench", 10) for i in (1, 2, 3)],
             node.create_publisher(ContactPads, "contact_pads", 10),
+            RobotFramesPublisher(node, robot_urdf()),
         )
+
+    def publish_joints(self, joint_state: JointState) -> None:
+        """The joint states, and the robot's frames at them."""
+        self.joints.publish(joint_state)
+        self.frames.publish(joint_state)
 
 
 def serve_arm_hand_interface(
