@@ -373,7 +373,7 @@ class BridgeNode(Node):
         self.io.create_subscription(Bool, p("estop_topic"), self.on_estop, ESTOP_LATCHED_QOS)
 
         # -------------------------------------------------------------- upward: RRG
-        self.state_pubs = StatePublishers.create(self)
+        self.state_pubs = StatePublishers.create(self, frames=bool(p("publish_frames")))
         self.plan_pub = self.create_publisher(JointTrajectory, "bridge/plan", 10)
         self.safety_pub = self.create_publisher(DiagnosticStatus, "bridge/safety", 10)
         #: every status and safety event also goes on /diagnostics, as ROS drivers publish
@@ -551,6 +551,16 @@ class BridgeNode(Node):
             ),
         )
         text("limits_file", "", "Per-arm limits YAML (empty: Barrett's published WAM limits)")
+        self.declare_parameter(
+            "publish_frames",
+            True,
+            ParameterDescriptor(
+                description="Publish RRG's WAM and BarrettHand model on /robot_description, "
+                "/tf_static and /tf from the measured joint states (false where the lab's own "
+                "robot_state_publisher already publishes the robot's frames)",
+                read_only=True,
+            ),
+        )
         self.declare_parameter(
             "confirm_stops",
             True,

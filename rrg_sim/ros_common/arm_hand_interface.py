@@ -106,21 +106,23 @@ class StatePublishers:
     joints: Publisher
     wrenches: list[Publisher]
     pads: Publisher
-    frames: RobotFramesPublisher
+    frames: RobotFramesPublisher | None
 
     @classmethod
-    def create(cls, node: Node) -> StatePublishers:
+    def create(cls, node: Node, frames: bool = True) -> StatePublishers:
+        """frames: also the robot's description and frames (False: none)."""
         return cls(
             node.create_publisher(JointState, "joint_states", 10),
             [node.create_publisher(WrenchStamped, f"fingertip{i}/wrench", 10) for i in (1, 2, 3)],
             node.create_publisher(ContactPads, "contact_pads", 10),
-            RobotFramesPublisher(node, robot_urdf()),
+            RobotFramesPublisher(node, robot_urdf()) if frames else None,
         )
 
     def publish_joints(self, joint_state: JointState) -> None:
         """The joint states, and the robot's frames at them."""
         self.joints.publish(joint_state)
-        self.frames.publish(joint_state)
+        if self.frames is not None:
+            self.frames.publish(joint_state)
 
 
 def serve_arm_hand_interface(
