@@ -263,17 +263,19 @@ def test_hand_command_and_reset_sim_reject_bad_requests(graph):
     "target, answers, sent, raised",
     [
         (0.2, ["stopped", "ok"], 2, None),  # an opening stopped once: opened again
-        (0.2, ["stopped", "stopped"], 2, "HandStopped"),  # stopped again: for good
+        (0.2, ["stopped", "stopped", "ok"], 3, None),  # by one finger, then another
+        (0.2, ["stopped"] * 4, 4, "HandStopped"),  # stopped on every try: for good
+        (0.2, ["stopped", "refused"], 2, "MotionFailed"),  # a retry refused: no more
         (0.2, ["refused"], 1, "MotionFailed"),  # refused (E-stop, stale data): no retry
         (1.5, ["stopped"], 1, "HandStopped"),  # a closing is never sent again
     ],
 )
-def test_an_opening_the_safety_layer_stopped_is_tried_once_more(
+def test_an_opening_the_safety_layer_stopped_is_tried_again(
     monkeypatch, target, answers, sent, raised
 ):
     """The robot client's policy on the bridge's answers to a hand position command, with the
-    fingers at 1.0 rad: an opening that was stopped midway is sent once more; a refusal, a
-    closing, or a second stop is the caller's."""
+    fingers at 1.0 rad: an opening that was stopped midway is sent again, up to OPEN_RETRIES
+    times; a refusal, a closing, or the last stop is the caller's."""
     from rrg_sim.executor import robot_client
     from rrg_sim.ros_common.msg_conversions import PROXIMAL_JOINT_NAMES, SPREAD_JOINT_NAME
 

@@ -53,11 +53,14 @@ class HandStopped(MotionFailed):
     """The bridge's safety layer stopped a hand command midway (HandCommand STOPPED)."""
 
 
-#: An opening of the hand that the safety layer stopped midway is sent once more after this
-#: pause [s] (chosen): an opening finger that strikes the object spikes its fingertip load for
-#: a few samples (15 N and 0.24 N m for ~30 ms, an emulated drill grasp), and the way out of
-#: the contact is to open. The bridge gates and guards the second try like the first: an
-#: E-stop or a stale stream refuses it, and a second crossing stops it for good.
+#: An opening of the hand that the safety layer stopped midway is sent again, at most
+#: OPEN_RETRIES times, each after OPEN_RETRY_PAUSE_S [s] (chosen): an opening finger that
+#: strikes the object spikes its fingertip load for a few samples (15 N and 0.24 N m for
+#: ~30 ms, an emulated drill grasp), each stop leaves the fingers further open, and the way out
+#: of the contact is to open (one opening was stopped twice, by fingers 1 and 2 in turn, on
+#: the tactile pucks). The bridge gates and guards every try like the first: an E-stop or a
+#: stale stream refuses it, and the last stop is the caller's.
+OPEN_RETRIES = 3
 OPEN_RETRY_PAUSE_S = 0.5
 
 
@@ -210,18 +213,20 @@ class RosRobot:
 
     def move_hand(self, spread: float, proximal) -> None:
         """Move the hand to its targets; an opening (no proximal target beyond where its finger
-        is) that the safety layer stopped midway is tried once more (OPEN_RETRY_PAUSE_S)."""
+        is) that the safety layer stopped midway is tried again (OPEN_RETRIES)."""
         opening = bool(np.all(np.broadcast_to(proximal, 3) <= self.hand_angles()[1] + 1e-3))
-        try:
-            self._hand(HandCommand.Request.MODE_POSITION, spread, proximal)
-        except HandStopped as exc:
-            if not opening:
-                raise
-            self.node.get_logger().warn(
-                f"the hand's opening was stopped ({exc}): opening again in {OPEN_RETRY_PAUSE_S} s"
-            )
-            time.sleep(OPEN_RETRY_PAUSE_S)
-            self._hand(HandCommand.Request.MODE_POSITION, spread, proximal)
+        for attempt in range(OPEN_RETRIES + 1):
+            try:
+                self._hand(HandCommand.Request.MODE_POSITION, spread, proximal)
+                return
+            except HandStopped as exc:
+                if not opening or attempt == OPEN_RETRIES:
+                    raise
+                self.node.get_logger().warn(
+                    f"the hand's opening was stopped ({exc}): opening again in "
+                    f"{OPEN_RETRY_PAUSE_S} s (try {attempt + 2} of {OPEN_RETRIES + 1})"
+                )
+                time.sleep(OPEN_RETRY_PAUSE_S)
 
     def close_hand(self, guarded: bool = False) -> np.ndarray:
         mode = HandCommand.Request.MODE_CLOSE_GUARDED if guarded else HandCommand.Request.MODE_CLOSE
