@@ -160,7 +160,7 @@ def test_the_bags_frames_put_the_fingertips_where_the_models_do(grasp_run):
                 poses[f"bh_f{i}_tip"][:3, 3], (palm @ hand[f"f{i}_tip"])[:3, 3], atol=1e-6
             )
         checked += 1
-    assert checked > 0.9 * len(states) > 100, (checked, len(states))
+    assert checked >= 0.9 * len(states) and len(states) >= 20, (checked, len(states))
 
 
 def stamp_key(stamp) -> int:
