@@ -79,7 +79,6 @@ class RobotFrames:
     def __init__(self, urdf: str):
         self.joints = urdf_joints(urdf)
         self._moving = [j for j in self.joints if j.axis is not None]
-        self.moving_joint_names = tuple(j.name for j in self._moving)
 
     def static(self) -> list[Transform]:
         """The fixed joints' transforms."""

@@ -79,6 +79,17 @@ def _inertia_frame(i: int) -> np.ndarray:
     return dh_local(i)
 
 
+#: Colours of the arm's and the hand's geoms (RGBA).
+ARM_RGBA = "0.78 0.78 0.8 1"
+HAND_RGBA = "0.25 0.25 0.28 1"
+
+
+def base_geom() -> dict:
+    """The WAM base's collision box in its body frame (chosen: the base housing under J1)."""
+    half_height = (WAM.base_height - 0.2) / 2
+    return dict(type="box", size=(0.12, 0.12, half_height), pos=(-0.04, 0, half_height))
+
+
 def _arm_geoms(i: int) -> list[dict]:
     """Collision shapes of WAM link i (0-based) in its body frame (chosen: the WAM's outer
     shells; the upper arm at WAM.link_radius, the planning core's table-clearance radius)."""
@@ -114,7 +125,7 @@ def _defaults(root: ET.Element) -> None:
         contype=ROBOT_CONTYPE,
         conaffinity=ROBOT_CONAFFINITY,
         group=1,
-        rgba="0.78 0.78 0.8 1",
+        rgba=ARM_RGBA,
         friction=f"{PHYSICS.hand_friction} 0.005 0.0001",
     )
     sub(wam, "position", ctrllimited="false")
@@ -128,7 +139,7 @@ def _defaults(root: ET.Element) -> None:
         group=1,
         condim=4,
         friction=f"{PHYSICS.hand_friction} 0.005 0.0001",
-        rgba="0.25 0.25 0.28 1",
+        rgba=HAND_RGBA,
     )
     sub(bh, "site", group=4, rgba="0.9 0.2 0.2 0.3")
     pad = sub(bh, "default", **{"class": "pad"})
@@ -149,14 +160,7 @@ def _defaults(root: ET.Element) -> None:
 def _arm(worldbody: ET.Element) -> ET.Element:
     """WAM base and links 1-7 under worldbody; returns link 7's body (the flange carrier)."""
     base = sub(worldbody, "body", name="wam/base", childclass="wam")
-    sub(
-        base,
-        "geom",
-        name="wam/base",
-        type="box",
-        size=(0.12, 0.12, (WAM.base_height - 0.2) / 2),
-        pos=(-0.04, 0, (WAM.base_height - 0.2) / 2),
-    )
+    sub(base, "geom", name="wam/base", **base_geom())
     parent, T = base, np.eye(4)
     T[2, 3] = WAM.base_height
     for i in range(7):

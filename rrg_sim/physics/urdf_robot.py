@@ -36,7 +36,7 @@ from ..config import HAND, PHYSICS, REALISTIC, WAM
 from ..hand import BodySpec, GeomSpec, hand_tree
 from ..wam import HAND_MOUNT
 from .mjcf import to_xml
-from .mjcf_robot import ARM_JOINTS, _arm_geoms, dh_local, robot_xml
+from .mjcf_robot import ARM_JOINTS, ARM_RGBA, HAND_RGBA, _arm_geoms, base_geom, dh_local, robot_xml
 
 ROOT_LINK = "world"
 BASE_LINK = "wam_base"
@@ -117,9 +117,10 @@ def _geometry(link: ET.Element, shapes: list[tuple[str, dict, np.ndarray]], rgba
                 ET.SubElement(material, "color", rgba=rgba)
 
 
-def _arm_shapes(i: int) -> list[tuple[str, dict, np.ndarray]]:
+def _arm_shapes(geoms: list[dict]) -> list[tuple[str, dict, np.ndarray]]:
+    """URDF shapes of the arm's MJCF geoms (mjcf_robot.base_geom, _arm_geoms)."""
     shapes = []
-    for g in _arm_geoms(i):
+    for g in geoms:
         if "fromto" in g:
             T, half = _fromto_transform(g["fromto"])
             shapes += _shapes(g["type"], (g["size"][0], half), T)
@@ -179,18 +180,16 @@ def _joint(
 
 def _arm(robot: ET.Element) -> str:
     """The WAM's links and joints under ``world``; returns link 7's name."""
-    grey = "0.78 0.78 0.8 1"
     base = ET.SubElement(robot, "link", name=BASE_LINK)
     _inertial(base, "wam/base")
-    _geometry(base, _shapes("box", (0.12, 0.12, (WAM.base_height - 0.2) / 2), _transform(
-        (-0.04, 0.0, (WAM.base_height - 0.2) / 2))), grey)  # fmt: skip
+    _geometry(base, _arm_shapes([base_geom()]), ARM_RGBA)
     _joint(robot, "world_to_wam_base", ROOT_LINK, BASE_LINK, np.eye(4))
     parent, T = BASE_LINK, _transform((0.0, 0.0, WAM.base_height))
     for i in range(7):
         name = ros_name(f"wam/link{i + 1}")
         link = ET.SubElement(robot, "link", name=name)
         _inertial(link, f"wam/link{i + 1}")
-        _geometry(link, _arm_shapes(i), grey)
+        _geometry(link, _arm_shapes(_arm_geoms(i)), ARM_RGBA)
         limits = (WAM.lower[i], WAM.upper[i], WAM_JOINT_EFFORT[i], PHYSICS.joint_speed[i])
         _joint(robot, ros_name(ARM_JOINTS[i]), parent, name, T, (0.0, 0.0, 1.0), limits)
         parent, T = name, dh_local(i)
@@ -210,13 +209,12 @@ def _hand_limits(b: BodySpec) -> tuple[float, float, float, float]:
 
 def _hand(robot: ET.Element, flange: str) -> None:
     """The BarrettHand's links and joints on the WAM's flange."""
-    dark = "0.25 0.25 0.28 1"
     for b in hand_tree():
         name = ros_name(f"bh/{b.name}")
         link = ET.SubElement(robot, "link", name=name)
         _inertial(link, f"bh/{b.name}")
         if b.geoms:
-            _geometry(link, _hand_shapes(b.geoms), dark)
+            _geometry(link, _hand_shapes(b.geoms), HAND_RGBA)
         parent = flange if b.parent is None else ros_name(f"bh/{b.parent}")
         T = HAND_MOUNT if b.parent is None else _transform(b.pos, b.quat)
         if b.joint is None:
