@@ -126,6 +126,13 @@ class CachedTables:
             )
         return self._tables[key]
 
+    def loaded(self) -> dict[str, list[str]]:
+        """The WRTs whose tables are in memory, by level name."""
+        out: dict[str, list[str]] = {}
+        for wrt_name, level in list(self._tables):
+            out.setdefault(level, []).append(wrt_name)
+        return out
+
 
 class BeliefTracker:
     """The belief over one object's pose, and the sequence that changes it.

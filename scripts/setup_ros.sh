@@ -4,6 +4,8 @@
 #   - Debian packages the interface builds need (cmake, g++, nodejs/npm), only when missing;
 #   - the ros-jazzy-* wheels, their undeclared build dependencies, and the bag libraries,
 #     re-installed only when the package list below changes;
+#   - colcon (colcon-common-extensions), for building RRG as a lab's workspace would
+#     (docs/colcon.md, tests/test_colcon.py), re-installed only when its list changes;
 #   - the manylinux interpreter paths in <venv>/share/**/*.cmake rewritten to this venv's;
 #   - the interface packages (control_msgs, Barrett's wam_msgs, wam_srvs and bhand_srvs for the
 #     hardware bridge, tf2_msgs for the robot's frames, then rrg_msgs)
@@ -65,6 +67,22 @@ if [ ! -f "$PIP_STAMP" ] || [ "$(cat "$PIP_STAMP")" != "$PIP_SUM" ]; then
   log "wheels installed in $(elapsed "$t0")"
 fi
 
+# ------------------------------------------------------------------ colcon
+# A build tool only: kept apart from ROS_PACKAGES, whose list is part of every interface build's
+# stamp below, so that adding or moving a tool rebuilds no interface package. Nothing in this
+# script uses colcon: the interface packages are built with cmake directly.
+TOOL_PACKAGES=(colcon-common-extensions)
+TOOL_STAMP="$VENV/.rrg-tools-stamp"
+TOOL_SUM="$( (printf '%s\n' "${TOOL_PACKAGES[@]}"; grep '^colcon-' "$ROOT/scripts/constraints.txt") \
+  | sha256sum | cut -d' ' -f1)"
+if [ ! -f "$TOOL_STAMP" ] || [ "$(cat "$TOOL_STAMP")" != "$TOOL_SUM" ]; then
+  t0=$(date +%s)
+  log "installing colcon"
+  "$VPY" -m pip install -q -c "$ROOT/scripts/constraints.txt" "${TOOL_PACKAGES[@]}"
+  echo "$TOOL_SUM" > "$TOOL_STAMP"
+  log "colcon installed in $(elapsed "$t0")"
+fi
+
 # ------------------------------------------- manylinux paths in the exported CMake files
 # Idempotent and cheap (a text scan), so it runs every time: a ros-* wheel installed by hand
 # since the last run gets fixed too.
@@ -100,7 +118,9 @@ build_interfaces() {
   local pkg build sum index
   pkg="$(basename "$src")"
   build="$ROOT/build/$pkg"
-  sum="$( (cd "$ROOT" && find "$src" -type f -print0 | sort -z | xargs -0 sha256sum; \
+  # (COLCON_IGNORE, the marker that keeps colcon off the vendored subsets, is no source)
+  sum="$( (cd "$ROOT" && find "$src" -type f ! -name COLCON_IGNORE -print0 | sort -z \
+           | xargs -0 sha256sum; \
            echo "$PIP_SUM"; "$VPY" -VV) | sha256sum | cut -d' ' -f1)"
   index="$VENV/share/ament_index/resource_index/packages/$pkg"
   if [ -f "$index" ] && [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$sum" ]; then return 0; fi

@@ -21,7 +21,11 @@ ALLOWED = {
 }
 #: Sub-packages and modules that may use rclpy (nodes, their clients and the shared plumbing).
 ROS_PARTS = ("ros", "ros_common", "bringup", "bags")
-ROS_MODULES = ("rrg_sim.executor.executor_node", "rrg_sim.executor.robot_client")
+ROS_MODULES = (
+    "rrg_sim.executor.executor_node",
+    "rrg_sim.executor.robot_client",
+    "rrg_planner.client",
+)
 #: Bag tools that read and write MCAP without rclpy are ROS-free too, but may sit under bags/.
 ROS_LIBRARIES = (
     "rclpy",
@@ -45,6 +49,8 @@ def _modules() -> dict[str, Path]:
     mods = {}
     for pkg in PACKAGES:
         for path in sorted((ROOT / pkg).rglob("*.py")):
+            if path == ROOT / pkg / "setup.py":  # colcon's build script (docs/colcon.md)
+                continue
             name = ".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
             mods[name] = path
     return mods

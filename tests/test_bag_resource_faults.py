@@ -296,7 +296,7 @@ def test_a_recorder_whose_file_reaches_its_limit_stops_recording_and_keeps_runni
     params = {
         "discovery_period": 0.1,
         "flush_period": 0.2,
-        "exclude_topics": "['/rosout','/parameter_events']",
+        "exclude_topics": "['/rosout','/parameter_events','/diagnostics']",
     }
     proc = start_node(
         "rrg_planner.bags.recorder_node", ros_env, log_path, params, ["--output", str(bag)]

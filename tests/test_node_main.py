@@ -139,3 +139,35 @@ def test_a_callback_the_shutdown_cuts_short_is_collected_not_left_unretrieved(ro
     del executor, node
     gc.collect()
     assert "never retrieved: Failed to publish" not in capfd.readouterr().err
+
+
+@pytest.mark.parametrize("destroy_actions", [True, False])
+def test_a_destroyed_node_serves_its_action_no_longer(ros_domain, destroy_actions):
+    """rclpy's destroy_node leaves a node's action servers alive (they hold its handle): a
+    node destroyed in a process that goes on kept serving, and a client in its domain found the
+    server ready and then waited for an acceptance that never came. destroy_action_endpoints
+    takes them down with the node."""
+    from rclpy.action import ActionClient, ActionServer
+
+    from rrg_msgs.action import RobustGrasp
+    from rrg_sim.ros_common.node_main import destroy_action_endpoints
+
+    contexts = [rclpy.Context(), rclpy.Context()]
+    for c in contexts:
+        rclpy.init(context=c, domain_id=ros_domain)
+    try:
+        server = rclpy.create_node("action_owner", context=contexts[0])
+        ActionServer(server, RobustGrasp, "/leak_test/grasp", execute_callback=lambda g: None)
+        client_node = rclpy.create_node("action_user", context=contexts[1])
+        client = ActionClient(client_node, RobustGrasp, "/leak_test/grasp")
+        assert client.wait_for_server(timeout_sec=10.0)
+        if destroy_actions:
+            destroy_action_endpoints(server)
+        server.destroy_node()
+        deadline = time.monotonic() + 5.0
+        while client.server_is_ready() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert client.server_is_ready() is not destroy_actions
+    finally:
+        for c in contexts:
+            rclpy.try_shutdown(context=c)

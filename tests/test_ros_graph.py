@@ -13,15 +13,13 @@ import sys
 import numpy as np
 import pytest
 import yaml
+from bag_frames import check_frames
 from ros_testing import ROOT, ArmWatch, RosClient, ros_env
 from rosbags.highlevel import AnyReader
-from scipy.spatial.transform import Rotation
 
 from rrg_planner.bags.bag_cli import bag_info
 from rrg_planner.bags.bag_cli import main as bag_cli
 from rrg_sim import wam
-from rrg_sim.hand import FINGERS, body_poses_at
-from rrg_sim.robot_frames import compose
 from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES
 
 NODE_MODULES = ROOT / ".cache" / "npm" / "node_modules"
@@ -44,6 +42,15 @@ GRAPH_TOPICS = {
     "/tf",
     "/tf_static",
     "/robot_description",
+    "/diagnostics",
+}
+#: The status each node of the graph reports on /diagnostics once a second.
+NODE_STATUSES = {
+    "sim: status",
+    "executor: status",
+    "estimator: status",
+    "planner: status",
+    "rrg_bag_recorder: status",
 }
 
 
@@ -121,59 +128,54 @@ def test_bag_records_every_topic_and_rosbags_decodes_every_message(grasp_run):
 
 
 @pytest.mark.slow  # the launcher's node processes
-def test_the_bags_frames_put_the_fingertips_where_the_models_do(grasp_run):
-    """The bag's /tf_static and the /tf of each recorded joint state (the same stamp), composed
-    from ``world`` by the test's own small tf buffer, put the palm where rrg_sim.wam.fk puts the
-    hand and each fingertip where rrg_sim.hand puts it at those joint angles (within 1e-6 m);
-    the object's estimated and true frames are in /tf too."""
-    _, bag, _ = grasp_run
-    static, by_stamp, states = [], {}, []
+def test_the_bag_holds_every_nodes_health_from_diagnostics(grasp_run):
+    """/diagnostics holds the status of every node of the graph, decoded by rosbags: each OK
+    at some point (the planner once the executor and the estimator were up), and what each
+    knows of the grasp: the planner's steps, the estimator's tables and update latency, the
+    executor's executions, the recorder's bag."""
+    outcome, bag, _ = grasp_run
+    statuses: dict[str, list] = {}
     with AnyReader([bag]) as reader:
-        conns = [c for c in reader.connections if c.topic in ("/tf", "/tf_static", JOINTS)]
+        conns = [c for c in reader.connections if c.topic == "/diagnostics"]
         for conn, _, raw in reader.messages(connections=conns):
-            msg = reader.deserialize(raw, conn.msgtype)
-            if conn.topic == JOINTS:
-                states.append(msg)
-                continue
-            for t in msg.transforms:
-                entry = (t.header.frame_id, t.child_frame_id, transform_matrix(t.transform))
-                if conn.topic == "/tf_static":
-                    static.append(entry)
-                else:
-                    by_stamp.setdefault(stamp_key(t.header.stamp), {})[t.child_frame_id] = entry
-    children = {child for frames in by_stamp.values() for child in frames}
-    assert {"object_estimate", "object_true"} <= children
-    checked = 0
-    for msg in states:
-        frames = by_stamp.get(stamp_key(msg.header.stamp), {})
-        if "wam_link1" not in frames:
-            continue
-        poses = compose([*static, *frames.values()], "world")
-        angles = dict(zip(msg.name, msg.position))
-        palm = wam.fk([angles[n] for n in ARM_JOINT_NAMES])
-        hand = body_poses_at(
-            {n.removeprefix("bh_"): angles[n] for n in msg.name if n.startswith("bh_")}
-        )
-        np.testing.assert_allclose(poses["bh_palm"], palm, atol=1e-6)
-        for i in FINGERS:
-            np.testing.assert_allclose(
-                poses[f"bh_f{i}_tip"][:3, 3], (palm @ hand[f"f{i}_tip"])[:3, 3], atol=1e-6
-            )
-        checked += 1
-    assert checked >= 0.9 * len(states) and len(states) >= 20, (checked, len(states))
+            assert conn.msgtype == "diagnostic_msgs/msg/DiagnosticArray"
+            for st in reader.deserialize(raw, conn.msgtype).status:
+                statuses.setdefault(st.name, []).append(st)
+    assert NODE_STATUSES <= set(statuses), set(statuses)
+    values = lambda name: [{v.key: v.value for v in st.values} for st in statuses[name]]
+    for name in NODE_STATUSES:
+        assert any(st.level == 0 for st in statuses[name]), statuses[name][-1]  # OK
+    ok = [
+        v for st, v in zip(statuses["planner: status"], values("planner: status")) if not st.level
+    ]
+    assert ok and ok[-1]["peer executor"] == ok[-1]["peer estimator"] == "up"
+    # each node also reports at once after its events (force_update), so even a one-action
+    # grasp's bag has the status after each
+    actions = outcome["actions"]
+    steps = [v["last step"].split(" (")[0] for v in values("planner: status")]
+    assert f"box step {len(actions)}: {actions[-1]}" in steps, steps
+    assert "tables box/low" in values("planner: status")[-1]
+    estimator = values("estimator: status")
+    assert max(int(v["updates"]) for v in estimator) == len(actions)
+    assert estimator[-1]["belief"] == "box" and "tables box/low" in estimator[-1]
+    assert float(estimator[-1]["last update latency [ms]"]) > 0.0
+    executor = values("executor: status")
+    assert max(int(v["executions"]) for v in executor) == len(actions)
+    assert executor[-1]["last execution result"] == "ok"
+    assert float(executor[-1]["last execution duration [s]"]) > 0.0
+    recorder = values("rrg_bag_recorder: status")[-1]
+    assert recorder["bag"].endswith("e2e_0.mcap") and int(recorder["messages written"]) > 0
+    assert recorder["messages dropped"] == "0"
+    assert any(float(v["simulated time since reset [s]"]) > 0.0 for v in values("sim: status"))
 
 
-def stamp_key(stamp) -> int:
-    return stamp.sec * 1_000_000_000 + stamp.nanosec
-
-
-def transform_matrix(t) -> np.ndarray:
-    """A geometry_msgs/Transform as a (4,4) matrix."""
-    T = np.eye(4)
-    q = t.rotation
-    T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    T[:3, 3] = t.translation.x, t.translation.y, t.translation.z
-    return T
+@pytest.mark.slow  # the launcher's node processes
+def test_the_bags_frames_put_the_fingertips_where_the_models_do(grasp_run):
+    """bag_frames.check_frames: the bag's tf frames put the palm and the fingertips where the
+    models do at the recorded joint states (within 1e-6 m)."""
+    _, bag, _ = grasp_run
+    checked, states = check_frames(bag)
+    assert checked >= 0.9 * states and states >= 20, (checked, states)
 
 
 @pytest.mark.slow  # the launcher's node processes

@@ -9,6 +9,8 @@ transition, tracker.BeliefTracker.retreated); publishes ``/rrg/belief``
 (rrg_msgs/BeliefGrid, TRANSIENT_LOCAL depth 1: late joiners get the current belief) and
 ``/rrg/belief_markers`` (visualization_msgs/MarkerArray, the heaviest grid points).
 Services: ``/rrg/reset_belief`` (rrg_msgs/ResetBelief), ``/rrg/get_belief`` (rrg_msgs/GetBelief).
+Its health (tables in memory, the last update's latency) goes on ``/diagnostics`` once a second
+(``estimator: status``).
 
 A published belief is stamped with the stamp of the event it incorporates, an observation or a
 retreat (header and metadata.update_time), so a client can wait for the update of the event it
@@ -28,6 +30,7 @@ arrived while it was down is not lost and none is applied twice.
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +51,7 @@ from rrg_sim.config import WORLD_PROFILES, world_profile
 from rrg_sim.objects import get_object
 from rrg_sim.poses import planar_pose
 from rrg_sim.posture_calibration import PostureCalibration
+from rrg_sim.ros_common.diagnostics import WARN, Health, NodeDiagnostics, milliseconds
 from rrg_sim.ros_common.frames import OBJECT_ESTIMATE_FRAME, TfPublisher
 from rrg_sim.ros_common.liveliness import announce
 from rrg_sim.ros_common.msg_conversions import (
@@ -128,6 +132,11 @@ class EstimatorNode(Node):
         self._last_event_ns = 0  # stamp [ns] of the last event the belief includes
         self._started_ns = self.get_clock().now().nanoseconds
         self._belief_msg: BeliefGrid | None = None
+        #: for /diagnostics: the last update's WRT and latency [s], the updates and retreats
+        #: applied, and why the last event was not used ("" when it was)
+        self._last_update: tuple[str, float] | None = None
+        self._applied = {"updates": 0, "retreats": 0}
+        self._refused = ""
         self.belief_pub = self.create_publisher(BeliefGrid, "belief", STREAM)
         self.marker_pub = self.create_publisher(MarkerArray, "belief_markers", LATCHED)
         self.tf = TfPublisher(self)  # world → object_estimate, the belief's most likely pose
@@ -137,8 +146,37 @@ class EstimatorNode(Node):
         self.create_service(ResetBelief, "reset_belief", self.on_reset_belief)
         self.create_service(GetBelief, "get_belief", self.on_get_belief)
         announce(self, NODE_NAME)
+        self.diagnostics = NodeDiagnostics(self, self.health)
         if self.tracker is None:
             self.get_logger().info("estimator ready: call reset_belief to start a belief")
+
+    def health(self) -> Health:
+        """For /diagnostics: the belief's object, the observation tables in memory (WRTs per
+        level), the last update's latency, the events applied, and WARN while the last event
+        could not be used."""
+        tracker = self.tracker
+        if tracker is None:
+            health = Health(message="ready: no belief yet (call reset_belief)")
+            health.values["belief"] = "none"
+        else:
+            health = Health(message=f"ready: belief about {tracker.obj.name}")
+            health.values["belief"] = tracker.obj.name
+            health.values["grid spacing"] = str(np.round(tracker.belief.grid.spacing, 4).tolist())
+            for level, wrts in sorted(tracker.tables.loaded().items()):
+                health.values[f"tables {tracker.obj.name}/{level}"] = f"{len(wrts)} WRTs"
+        wrt, latency = self._last_update or ("none", None)
+        health.values["last update"] = wrt
+        health.values["last update latency [ms]"] = milliseconds(latency)
+        health.values.update({k: str(n) for k, n in self._applied.items()})
+        health.values["state file"] = str(self.state_file or "none")
+        if self._refused:
+            health.escalate(WARN, self._refused)
+        return health
+
+    def refuse(self, text: str) -> None:
+        """An event the belief does not take: log it as an error and report it."""
+        self._refused = text
+        self.get_logger().error(text)
 
     # ------------------------------------------------------------------ persistence
     def restore(self) -> None:
@@ -201,12 +239,15 @@ class EstimatorNode(Node):
 
     # ------------------------------------------------------------------ publishing
     def commit(self, stamp: Time, new_grid: bool) -> BeliefGrid:
-        """The belief now includes the event of ``stamp``: persist the state, then publish."""
+        """The belief now includes the event of ``stamp``: persist the state, then publish it
+        (and the node's status)."""
         if new_grid:
             self._map_load_time = stamp
         self._last_event_ns = stamp_to_ns(stamp)
         self.persist()
-        return self.publish_belief(stamp)
+        msg = self.publish_belief(stamp)
+        self.diagnostics.force_update()
+        return msg
 
     def publish_belief(self, stamp: Time) -> BeliefGrid:
         """Publish the tracker's belief stamped ``stamp``, and its markers."""
@@ -231,7 +272,7 @@ class EstimatorNode(Node):
     def on_observation(self, msg: ObservationMsg) -> None:
         log = self.get_logger()
         if self.tracker is None:
-            log.error(
+            self.refuse(
                 f"observation of {msg.object_name}/{msg.wrt_name} ignored: no belief yet "
                 "(call reset_belief)"
             )
@@ -239,24 +280,28 @@ class EstimatorNode(Node):
         if self.already_applied(msg.header.stamp, f"observation of {msg.wrt_name}"):
             return
         if msg.object_name != self.tracker.obj.name:
-            log.error(
+            self.refuse(
                 f"observation of object {msg.object_name!r} ignored: the belief is about "
                 f"{self.tracker.obj.name!r}; belief kept"
             )
             return
         old_grid = self.tracker.belief.grid
+        t0 = time.monotonic()
         try:
             belief = self.tracker.update(
                 msg.wrt_name, planar_from_msg(msg.estimate), observation_from_msg(msg)
             )
         except KeyError as exc:
-            log.error(f"observation ignored, unknown WRT: {exc.args[0]}; belief kept")
+            self.refuse(f"observation ignored, unknown WRT: {exc.args[0]}; belief kept")
             return
         except Exception as exc:
-            log.error(
+            self.refuse(
                 f"observation of {msg.wrt_name} ignored: {type(exc).__name__}: {exc}; belief kept"
             )
             return
+        self._last_update = (msg.wrt_name, time.monotonic() - t0)
+        self._applied["updates"] += 1
+        self._refused = ""
         self.commit(msg.header.stamp, belief.grid != old_grid)
         log.info(
             f"updated with {msg.wrt_name} (contact={msg.contact}): w* = "
@@ -275,10 +320,11 @@ class EstimatorNode(Node):
         try:
             belief = self.tracker.retreated()
         except Exception as exc:
-            self.get_logger().error(
-                f"retreat from {msg.wrt_name} not applied: {type(exc).__name__}: {exc}"
-            )
+            self.refuse(f"retreat from {msg.wrt_name} not applied: {type(exc).__name__}: {exc}")
             belief = self.tracker.belief
+        else:
+            self._applied["retreats"] += 1
+            self._refused = ""
         self.commit(msg.header.stamp, belief.grid != old_grid)
         self.get_logger().info(
             f"retreated from {msg.wrt_name or 'nothing'}: w* = "
@@ -328,6 +374,7 @@ class EstimatorNode(Node):
             else:
                 tracker.preload()
                 self.tracker = tracker
+                self._refused = ""
                 if not same_object:
                     release_free_memory()  # the last object's tables
                 resp.belief = self.commit(self.get_clock().now().to_msg(), new_grid=True)

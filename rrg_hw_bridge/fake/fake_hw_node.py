@@ -33,6 +33,9 @@ JointTrajectoryController and under Barrett's wam_node, Barrett's BarrettHand se
 * ``/fake_hw/events`` (diagnostic_msgs/DiagnosticStatus): goal_accepted, cancel_received,
   goal_finished, first_crossing and wam_node's rt_stream_started, rt_command_ignored,
   rt_timeout, hold_received, release_received, each with its time.monotonic() instant.
+* ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) once a second, as drivers publish theirs:
+  the status ``fake_hw: status``, marked emulated, with the stepping thread's real-time
+  statistics (WARN when it dropped periods since the last report).
 * simulation only: ``/rrg/reset_sim``, ``/rrg/eval/judge_grasp``, ``/rrg/eval/object_pose``,
   ``/rrg/eval/grasp_outcome`` (rrg_sim.ros.eval_services, as the simulator node).
 
@@ -75,7 +78,8 @@ from rrg_msgs.msg import ContactPads
 from rrg_sim.config import HAND, PHYSICS, SENSING
 from rrg_sim.ros.eval_services import EvalNames, EvalServices
 from rrg_sim.ros_common.arm_hand_interface import START_TOLERANCE
-from rrg_sim.ros_common.node_main import keep_serving, run_node
+from rrg_sim.ros_common.diagnostics import WARN, Health, NodeDiagnostics
+from rrg_sim.ros_common.node_main import destroy_action_endpoints, keep_serving, run_node
 from rrg_sim.ros_common.qos import RESULT_TIMEOUT_S
 
 from ..fake_netft import FakeNetFtBox
@@ -287,6 +291,8 @@ class FakeHwNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.create_timer(CROSSING_POLL_PERIOD, self._poll_crossings, callback_group=group)
         self.robot.start()
+        self._overruns = 0  # dropped periods at the last report
+        self.diagnostics = NodeDiagnostics(self, self.health)
         self._stop = threading.Event()
         self._publisher = threading.Thread(
             target=self._publish_loop, name="fake_hw_pub", daemon=True
@@ -496,6 +502,29 @@ class FakeHwNode(Node):
                 self._publish_event(
                     Event("first_crossing", t, {"box": i, "host": box.host, "threshold": threshold})
                 )
+
+    def health(self) -> Health:
+        """For /diagnostics: what is emulated, and the stepping thread's real-time statistics;
+        WARN when it dropped periods since the last report (it fell behind real time)."""
+        t = self.robot.timing
+        dropped, self._overruns = t.overruns - self._overruns, t.overruns
+        health = Health(
+            message="emulated drivers running",
+            values={
+                "emulated": "yes: MuJoCo behind the driver interfaces, no hardware",
+                "object": self.robot.world.obj.name,
+                "arm interface": self.arm_interface,
+                "steps": str(t.steps),
+                "dropped periods": str(t.overruns),
+                "late steps": str(t.late_steps),
+                "max lateness [ms]": f"{t.max_lateness_s * 1e3:.2f}",
+            },
+        )
+        if dropped:
+            health.escalate(
+                WARN, f"behind real time: {dropped} periods dropped since the last report"
+            )
+        return health
 
     # ------------------------------------------------------------------ events and state
     def _on_event(self, event: Event) -> None:
@@ -789,6 +818,7 @@ class FakeHwNode(Node):
             )
         if hasattr(self, "boxes"):
             self._close_boxes()
+        destroy_action_endpoints(self)
         super().destroy_node()
 
 

@@ -71,7 +71,7 @@ from rrg_sim.ros_common.msg_conversions import (
     tip_contacts_to_msg,
     vector_to_msg,
 )
-from rrg_sim.ros_common.node_main import keep_serving, run_node
+from rrg_sim.ros_common.node_main import destroy_action_endpoints, keep_serving, run_node
 
 from ..arm_limits import DEFAULT_ARM_LIMITS, load_arm_limits
 from ..config import BRIDGE
@@ -1555,6 +1555,7 @@ class BridgeNode(Node):
         self.sensors.stop()
         self._io_executor.shutdown(timeout_sec=1.0)
         self.io.destroy_node()
+        destroy_action_endpoints(self)
         super().destroy_node()
 
 

@@ -17,7 +17,8 @@ launcher restarting a recorder that died) it writes the next split of an existin
 (design §8). When a write fails (the disk is full) it logs one error, stops recording (the bag
 written so far is closed and stays readable; later messages are dropped and counted) and keeps
 running, so the launcher does not restart it. A bag it cannot create ends it with one line and
-exit status 1.
+exit status 1. Its health (the bag, messages written and dropped) goes on ``/diagnostics`` once
+a second (``rrg_bag_recorder: status``), which it records too.
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ from rclpy.utilities import remove_ros_args
 
 from rrg_planner.bags.bag_schema import UnknownMessageType, message_class
 from rrg_planner.bags.bag_writer import RecordingStopped, Rosbag2McapWriter
+from rrg_sim.ros_common.diagnostics import ERROR, Health, NodeDiagnostics
 
 NODE_NAME = "rrg_bag_recorder"
 #: Longest time [s] spent writing the already received messages after a stop signal (below the
@@ -135,12 +137,28 @@ class BagRecorder(Node):
             self.get_parameter("discovery_period").value, self.discover
         )
         self._flush = self.create_timer(self.get_parameter("flush_period").value, self.flush)
+        self.diagnostics = NodeDiagnostics(self, self.health)
         self.discover()
         self.get_logger().info(
             f"recording all topics to {writer.mcap_path}"
             + (f" except {', '.join(sorted(self._excluded))}" if self._excluded else "")
             + (f" (after the bag's {len(writer.earlier)} earlier files)" if writer.earlier else "")
         )
+
+    def health(self) -> Health:
+        """For /diagnostics: the bag file, the topics recorded and skipped, the messages
+        written to this file and those dropped; ERROR once recording stopped (a failed
+        write)."""
+        writer = self.writer
+        health = Health(message="recording")
+        health.values["bag"] = str(writer.mcap_path)
+        health.values["topics recorded"] = str(len(self._recorded))
+        health.values["topics skipped (type unknown)"] = ", ".join(sorted(self._skipped)) or "none"
+        health.values["messages written"] = str(writer.stats.message_count)
+        health.values["messages dropped"] = str(writer.dropped)
+        if writer.failure is not None:
+            health.escalate(ERROR, f"recording stopped: {writer.failure}")
+        return health
 
     def discover(self) -> None:
         """Subscribe to every topic that has a publisher and is not recorded yet."""

@@ -75,15 +75,10 @@ INTERFACE = {"sim": ("sim",), "hw": ("hw_bridge",), "fake_hw": ("fake_hw", "hw_b
 DRIVER_TOPICS = ("/joint_states",)
 #: Simulation-only services (the simulator's, or the emulated drivers').
 EVAL_SERVICES = ("/rrg/reset_sim", "/rrg/eval/judge_grasp")
-#: What must answer before the graph counts as ready (with EVAL_SERVICES when simulated).
-SERVICES = (
-    "/rrg/hand_command",
-    "/rrg/retreat",
-    "/rrg/reset_belief",
-    "/rrg/get_belief",
-    "/rrg/select_action",
-)
-ACTIONS = ("/rrg/guarded_move", "/rrg/execute_wrt", "/rrg/robust_grasp")
+#: What must answer before the graph counts as ready (with EVAL_SERVICES when simulated), besides
+#: the planner's and the estimator's services and action that ``RRGClient`` waits for.
+SERVICES = ("/rrg/hand_command", "/rrg/retreat")
+ACTIONS = ("/rrg/guarded_move", "/rrg/execute_wrt")
 
 
 class LaunchError(RuntimeError):
@@ -211,8 +206,9 @@ class Graph:
         self._context = None
         self.clients: dict = {}  # service name → client (wait_ready creates them)
         self.actions: dict = {}  # action name → ActionClient
+        self.rrg = None  # the planner's client, an rrg_planner.client.RRGClient (connect makes it)
         self.outcomes_seen = 0  # grasp outcome messages the launcher has received
-        self.goal_handle = None  # the running robust grasp, if any
+        self.grasp_task = None  # the running robust grasp (an rrg_planner.client.GraspTask)
         self.interrupted = False  # set by Ctrl-C or SIGTERM, acted on in spin_until
         self.stopping = False  # the graph is being stopped: no more restarts
         self.node_events = None  # the publisher of NODE_EVENTS_TOPIC (connect creates it)
@@ -465,6 +461,7 @@ class Graph:
         from rclpy.signals import SignalHandlerOptions
 
         from rrg_msgs.msg import NodeEvent
+        from rrg_planner.client import RRGClient
         from rrg_sim.ros_common.liveliness import PeerWatch
 
         os.environ.update(
@@ -490,6 +487,7 @@ class Graph:
         self.planner = PeerWatch(self.node, "planner")
         self.executor = SingleThreadedExecutor(context=self._context)
         self.executor.add_node(self.node)
+        self.rrg = RRGClient(self.node, spin_once=self.spin_once)
 
     def disconnect(self) -> None:
         import rclpy
@@ -506,18 +504,22 @@ class Graph:
             rclpy.try_shutdown(context=self._context)
             self.node = None
 
+    def spin_once(self, timeout_s: float = 0.05) -> None:
+        """Restart children that died, then spin the launcher's node once; KeyboardInterrupt
+        (once) after Ctrl-C or SIGTERM, LaunchError when a child has used up its restarts."""
+        if self.interrupted:
+            self.interrupted = False  # once: the shutdown that follows may spin again
+            raise KeyboardInterrupt
+        self.supervise()
+        self.executor.spin_once(timeout_sec=timeout_s)
+
     def spin_until(self, condition: Callable[[], bool], timeout_s: float, what: str) -> None:
-        """Spin the launcher's node until ``condition()``, restarting children that die;
-        LaunchTimeout on timeout, LaunchError when a child has used up its restarts."""
+        """``spin_once`` until ``condition()``; LaunchTimeout after ``timeout_s``."""
         deadline = time.monotonic() + timeout_s
         while not condition():
-            if self.interrupted:
-                self.interrupted = False  # once: the shutdown that follows may spin again
-                raise KeyboardInterrupt
-            self.supervise()
             if time.monotonic() > deadline:
                 raise LaunchTimeout(f"timed out after {timeout_s:.0f} s waiting for {what}")
-            self.executor.spin_once(timeout_sec=0.05)
+            self.spin_once()
 
     def result(self, future, timeout_s: float, what: str):
         self.spin_until(future.done, timeout_s, what)
@@ -548,28 +550,17 @@ class Graph:
         from rclpy.action import ActionClient
         from std_srvs.srv import Trigger
 
-        from rrg_msgs.action import ExecuteWrt, GuardedMove, RobustGrasp
+        from rrg_msgs.action import ExecuteWrt, GuardedMove
         from rrg_msgs.msg import GraspOutcome
-        from rrg_msgs.srv import (
-            GetBelief,
-            HandCommand,
-            ResetBelief,
-            ResetSim,
-            Retreat,
-            SelectAction,
-        )
+        from rrg_msgs.srv import HandCommand, ResetSim, Retreat
 
         types = {
             "/rrg/reset_sim": ResetSim,
             "/rrg/hand_command": HandCommand,
             "/rrg/eval/judge_grasp": Trigger,
             "/rrg/retreat": Retreat,
-            "/rrg/reset_belief": ResetBelief,
-            "/rrg/get_belief": GetBelief,
-            "/rrg/select_action": SelectAction,
             "/rrg/guarded_move": GuardedMove,
             "/rrg/execute_wrt": ExecuteWrt,
-            "/rrg/robust_grasp": RobustGrasp,
         }
         services = [*SERVICES, *(EVAL_SERVICES if self.simulated else ())]
         self.clients = {name: self.node.create_client(types[name], name) for name in services}
@@ -578,9 +569,12 @@ class Graph:
         deadline = time.monotonic() + timeout_s
         for name, client in [*self.clients.items(), *self.actions.items()]:
             ready = client.service_is_ready if name in self.clients else client.server_is_ready
-            self.spin_until(
-                ready, deadline - time.monotonic(), f"{name} (planning models load first)"
-            )
+            self.spin_until(ready, deadline - time.monotonic(), name)
+        self.spin_until(
+            self.rrg.is_ready,
+            deadline - time.monotonic(),
+            "the planner's and the estimator's services (planning models load first)",
+        )
         # The planner's liveliness too: a grasp that starts before it is seen would take the
         # planner for lost at once, and resend the goal.
         self.spin_until(
@@ -628,6 +622,7 @@ class Graph:
 
         from rrg_msgs.action import RobustGrasp
         from rrg_msgs.srv import ResetSim
+        from rrg_planner.client import GraspFeedback, RRGError
         from rrg_sim.ros_common.msg_conversions import planar_to_msg
 
         if self.simulated:
@@ -642,49 +637,44 @@ class Graph:
             )
             if reset.error_code != ResetSim.Response.NONE:
                 raise LaunchError(f"reset_sim failed: {reset.error_msg}")
-        goal = RobustGrasp.Goal(
-            object_name=outcome.object_name,
-            level=outcome.level,
-            strategy=outcome.strategy,
-            horizon=horizon,
-            delta=delta,
-            max_actions=max_actions,
-        )
 
-        def feedback(msg) -> None:
-            fb = msg.feedback
+        def feedback(fb: GraspFeedback) -> None:
             if fb.step == 1 and on_first_action is not None:
                 on_first_action()
-            if not verbose:
-                return
-            print(
-                f"[rrg-launch] step {fb.step}: {fb.wrt_name} "
-                f"(P(goal) = {fb.p_goal:.3f}, value = {fb.value:.3f})",
-                flush=True,
-            )
+            if verbose:
+                print(
+                    f"[rrg-launch] step {fb.step}: {fb.wrt_name} "
+                    f"(P(goal) = {fb.p_goal:.3f}, value = {fb.value:.3f})",
+                    flush=True,
+                )
 
-        client = self.actions["/rrg/robust_grasp"]
         resumes = 0  # goals sent again to a restarted planner
-        future = None
-        while future is None or not future.done():
-            if future is None:
+        task = None
+        while task is None or not task.done():
+            if task is None:
                 planner_proc = self.process("planner")
                 losses = self.planner.losses
-                goal.resume = resumes > 0
-                self.goal_handle = self.result(
-                    client.send_goal_async(goal, feedback_callback=feedback),
-                    30.0,
-                    "robust_grasp",
-                )
-                if not self.goal_handle.accepted:
-                    raise LaunchError("the planner rejected the robust_grasp goal")
-                future = self.goal_handle.get_result_async()
+                try:
+                    task = self.rrg.start_robust_grasp(
+                        outcome.object_name,
+                        level=outcome.level,
+                        strategy=outcome.strategy,
+                        horizon=horizon,
+                        delta=delta,
+                        max_actions=max_actions,
+                        on_feedback=feedback,
+                        resume=resumes > 0,
+                        timeout_s=30.0,
+                    )
+                except RRGError as exc:
+                    raise LaunchError(str(exc)) from exc
+                self.grasp_task = task
             self.spin_until(
-                lambda f=future, n=losses: f.done() or self.planner.lost_since(n),
+                lambda t=task, n=losses: t.done() or self.planner.lost_since(n),
                 timeout_s,
                 "the robust grasp",
             )
-            if future.done():
+            if task.done():
                 break
             print(
                 "[rrg-launch] the planner went away in the middle of the grasp: resuming it "
@@ -692,7 +682,7 @@ class Graph:
                 flush=True,
             )
             self.spin_until(
-                lambda: self.planner.alive and client.server_is_ready(),
+                lambda: self.planner.alive and self.rrg.is_ready(),
                 RESUME_WAIT_S,
                 "the restarted planner",
             )
@@ -709,12 +699,11 @@ class Graph:
             resumes += 1
             if resumes > self.respawn_max:
                 raise LaunchError("the planner kept going away: the grasp was not completed")
-            future = None
-        answer = future.result()
-        self.goal_handle = None
-        res = answer.result
+            task = None
+        res = task.result(0.0)
+        self.grasp_task = None
         outcome.actions, outcome.p_goal, outcome.planner_success = (
-            list(res.actions_taken),
+            res.actions,
             res.final_p_goal,
             res.success,
         )
@@ -747,12 +736,14 @@ class Graph:
     def cancel_grasp(self) -> None:
         """Cancel a running robust grasp (best effort, before the nodes are stopped)."""
         self.stopping = True
-        handle = self.goal_handle
-        if handle is not None and self.node is not None:
-            try:
-                self.result(handle.cancel_goal_async(), 3.0, "the grasp's cancellation")
-            except LaunchError:
-                pass
+        task = self.grasp_task
+        if task is not None and self.node is not None:
+            cancelled = task.cancel()
+            if cancelled is not None:
+                try:
+                    self.result(cancelled, 3.0, "the grasp's cancellation")
+                except LaunchError:
+                    pass
 
 
 #: TCP port the emulated Net F/T boxes serve their netftapi2.xml on (a real box: 80, which

@@ -40,28 +40,18 @@ def select_overhead(graph, object_name: str, level: str, horizon: int, calls: in
 
     from rrg_estimator.belief import Belief
     from rrg_estimator.ros.belief_msgs import belief_to_msg
-    from rrg_msgs.srv import SelectAction
 
     mean = np.asarray(WORLD.nominal_pose)
     belief = Belief.for_level(LEVELS[level], mean)
-    req = SelectAction.Request(
-        belief=belief_to_msg(belief, Time()),
-        object_name=object_name,
-        strategy="rrg-info",
-        horizon=horizon,
-        delta=0.1,
-    )
-    client = graph.clients["/rrg/select_action"]
+    msg = belief_to_msg(belief, Time())
     rtt, plan = [], []
     for i in range(calls + 5):  # 5 warm-up calls
         t0 = time.perf_counter()
-        resp = graph.result(client.call_async(req), 60.0, "select_action")
+        choice = graph.rrg.select_action(object_name, msg, horizon=horizon, timeout_s=60.0)
         dt = time.perf_counter() - t0
-        if resp.error_code != SelectAction.Response.NONE:
-            raise RuntimeError(f"select_action failed: {resp.error_msg}")
         if i >= 5:
             rtt.append(dt)
-            plan.append(resp.planning_time)
+            plan.append(choice.planning_time_s)
     over = np.asarray(rtt) - np.asarray(plan)
     return {
         "select_rtt_ms": statistics.median(rtt) * 1e3,
@@ -75,7 +65,6 @@ def select_overhead(graph, object_name: str, level: str, horizon: int, calls: in
 
 def first_action(graph, object_name: str, level: str, horizon: int) -> float:
     """Seconds from the launch to the first robust-grasp feedback; cancels the grasp after it."""
-    from rrg_msgs.action import RobustGrasp
     from rrg_msgs.srv import ResetSim
     from rrg_sim.ros_common.msg_conversions import planar_to_msg
 
@@ -89,19 +78,16 @@ def first_action(graph, object_name: str, level: str, horizon: int) -> float:
     if reset.error_code != ResetSim.Response.NONE:
         raise RuntimeError(f"reset_sim failed: {reset.error_msg}")
     first: list[float] = []
-    goal = RobustGrasp.Goal(
-        object_name=object_name, level=level, strategy="rrg-info", horizon=horizon, delta=0.1
-    )
-    handle = graph.result(
-        graph.actions["/rrg/robust_grasp"].send_goal_async(
-            goal, feedback_callback=lambda _: first.append(time.monotonic())
-        ),
-        30.0,
-        "robust_grasp",
+    task = graph.rrg.start_robust_grasp(
+        object_name,
+        level=level,
+        horizon=horizon,
+        on_feedback=lambda _: first.append(time.monotonic()),
+        timeout_s=30.0,
     )
     graph.spin_until(lambda: bool(first), 600.0, "the first action")
-    graph.result(handle.cancel_goal_async(), 30.0, "the cancellation")
-    graph.result(handle.get_result_async(), 600.0, "the cancelled grasp")
+    graph.result(task.cancel(), 30.0, "the cancellation")
+    task.result(600.0)
     return first[0] - graph.started
 
 

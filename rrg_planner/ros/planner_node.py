@@ -15,6 +15,8 @@ Services and actions:
 * publishes ``/rrg/grasp_step`` (rrg_msgs/GraspStep): one typed record per chosen action, one per
   WRT found infeasible before it moved, and one when a grasp ends, so a bag holds the decisions
   (``rrg-bag summary`` reads them; a bag viewer can plot P(goal) over a run).
+* publishes its health on ``/diagnostics`` once a second (``planner: status``: models loaded,
+  the last select_action and step, the executor and the estimator).
 
 The decisions are the core's (rrg_planner.agent.RobustGraspAgent) and the belief is the estimator
 node's: this node only moves messages.
@@ -70,10 +72,11 @@ from rrg_planner.ros.grasp_records import (
     resumed_record,
 )
 from rrg_sim.config import WORLD, WORLD_PROFILES, world_profile
+from rrg_sim.ros_common.diagnostics import ERROR, Health, NodeDiagnostics, milliseconds
 from rrg_sim.ros_common.futures import WaitInterrupted, wait_for
 from rrg_sim.ros_common.liveliness import announce
 from rrg_sim.ros_common.msg_conversions import planar_to_msg
-from rrg_sim.ros_common.node_main import run_node
+from rrg_sim.ros_common.node_main import destroy_action_endpoints, run_node
 from rrg_sim.ros_common.qos import RESULT_TIMEOUT_S
 
 NODE_NAME = "planner"
@@ -183,6 +186,11 @@ class PlannerNode(Node):
             raise ValueError(f"unknown levels {unknown}; valid: {sorted(LEVELS)}")
         self._models: dict[str, PlanningModel] = {}
         self._model_lock = threading.Lock()
+        self._loading = ""  # the object whose planning model is being loaded
+        #: the last select_action's (answer, latency [s]) and the last grasp step's (text,
+        #: planning time [s]), for /diagnostics
+        self._last_select: tuple[str, float] | None = None
+        self._last_step: tuple[str, float] | None = None
         for name in self.get_parameter_or("preload", Parameter("preload", value=[])).value:
             self.model(name)
 
@@ -205,9 +213,14 @@ class PlannerNode(Node):
             result_timeout=RESULT_TIMEOUT_S,
         )
         announce(self, NODE_NAME)
+        self.diagnostics = NodeDiagnostics(self, self.health)
         self.get_logger().info(
             f"planner ready (levels {list(self.levels)}, models loaded: {sorted(self._models)})"
         )
+
+    def destroy_node(self) -> None:
+        destroy_action_endpoints(self)
+        super().destroy_node()
 
     def timeouts(self) -> dict[str, float]:
         """The graph client's timeouts [s], read from the parameters at each use."""
@@ -216,11 +229,34 @@ class PlannerNode(Node):
             for name in ("reset", "execute", "belief", "restart")
         }
 
+    def health(self) -> Health:
+        """For /diagnostics: the planning models loaded (WRTs per object and level), the last
+        select_action's answer and latency, the last grasp step, and the executor and the
+        estimator (WARN while one is not up: a grasp waits for it, ERROR once it is lost)."""
+        health = Health(values={"levels": ", ".join(self.levels)})
+        models = dict(self._models)
+        health.values["models loaded"] = ", ".join(sorted(models)) or "none"
+        for name, model in sorted(models.items()):
+            for level in model.levels:
+                health.values[f"tables {name}/{level}"] = f"{len(model.actions)} WRTs"
+        health.values["loading"] = self._loading or "nothing"
+        if self._loading:
+            health.message = f"loading the planning model of {self._loading}"
+        health.values["robust grasp"] = "running" if self._grasp_active.locked() else "idle"
+        answer, latency = self._last_select or ("none", None)
+        health.values["last select_action"] = answer
+        health.values["last select_action latency [ms]"] = milliseconds(latency)
+        step, planning = self._last_step or ("none", None)
+        health.values["last step"] = step
+        health.values["last step planning time [ms]"] = milliseconds(planning)
+        return health.peers((self.graph.executor, self.graph.estimator), lost_level=ERROR)
+
     # ------------------------------------------------------------------ models
     def model(self, object_name: str) -> PlanningModel:
         """The object's planning model, loaded on first use (a first build takes ~1 min)."""
         with self._model_lock:
             if object_name not in self._models:
+                self._loading = object_name
                 self.get_logger().info(
                     f"loading the planning model of {object_name} at levels "
                     f"{list(self.levels)} (building missing tables takes ~1 min per object)"
@@ -228,14 +264,17 @@ class PlannerNode(Node):
                 t0 = time.monotonic()
                 # workers=1: forking a table-building pool from a process running DDS threads can
                 # deadlock; rrg-launch builds missing tables in parallel before it starts the nodes.
-                self._models[object_name] = PlanningModel(
-                    object_name,
-                    levels=self.levels,
-                    workers=1,
-                    progress=False,
-                    world=self.world_profile,
-                    likelihood=self.likelihood,
-                )
+                try:
+                    self._models[object_name] = PlanningModel(
+                        object_name,
+                        levels=self.levels,
+                        workers=1,
+                        progress=False,
+                        world=self.world_profile,
+                        likelihood=self.likelihood,
+                    )
+                finally:
+                    self._loading = ""
                 self.get_logger().info(
                     f"model of {object_name} loaded in {time.monotonic() - t0:.1f} s: "
                     f"WRTs {self._models[object_name].names}"
@@ -273,6 +312,15 @@ class PlannerNode(Node):
     def on_select_action(
         self, req: SelectAction.Request, resp: SelectAction.Response
     ) -> SelectAction.Response:
+        t0 = time.monotonic()
+        self.select_action(req, resp)
+        answer = resp.wrt_name if resp.error_code == SA.NONE else f"error {resp.error_code}"
+        self._last_select = (f"{req.object_name}: {answer}", time.monotonic() - t0)
+        self.diagnostics.force_update()
+        return resp
+
+    def select_action(self, req: SelectAction.Request, resp: SelectAction.Response) -> None:
+        """Fill ``resp`` with the answer to ``req``."""
         try:
             try:
                 requests.check_choice(req.strategy, req.horizon, req.delta)
@@ -310,7 +358,6 @@ class PlannerNode(Node):
         except Exception as exc:  # the node must keep serving whatever the core raises
             resp.error_code, resp.error_msg = SA.UNKNOWN, f"{type(exc).__name__}: {exc}"
             self.get_logger().error(f"select_action failed: {resp.error_msg}")
-        return resp
 
     # ------------------------------------------------------------------ robust grasp
     def on_grasp_goal(self, goal: RobustGrasp.Goal) -> GoalResponse:
@@ -365,7 +412,8 @@ class PlannerNode(Node):
             else:
                 self.get_logger().error(f"{text}, error {result.error_code}: {result.error_msg}")
             self.step_pub.publish(done_record(handle.request, result, self.now()))
-            return result
+        self.diagnostics.force_update()  # idle again
+        return result
 
     def run_grasp(self, handle: ServerGoalHandle, result: RobustGrasp.Result) -> None:
         goal = handle.request
@@ -391,6 +439,11 @@ class PlannerNode(Node):
 
         def on_decision(d: Decision) -> None:
             decisions.append(d)
+            self._last_step = (
+                f"{goal.object_name} step {d.number}: {d.wrt} ({d.kind}), P(goal) {d.p_goal:.3f}",
+                d.planning_time,
+            )
+            self.diagnostics.force_update()
             handle.publish_feedback(
                 RobustGrasp.Feedback(
                     step=d.number,

@@ -12,7 +12,8 @@ retreat is published on ``/rrg/retreated`` (rrg_msgs/Retreated), so the estimato
 transition. Both topics are latched streams (qos.STREAM): a restarted estimator receives the
 latest of each. The sequence is the ROS-free ``rrg_sim.executor.wrt_executor.WrtExecutor`` (the
 physics world runs the same one in-process); this node drives it through ``RosRobot``, so it
-runs unchanged against a hardware bridge.
+runs unchanged against a hardware bridge. Its health (the interface, the last execution) goes
+on ``/diagnostics`` once a second (``executor: status``).
 
 It lives in rrg_sim because everything it needs is there (the object catalogue with the
 WRTs, the WAM's IK, the path planning), and it is robot-side software: it never reads a belief.
@@ -22,6 +23,7 @@ from __future__ import annotations
 
 import sys
 import threading
+import time
 
 import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
@@ -39,9 +41,10 @@ from rrg_sim.executor.robot_client import MotionCanceled, MotionFailed, RobotFau
 from rrg_sim.executor.trajectory import InfeasiblePath
 from rrg_sim.executor.wrt_executor import WrtExecutor
 from rrg_sim.objects import get_object, object_names, unknown_object_message
+from rrg_sim.ros_common.diagnostics import ERROR, WARN, Health, NodeDiagnostics
 from rrg_sim.ros_common.liveliness import announce
 from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, observation_to_msg, planar_from_msg
-from rrg_sim.ros_common.node_main import keep_serving, run_node
+from rrg_sim.ros_common.node_main import destroy_action_endpoints, keep_serving, run_node
 from rrg_sim.ros_common.qos import RESULT_TIMEOUT_S, STREAM
 
 NODE_NAME = "executor"
@@ -78,6 +81,11 @@ class ExecutorNode(Node):
         self.obs_pub = self.create_publisher(ObservationMsg, "observation", STREAM)
         self.retreated_pub = self.create_publisher(Retreated, "retreated", STREAM)
         self._last_observation: ObservationMsg | None = None  # of the WRT a retreat would leave
+        #: for /diagnostics: the goal running, and the last execution's (goal, result, duration
+        #: [s])
+        self._running = ""
+        self._last_execution: tuple[str, str, float] | None = None
+        self._executions = 0
         ActionServer(
             self,
             ExecuteWrt,
@@ -90,7 +98,30 @@ class ExecutorNode(Node):
         )
         self.create_service(Retreat, "retreat", self.on_retreat, callback_group=group)
         announce(self, NODE_NAME)
+        self.diagnostics = NodeDiagnostics(self, self.health)
         self.get_logger().info("executor ready")
+
+    def destroy_node(self) -> None:
+        destroy_action_endpoints(self)
+        super().destroy_node()
+
+    def health(self) -> Health:
+        """For /diagnostics: whether the arm/hand interface is ready (WARN until it is, ERROR
+        once it is lost: a robot fault), the WRT running, the last execution's result and
+        duration, and the lone pad trips the interface did not confirm."""
+        ready = self.robot.ready()
+        health = Health() if ready else Health(WARN, "the arm/hand interface is not ready")
+        health.values["arm/hand interface ready"] = str(ready)
+        health.values["executing"] = self._running or "nothing"
+        goal, result, seconds = self._last_execution or ("none", "none", None)
+        health.values["last execution"] = goal
+        health.values["last execution result"] = result
+        health.values["last execution duration [s]"] = (
+            "none" if seconds is None else f"{seconds:.2f}"
+        )
+        health.values["executions"] = str(self._executions)
+        health.values["unconfirmed stops"] = str(self.robot.unconfirmed_stops)
+        return health.peers([self.robot.interface], lost_level=ERROR)
 
     def on_goal(self, goal: ExecuteWrt.Goal) -> GoalResponse:
         if self._busy.locked():
@@ -112,6 +143,7 @@ class ExecutorNode(Node):
 
     def execute_wrt(self, handle: ServerGoalHandle) -> ExecuteWrt.Result:
         goal, result = handle.request, ExecuteWrt.Result()
+        t0, self._running = time.monotonic(), f"{goal.object_name}/{goal.wrt_name}"
         e = planar_from_msg(goal.estimate)
         if goal.object_name not in object_names():
             result.error_code, result.error_msg = (
@@ -140,6 +172,14 @@ class ExecutorNode(Node):
             self.get_logger().error(
                 f"execute_wrt {goal.object_name}/{goal.wrt_name} failed: {result.error_msg}"
             )
+        outcome = "ok" if result.error_code == R.NONE else f"error {result.error_code}"
+        self._last_execution = (
+            self._running,
+            outcome + (f": {result.error_msg}" if result.error_msg else ""),
+            time.monotonic() - t0,
+        )
+        self._running, self._executions = "", self._executions + 1
+        self.diagnostics.force_update()
         return result
 
     def run(self, handle: ServerGoalHandle, wrt, e: np.ndarray, result: ExecuteWrt.Result) -> None:

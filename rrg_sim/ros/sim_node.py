@@ -9,7 +9,8 @@ Publishes (every 1/state_rate s of wall time, also during motions): ``/rrg/joint
 (geometry_msgs/WrenchStamped, each Nano17 in its own frame), ``/rrg/contact_pads``
 (rrg_msgs/ContactPads), and, for evaluation only (the estimator never reads it),
 ``/rrg/eval/object_pose`` (geometry_msgs/PoseStamped, the true object pose). These state
-readings are noise-free; guarded moves and hand commands use the noisy sensors.
+readings are noise-free; guarded moves and hand commands use the noisy sensors. Its health
+goes on ``/diagnostics`` once a second (``sim: status``, rrg_sim.ros_common.diagnostics).
 
 Serves ``/rrg/guarded_move`` (rrg_msgs/GuardedMove: timed joint via-points, stopping at the
 first pad or Nano17 over its threshold; cancellable), ``/rrg/hand_command``
@@ -51,11 +52,12 @@ from rrg_sim.ros_common.arm_hand_interface import (
     goal_via_points,
     serve_arm_hand_interface,
 )
+from rrg_sim.ros_common.diagnostics import Health, NodeDiagnostics
 from rrg_sim.ros_common.msg_conversions import (
     tip_contacts_to_msg,
     vector_to_msg,
 )
-from rrg_sim.ros_common.node_main import keep_serving, run_node
+from rrg_sim.ros_common.node_main import destroy_action_endpoints, keep_serving, run_node
 
 from .. import wam
 from ..config import SENSING, WORLD_PROFILES, world_profile
@@ -157,9 +159,38 @@ class SimNode(Node):
         self.create_timer(
             1.0 / self.get_parameter("state_rate").value, self.on_idle_timer, callback_group=group
         )
+        self._paced: tuple[PhysicsWorld, float, float] | None = None  # (world, sim, wall) [s]
+        self.diagnostics = NodeDiagnostics(self, self.health)
         self.get_logger().info(
             f"simulator ready: {self.world.obj.name} at "
             f"{np.round(self.world.true_object_pose(), 3).tolist()}"
+        )
+
+    def destroy_node(self) -> None:
+        destroy_action_endpoints(self)
+        super().destroy_node()
+
+    def health(self) -> Health:
+        """For /diagnostics: the object, the simulated time since the reset, the real-time
+        factor since the last report (simulated over wall seconds; 0 while nothing moves) and
+        the pace asked for, and whether a guarded move runs. Read without the lock: a
+        snapshot."""
+        world, wall = self.world, time.monotonic()
+        sim = world.sim_time
+        last, self._paced = self._paced, (world, sim, wall)
+        rtf = "none yet"
+        if last is not None and last[0] is world and sim >= last[1] and wall > last[2]:
+            rtf = f"{(sim - last[1]) / (wall - last[2]):.2f}"
+        pace = self.get_parameter("real_time_factor").value
+        return Health(
+            values={
+                "object": world.obj.name,
+                "world profile": self.get_parameter("world_profile").value,
+                "simulated time since reset [s]": f"{sim:.3f}",
+                "real-time factor since the last report": rtf,
+                "real_time_factor parameter": f"{pace:g}" if pace else "0 (as fast as it steps)",
+                "guarded move running": str(self._move_active),
+            }
         )
 
     def _world_of(self, object_name: str) -> PhysicsWorld:

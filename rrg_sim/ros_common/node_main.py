@@ -18,6 +18,7 @@ from concurrent.futures import Future
 from concurrent.futures import wait as wait_futures
 
 import rclpy
+from rclpy.action import ActionClient, ActionServer
 from rclpy.executors import (
     ConditionReachedException,
     Executor,
@@ -138,6 +139,15 @@ def spin_until_shutdown(executor: Executor) -> None:
         except RCLError:
             if context.ok():
                 raise
+
+
+def destroy_action_endpoints(node: Node) -> None:
+    """Destroy the node's action servers and clients. rclpy's ``Node.destroy_node`` leaves its
+    waitables alone, and they keep the node's handle, so a node destroyed in a process that
+    goes on (a test's, a launcher's) would still serve its actions to the domain."""
+    for waitable in list(node.waitables):
+        if isinstance(waitable, ActionServer | ActionClient):
+            waitable.destroy()
 
 
 def run_node(
