@@ -7,6 +7,7 @@ read-only, and every update returns a new Belief.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,6 +66,22 @@ class Belief:
         """The initial belief of an uncertainty level: its Gaussian on its grid centred on the
         mean."""
         return cls.gaussian(Grid.for_level(level, center=mean), mean, level.sigma)
+
+    @classmethod
+    def from_normalized(cls, grid: Grid, weights: np.ndarray, frame: str = "") -> Belief:
+        """A Belief of weights the estimator's own arithmetic made normalized: (N,) float64,
+        finite, non-negative, summing to 1 (e.g. b·L / Σ b·L). Taken as they are, without the
+        constructor's copy and checks, and made read-only; anything else: the constructor."""
+        w = weights.ravel()
+        size = math.prod(grid.shape)
+        if w.dtype != np.float64 or w.shape != (size,):
+            raise ValueError(f"needs ({size},) float64 weights, got {w.shape} {w.dtype}")
+        w.flags.writeable = False
+        belief = object.__new__(cls)
+        object.__setattr__(belief, "grid", grid)
+        object.__setattr__(belief, "weights", w)
+        object.__setattr__(belief, "frame", frame)
+        return belief
 
     def with_weights(self, weights: np.ndarray) -> Belief:
         """A new Belief on the same grid and in the same frame (weights are normalized)."""

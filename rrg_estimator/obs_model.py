@@ -23,6 +23,12 @@ factor instead of flooring every state and erasing what the other terms said;
 and is then floored: L' = (1 - ε)·L + ε with ε = LIKELIHOOD.floor, so no single
 observation can rule out a state (the true state survives a surprising reading, e.g.
 from unmodelled dynamics, and later observations can bring it back).
+
+One reading's log-likelihood over a whole table is one compiled pass (numba,
+``_log_likelihood_row``) over the table's columns, in float32, term by term in the order
+above; the sensor terms are summed in sensor order, so a reading's likelihood is the same to
+the bit batched (the planner's clusters) or alone (the estimator's update), whatever BLAS and
+thread count. exp and the floor stay numpy's.
 """
 
 from __future__ import annotations
@@ -30,9 +36,11 @@ from __future__ import annotations
 import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from functools import lru_cache
 from typing import Protocol, TypeVar
 
 import numpy as np
+from numba import njit
 from scipy.ndimage import convolve1d
 
 from rrg_estimator.config import LIKELIHOOD, LikelihoodParams
@@ -220,47 +228,141 @@ def closure_sigma(table: TableLike, sigma: float) -> np.ndarray:
     return _per_table(_CLOSURE_SIGMA, table, sigma, build)
 
 
+@dataclass(frozen=True, eq=False)
+class _TableColumns:
+    """A table's fields as the likelihood kernel reads them: contiguous, one row per component."""
+
+    contact: np.ndarray  # (N,) bool
+    progress: np.ndarray  # (N,) float32 m
+    closure: np.ndarray  # (3, N) float32 rad
+    tips: np.ndarray  # (9, N) float32 m, finger f's point in rows 3f..3f+2
+
+
+_COLUMNS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _table_columns(table: TableLike) -> _TableColumns:
+    """The table's columns for the kernel, cached per table (weakly referenced)."""
+
+    def build() -> _TableColumns:
+        f32, n = np.float32, len(table.contact)
+        return _TableColumns(
+            contact=np.ascontiguousarray(table.contact, dtype=bool),
+            progress=np.ascontiguousarray(table.progress, dtype=f32),
+            closure=np.ascontiguousarray(np.asarray(table.closure, dtype=f32).T),
+            tips=np.ascontiguousarray(np.asarray(table.tip_points, dtype=f32).reshape(n, 9).T),
+        )
+
+    return _per_table(_COLUMNS, table, None, build)
+
+
+#: Table entries per block of the likelihood kernel: its output block stays in the L1 cache
+#: while each term passes over it.
+_BLOCK = 1024
+
+
+@njit(cache=True, error_model="numpy")  # IEEE division (x/0 = inf, as numpy), vectorizable
+def _log_likelihood_row(
+    out, contact, progress, closure, tips, sensor_term, tips_seen, columns_contact,
+    columns_progress, silent, columns_closure, closure_sig, columns_tips, log_agree, log_mismatch,
+    sigma_progress, cap_progress, cap_closure, tip_scale, cap_tip, half,
+):  # fmt: skip
+    """log L (before the floor) of one observation at every table entry, into out (N,) float32.
+
+    Float32 arithmetic, term by term in the order of the module docstring, each term one
+    simple loop over a block of entries (so the compiler vectorizes it). ``sensor_term`` (N,):
+    Σ_s o_s·gain_s, computed by the caller with BLAS as it always was, so the result is the
+    numpy formula's to the bit; ``tips_seen`` (3,) bool: the reading has finger f's point; the
+    cap_* are the per-term outlier caps -log κ.
+    """
+    n = out.shape[0]
+    zero = np.float32(0.0)  # (a bare 0.0 is float64 and would promote the arithmetic)
+    for start in range(0, n, _BLOCK):
+        stop = min(start + _BLOCK, n)
+        block = out[start:stop]  # views of the block: loops from 0 vectorize
+        t_contact = columns_contact[start:stop]
+        sensors = sensor_term[start:stop]  # joins the other terms where the formula adds it
+        t_progress, t_silent = columns_progress[start:stop], silent[start:stop]
+        for j in range(block.shape[0]):
+            logl = log_agree if contact == t_contact[j] else log_mismatch
+            if contact:  # where the hand stopped, where both stopped early
+                zp = (progress - t_progress[j]) / sigma_progress
+                cost = half * zp * zp
+                cost = cap_progress if cost > cap_progress else cost  # NaN stays NaN
+                logl -= cost if t_contact[j] else zero
+            logl += t_silent[j]
+            block[j] = logl + sensors[j]
+        for k in range(3):
+            observed = closure[k]
+            t_closure, sig = columns_closure[k, start:stop], closure_sig[k, start:stop]
+            for j in range(block.shape[0]):
+                z = (observed - t_closure[j]) / sig[j]
+                cost = half * z * z
+                block[j] -= cap_closure if cost > cap_closure else cost
+        for f in range(3):
+            if not tips_seen[f]:
+                continue
+            tx, ty, tz = tips[f, 0], tips[f, 1], tips[f, 2]
+            px = columns_tips[3 * f, start:stop]
+            py = columns_tips[3 * f + 1, start:stop]
+            pz = columns_tips[3 * f + 2, start:stop]
+            for j in range(block.shape[0]):
+                dx, dy, dz = tx - px[j], ty - py[j], tz - pz[j]
+                d2 = dx * dx + dy * dy + dz * dz
+                cost = d2 * tip_scale
+                cost = cap_tip if cost > cap_tip else cost
+                # a point missing on one side adds nothing (its sensor term judges it)
+                block[j] -= zero if np.isnan(d2) else cost
+
+
+@lru_cache(maxsize=64)
+def _kernel_constants(params: LikelihoodParams) -> tuple[np.float32, ...]:
+    """The likelihood kernel's float32 constants of ``params``: log(1 - p_mismatch),
+    log p_mismatch, σ_progress, the three caps -log κ, ½/σ_tip² and ½."""
+    f32 = np.float32
+    return (
+        f32(np.log1p(-params.p_contact_mismatch)),
+        f32(np.log(params.p_contact_mismatch)),
+        f32(params.sigma_progress),
+        f32(-np.log(params.outlier_progress)),
+        f32(-np.log(params.outlier_closure)),
+        f32(0.5 / params.sigma_tip**2),
+        f32(-np.log(params.outlier_tip)),
+        f32(0.5),
+    )
+
+
 def log_likelihood_over_table(
     table: TableLike, feats: ObsFeatures, params: LikelihoodParams = LIKELIHOOD
 ) -> np.ndarray:
     """(M, N_table) float32 log L (before the floor) of each observation at each table entry."""
     f32 = np.float32
-    n = len(table.contact)
-    t_contact = np.asarray(table.contact, dtype=bool)
-    # contact agreement
-    agree = feats.contact[:, None] == t_contact[None, :]
-    logl = np.where(
-        agree, f32(np.log1p(-params.p_contact_mismatch)), f32(np.log(params.p_contact_mismatch))
-    )
-    # progress, where both stopped early
-    if feats.contact.any():
-        zp = (feats.progress[:, None] - np.asarray(table.progress, dtype=f32)[None, :]) / f32(
-            params.sigma_progress
-        )
-        cost = np.minimum(f32(0.5) * zp * zp, f32(-np.log(params.outlier_progress)))
-        logl -= np.where(feats.contact[:, None] & t_contact[None, :], cost, f32(0.0))
-    # sensors: Σ_s log P(o_s | q_s)
-    #   = Σ_s log P(silent | q_s) + Σ_s o_s (log P(fired | q_s) - log P(silent | q_s))
+    cols = _table_columns(table)
     silent, gain = sensor_log_likelihood(table, params)
-    logl += silent[None, :]
-    logl += feats.sensors.astype(f32) @ gain
-    # closure angles (component rows made contiguous once)
-    closure = np.ascontiguousarray(np.asarray(table.closure, dtype=f32).T)  # (3, N)
     sig = closure_sigma(table, params.sigma_closure)
-    for k in range(3):
-        z = (feats.closure[:, k, None] - closure[k][None, :]) / sig[k][None, :]
-        logl -= np.minimum(f32(0.5) * z * z, f32(-np.log(params.outlier_closure)))
-    # fingertip contact points present on both sides
-    tips = np.ascontiguousarray(np.asarray(table.tip_points, dtype=f32).reshape(n, 9).T)  # (9, N)
-    for f in range(3):
-        seen = ~np.isnan(feats.tip_points[:, f, 0])
-        if not seen.any():
-            continue
-        d2 = sum(
-            (feats.tip_points[:, f, k, None] - tips[3 * f + k][None, :]) ** 2 for k in range(3)
+    constants = _kernel_constants(params)
+    logl = np.empty((len(feats), len(cols.contact)), dtype=f32)
+    # Σ_s o_s·gain_s for every reading at once, with BLAS (its summation order, which the
+    # tables' recorded campaigns were computed with)
+    sensor_terms = feats.sensors.astype(f32) @ gain
+    for m in range(len(feats)):
+        tips = np.ascontiguousarray(feats.tip_points[m], dtype=f32)
+        _log_likelihood_row(
+            logl[m],
+            bool(feats.contact[m]),
+            f32(feats.progress[m]),
+            np.ascontiguousarray(feats.closure[m], dtype=f32),
+            tips,
+            sensor_terms[m],
+            ~np.isnan(tips[:, 0]),
+            cols.contact,
+            cols.progress,
+            silent,
+            cols.closure,
+            sig,
+            cols.tips,
+            *constants,
         )
-        cost = np.minimum(d2 * f32(0.5 / params.sigma_tip**2), f32(-np.log(params.outlier_tip)))
-        logl -= np.where(np.isnan(d2), f32(0.0), cost)
     return logl
 
 
@@ -279,7 +381,69 @@ def likelihood_over_table(
     if bad:
         raise ValueError(f"observation features hold non-finite {' and '.join(bad)} (NaN or inf)")
     eps = np.float32(params.floor)
-    return np.exp(log_likelihood_over_table(table, feats, params)) * (np.float32(1.0) - eps) + eps
+    like = log_likelihood_over_table(table, feats, params)
+    np.exp(like, out=like)
+    like *= np.float32(1.0) - eps
+    like += eps
+    return like
+
+
+@lru_cache(maxsize=16)
+def _grid_axes(grid: Grid) -> tuple[np.ndarray, ...]:
+    """grid.axes(), remembered per grid (a belief's grid serves many updates); read-only."""
+    axes = tuple(grid.axes())
+    for a in axes:
+        a.flags.writeable = False
+    return axes
+
+
+@njit(cache=True)
+def _nearest_cell(d: float, spacing: float, n: int) -> int:
+    """Index of the grid point nearest to offset d from the centre of an axis of n points,
+    clamped to [0, n - 1] (rint: halves to even, as numpy's)."""
+    i = int(np.rint(d / spacing + (n - 1) / 2))
+    return min(max(i, 0), n - 1)
+
+
+@njit(cache=True)
+def _table_cells(dx, dy, theta, c, s, center, spacing, shape, xy_out, theta_out):
+    """The table cells of the belief grid's axes, into xy_out (nx·ny,) (the flat index of the
+    entry with θ index 0) and theta_out (nθ,): x, y relative to e are the rotation (c, s)
+    of dx, dy; ``theta``: the θ offsets from the table centre, already wrapped."""
+    for i in range(dx.shape[0]):
+        for j in range(dy.shape[0]):
+            rx = c * dx[i] + s * dy[j]
+            ry = -s * dx[i] + c * dy[j]
+            ix = _nearest_cell(rx - center[0], spacing[0], shape[0])
+            iy = _nearest_cell(ry - center[1], spacing[1], shape[1])
+            xy_out[i * dy.shape[0] + j] = (ix * shape[1] + iy) * shape[2]
+    for k in range(theta.shape[0]):
+        theta_out[k] = _nearest_cell(theta[k], spacing[2], shape[2])
+
+
+def table_index_axes(belief_grid: Grid, e, table_grid: Grid) -> tuple[np.ndarray, np.ndarray]:
+    """The table indices of ``table_indices`` in their product form: (xy (nx·ny,), θ (nθ,))
+    int64 such that the flat table index of belief point (ix, iy, iθ) is
+    xy[ix·ny + iy] + θ[iθ] (the rotation by e mixes x and y; θ is a shift of its own)."""
+    ex, ey, et = (float(v) for v in e)
+    ax, ay, at = _grid_axes(belief_grid)
+    c, s = np.cos(np.array([et])), np.sin(np.array([et]))
+    theta = wrap_angle(wrap_angle(at - et) - table_grid.center[2])
+    xy = np.empty(len(ax) * len(ay), dtype=np.int64)
+    it = np.empty(len(at), dtype=np.int64)
+    _table_cells(
+        ax - ex,
+        ay - ey,
+        theta,
+        float(c[0]),
+        float(s[0]),
+        np.asarray(table_grid.center, dtype=np.float64),
+        np.asarray(table_grid.spacing, dtype=np.float64),
+        np.asarray(table_grid.shape, dtype=np.int64),
+        xy,
+        it,
+    )
+    return xy, it
 
 
 def table_indices(belief_grid: Grid, e, table_grid: Grid) -> np.ndarray:
@@ -287,20 +451,8 @@ def table_indices(belief_grid: Grid, e, table_grid: Grid) -> np.ndarray:
     Δ = relative_planar(e, w), clamped to the table border.
 
     Same arithmetic as ``table_grid.nearest_index(relative_planar(e, belief_grid.points()))``,
-    but exploiting the product structure of the belief grid (x, y separate from θ).
+    but exploiting the product structure of the belief grid (x, y separate from θ:
+    ``table_index_axes``).
     """
-    ex, ey, et = (float(v) for v in e)
-    ax, ay, at = belief_grid.axes()
-    c, s = np.cos(np.array([et])), np.sin(np.array([et]))
-    dx, dy = (ax - ex)[:, None], (ay - ey)[None, :]
-    rel = (c * dx + s * dy, -s * dx + c * dy, wrap_angle(at - et))
-    n = np.asarray(table_grid.shape)
-    idx = []
-    for k, (r, c0, sp) in enumerate(zip(rel, table_grid.center, table_grid.spacing)):
-        d = r - c0
-        if k == 2:
-            d = wrap_angle(d)
-        idx.append(np.clip(np.rint(d / sp + (n[k] - 1) / 2).astype(np.int64), 0, n[k] - 1))
-    ix, iy, it = idx
-    flat = (ix * n[1] + iy)[:, :, None] * n[2] + it[None, None, :]
-    return flat.ravel()
+    xy, theta = table_index_axes(belief_grid, e, table_grid)
+    return (xy[:, None] + theta[None, :]).ravel()

@@ -4,22 +4,33 @@ Thanks to the relative-transform insight, one geometric simulation per grid offs
 the predicted observation of a WRT for every (w, e) pair with e⁻¹ ⊕ w = Δ: the WRT runs
 relative to e₀ = identity and the object sits at Δ. Tables are cached on disk as .npz,
 keyed by object, WRT, a hash of everything they depend on, and the grid.
+
+A *marginal* table (build_marginal_table) holds, per offset Δ, the observations under K
+seeded draws of a world's nuisance (nuisance_offsets: the hand's vertical calibration error
+and the table's height error, as one vertical offset of the hand from where the robot
+measures it); nothing reads it yet.
+
+``python -m rrg_estimator.obs_tables --bench OBJECT`` times fresh builds (see ``main``).
 """
 
 from __future__ import annotations
 
+import argparse
 import hashlib
 import logging
 import multiprocessing as mp
+import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-from rrg_estimator.config import UncertaintyLevel
+from rrg_estimator.config import LEVELS, UncertaintyLevel
 from rrg_estimator.grid import Grid
 from rrg_sim import config
+from rrg_sim.config import WorldProfile, world_profile
 from rrg_sim.geometric_sim import (
     SIM_VERSION,
     GeometricSimulator,
@@ -111,15 +122,49 @@ def _as_grid(level_or_grid: UncertaintyLevel | Grid) -> Grid:
 
 
 _worker_sim: GeometricSimulator | None = None
-
-
-def _init_worker(obj: ObjectLike, wrt: WRT) -> None:
-    global _worker_sim
-    _worker_sim = GeometricSimulator(obj, wrt)
+_worker_offset = np.zeros(3)
 
 
 def _run_chunk(deltas: np.ndarray) -> ObservationArrays:
-    return _worker_sim.simulate_batch(deltas)
+    return _worker_sim.simulate_batch_offset(deltas, _worker_offset)
+
+
+def _simulate_grid(
+    sim: GeometricSimulator,
+    deltas: np.ndarray,
+    hand_offset: np.ndarray,
+    workers: int,
+    bar: tqdm,
+) -> ObservationArrays:
+    """sim's predicted observations at every offset, on ``workers`` forked processes (which
+    inherit the simulator: one probe model, compiled code loaded once)."""
+    global _worker_sim, _worker_offset
+    chunks = [deltas[s : s + CHUNK] for s in range(0, len(deltas), CHUNK)]
+    results: list[ObservationArrays] = []
+    _worker_sim, _worker_offset = sim, np.asarray(hand_offset, dtype=float)
+    try:
+        if workers <= 1:
+            for c in chunks:
+                results.append(_run_chunk(c))
+                bar.update(len(c))
+        else:
+            with mp.get_context("fork").Pool(workers) as pool:
+                for r in pool.imap(_run_chunk, chunks):
+                    results.append(r)
+                    bar.update(len(r.contact))
+    finally:
+        _worker_sim = None
+    return ObservationArrays.concatenate(results)
+
+
+def _table(obj: ObjectLike, wrt: WRT, grid: Grid, arrays: ObservationArrays) -> ObservationTable:
+    return ObservationTable(
+        obj.name,
+        wrt.name,
+        grid,
+        SweptPath.from_wrt(wrt).length,
+        **{f: getattr(arrays, f) for f in ARRAY_FIELDS},
+    )
 
 
 def build_table(
@@ -129,32 +174,79 @@ def build_table(
     workers: int = 2,
     progress: bool = True,
 ) -> ObservationTable:
-    """One geometric simulation per grid offset Δ, on ``workers`` processes (each builds its
-    own probe model), with a progress bar."""
+    """One geometric simulation per grid offset Δ, on ``workers`` processes, with a progress
+    bar."""
     grid = _as_grid(level_or_grid)
     deltas = grid.points()
-    chunks = [deltas[s : s + CHUNK] for s in range(0, len(deltas), CHUNK)]
     bar = tqdm(total=len(deltas), desc=f"Ω {obj.name}/{wrt.name}", unit="Δ", disable=not progress)
-    results: list[ObservationArrays] = []
-    if workers <= 1:
-        sim = GeometricSimulator(obj, wrt)
-        for c in chunks:
-            results.append(sim.simulate_batch(c))
-            bar.update(len(c))
-    else:
-        with mp.get_context("fork").Pool(workers, _init_worker, (obj, wrt)) as pool:
-            for r in pool.imap(_run_chunk, chunks):
-                results.append(r)
-                bar.update(len(r.contact))
+    sim = GeometricSimulator(obj, wrt)
+    arrays = _simulate_grid(sim, deltas, np.zeros(3), workers, bar)
     bar.close()
-    arrays = ObservationArrays.concatenate(results)
-    return ObservationTable(
-        obj.name,
-        wrt.name,
-        grid,
-        SweptPath.from_wrt(wrt).length,
-        **{f: getattr(arrays, f) for f in ARRAY_FIELDS},
+    return _table(obj, wrt, grid, arrays)
+
+
+# ------------------------------------------------------------------ marginal tables
+#: σ of the hand's vertical error at a grasp [m] per rad of σ of the WAM's joint offsets
+#: (docs/world.md, the realistic settling study: σ ≈ 7 mm at 10 mrad). The planar part of the
+#: calibration error is the posture frames' to model (rrg_sim.posture_calibration), not drawn.
+VERTICAL_ERROR_PER_JOINT_OFFSET = 0.7
+
+
+def nuisance_offsets(profile: WorldProfile | str, draws: int, seed: int) -> np.ndarray:
+    """(draws, 3) seeded offsets [m] of the hand from where the robot measures it, relative to
+    the table and the object, under ``profile``: vertical only, the hand's calibration error
+    (σ VERTICAL_ERROR_PER_JOINT_OFFSET × joint_offset_sigma) less the table's height error
+    (σ table_height_sigma). All zero in the nominal world."""
+    profile = world_profile(profile)
+    rng = np.random.default_rng(seed)
+    hand = rng.normal(0.0, VERTICAL_ERROR_PER_JOINT_OFFSET * profile.joint_offset_sigma, draws)
+    table = rng.normal(0.0, profile.table_height_sigma, draws)
+    offsets = np.zeros((draws, 3))
+    offsets[:, 2] = hand - table
+    return offsets
+
+
+@dataclass(eq=False)
+class MarginalObservationTable:
+    """Ω_τ(Δ) under K nuisance draws: tables[k] is the table with the hand truly off by
+    offsets[k] (3,) [m] (stop poses as the robot measures them, i.e. undisplaced)."""
+
+    offsets: np.ndarray
+    tables: tuple[ObservationTable, ...]
+
+    def __len__(self) -> int:
+        return len(self.tables[0])
+
+    def observations(self, j: int) -> list[Observation]:
+        """The K observations of grid offset j, one per draw."""
+        return [t.observation(j) for t in self.tables]
+
+
+def build_marginal_table(
+    obj: ObjectLike,
+    wrt: WRT,
+    level_or_grid: UncertaintyLevel | Grid,
+    offsets: Sequence[Sequence[float]] | np.ndarray,
+    workers: int = 2,
+    progress: bool = True,
+) -> MarginalObservationTable:
+    """build_table under each of the (K,3) hand offsets [m] (nuisance_offsets): one probe
+    model, K sweeps of the grid. A zero offset gives build_table's arrays exactly."""
+    grid = _as_grid(level_or_grid)
+    offsets = np.asarray(offsets, dtype=float).reshape(-1, 3)
+    deltas = grid.points()
+    bar = tqdm(
+        total=len(deltas) * len(offsets),
+        desc=f"Ω {obj.name}/{wrt.name} × {len(offsets)}",
+        unit="Δ",
+        disable=not progress,
     )
+    sim = GeometricSimulator(obj, wrt)
+    tables = tuple(
+        _table(obj, wrt, grid, _simulate_grid(sim, deltas, off, workers, bar)) for off in offsets
+    )
+    bar.close()
+    return MarginalObservationTable(offsets, tables)
 
 
 def table_key(obj: ObjectLike, wrt: WRT, grid: Grid) -> str:
@@ -217,3 +309,42 @@ def load_or_build(
         stale.unlink()
     table.save(path, key)
     return table
+
+
+# ------------------------------------------------------------------ timing a fresh build
+def main(argv: Sequence[str] | None = None) -> None:
+    """``--bench OBJECT``: time fresh builds of an object's tables (no cache) and print the
+    figures: per WRT, seconds and µs per simulation; with ``--draws K``, the marginal table's
+    too."""
+    from rrg_sim.objects import get_object
+
+    p = argparse.ArgumentParser(prog="python -m rrg_estimator.obs_tables", description=main.__doc__)
+    p.add_argument("--bench", metavar="OBJECT", required=True, help="catalogue object name")
+    p.add_argument("--wrt", action="append", help="a WRT name (repeatable; default: all)")
+    p.add_argument("--level", default="high", choices=sorted(LEVELS))
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--draws", type=int, default=0, help="also a marginal table of K draws")
+    p.add_argument("--world", default="realistic", help="world profile of the draws")
+    p.add_argument("--seed", type=int, default=0, help="seed of the draws")
+    args = p.parse_args(argv)
+    obj = get_object(args.bench)
+    grid = Grid.for_level(LEVELS[args.level])
+    wrts = [w for w in obj.wrts() if args.wrt is None or w.name in args.wrt]
+    if not wrts:
+        p.error(f"no WRT named {args.wrt}; {obj.name} has {[w.name for w in obj.wrts()]}")
+    offsets = nuisance_offsets(args.world, args.draws, args.seed) if args.draws else None
+    print(f"{obj.name}, {args.level} grid ({grid.size} offsets), {args.workers} workers")
+    for wrt in wrts:
+        t0 = time.perf_counter()
+        build_table(obj, wrt, grid, workers=args.workers, progress=False)
+        s = time.perf_counter() - t0
+        line = f"  {wrt.name:14s} table {s:6.2f} s ({1e6 * s / grid.size:5.1f} µs/simulation)"
+        if offsets is not None:
+            t0 = time.perf_counter()
+            build_marginal_table(obj, wrt, grid, offsets, workers=args.workers, progress=False)
+            line += f"  marginal ×{args.draws} ({args.world}) {time.perf_counter() - t0:6.2f} s"
+        print(line, flush=True)
+
+
+if __name__ == "__main__":
+    main()

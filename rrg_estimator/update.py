@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from rrg_estimator.config import LIKELIHOOD, LikelihoodParams
 from rrg_estimator.grid import Grid
@@ -14,6 +15,7 @@ from .obs_model import (
     TableLike,
     features_from_observation,
     likelihood_over_table,
+    table_index_axes,
     table_indices,
 )
 from .transition import bump
@@ -45,12 +47,25 @@ def predict(belief: Belief, e, feats: ObsFeatures) -> Belief:
     return bump(belief, (c * m[0] - s * m[1], s * m[0] + c * m[1]))
 
 
-def apply_likelihood(
-    prior: Belief, table_likelihood: np.ndarray, idx: np.ndarray
+@njit(cache=True)
+def _weighted_likelihood(out, weights, table_likelihood, xy, theta):
+    """out[i] = weights[i]·L[xy[p] + θ[k]] for belief state i = p·len(θ) + k (float64)."""
+    nt = theta.shape[0]
+    for p in range(xy.shape[0]):
+        base = xy[p]
+        for k in range(nt):
+            out[p * nt + k] = weights[p * nt + k] * np.float64(table_likelihood[base + theta[k]])
+
+
+def _posterior(
+    prior: Belief, table_likelihood: np.ndarray, xy: np.ndarray, theta: np.ndarray
 ) -> tuple[Belief, float]:
-    """b'(w) ∝ b(w)·L[idx(w)] for a likelihood row over table entries (N_table,) and the table
-    index of every belief state (N,); returns the posterior and P(o | b) = Σ_w b(w)·L[idx(w)]."""
-    post = prior.weights * table_likelihood[idx]
+    """``apply_likelihood`` with the table indices in product form (obs_model.table_index_axes:
+    state p·len(θ) + k reads entry xy[p] + θ[k]); the indices must lie within the row."""
+    post = np.empty(len(xy) * len(theta))
+    if post.shape != prior.weights.shape:
+        raise ValueError(f"table indices cover {len(post)} states, not {len(prior.weights)}")
+    _weighted_likelihood(post, prior.weights, table_likelihood, xy, theta)
     z = float(post.sum())
     if not np.isfinite(z):
         raise ValueError("likelihood holds NaN or inf (check the table and the observation)")
@@ -58,7 +73,22 @@ def apply_likelihood(
         raise ValueError(
             "the observation has zero probability under the belief (likelihood without floor?)"
         )
-    return prior.with_weights(post / z), z
+    post /= z
+    return Belief.from_normalized(prior.grid, post, prior.frame), z
+
+
+def apply_likelihood(
+    prior: Belief, table_likelihood: np.ndarray, idx: np.ndarray
+) -> tuple[Belief, float]:
+    """b'(w) ∝ b(w)·L[idx(w)] for a likelihood row over table entries (N_table,) and the table
+    index of every belief state (N,); returns the posterior and P(o | b) = Σ_w b(w)·L[idx(w)]."""
+    lik = np.ascontiguousarray(table_likelihood)
+    if lik.dtype not in (np.float32, np.float64):
+        lik = lik.astype(np.float64)
+    idx = np.ascontiguousarray(idx, dtype=np.int64).ravel()
+    if len(idx) and (idx.min() < 0 or idx.max() >= len(lik)):
+        raise IndexError(f"table indices beyond the likelihood's {len(lik)} entries")
+    return _posterior(prior, lik, idx, np.zeros(1, dtype=np.int64))
 
 
 def update(
@@ -78,7 +108,10 @@ def update(
     feats = _single_features(obs_or_features, e)
     prior = predict(belief, e, feats) if transition else belief
     lik = likelihood_over_table(table, feats, params)[0]
-    posterior, _ = apply_likelihood(prior, lik, table_indices(belief.grid, e, table.grid))
+    xy, theta = table_index_axes(belief.grid, e, table.grid)  # within the table by construction
+    if len(lik) != table.grid.size:
+        raise ValueError(f"table has {len(lik)} entries for a grid of {table.grid.size}")
+    posterior, _ = _posterior(prior, lik, xy, theta)
     return posterior
 
 

@@ -6,11 +6,13 @@
     rrg-bench hw   [--trials 50] [--json]
 
 ``plan`` times action selection at H = 1, 2, 3, one belief update and one table build,
-for the fast and the naive reference implementations, and prints their ratios; then the
-core operations on full-size grids: a belief update on a contact reading (with its bump)
-and the naive reference's likelihood pass, the table indices, the bump, the re-gridding
-(varres.maybe_refine), and the WAM's batch IK, reachability test and feasibility-map build.
-With ``--json`` the last line is one JSON object with the medians. ``sim``, ``ros`` and ``hw``
+for the fast and the naive reference implementations, and prints their ratios; the update's
+roofline (update_roofline: its bytes and flops against the memory bandwidth measured on the
+spot, so its distance to the floor is printed); then the core operations on full-size grids:
+a belief update on a contact reading (with its bump) and the naive reference's likelihood
+pass, the table indices, the bump, the re-gridding (varres.maybe_refine), and the WAM's batch
+IK, reachability test and feasibility-map build. With ``--json`` the last line is one JSON
+object with the medians (the roofline's under "roofline"). ``sim``, ``ros`` and ``hw``
 (the hardware bridge's stop latency and sensor rates on the emulated drivers) are described in
 their own modules.
 """
@@ -28,6 +30,7 @@ from collections.abc import Callable
 import numpy as np
 
 PAPER_SELECT_S = {1: 3.0, 2: 30.0, 3: 180.0}  # the paper's reported times (non-optimized Python)
+UPDATE_REPEATS = 200  # timed belief updates per figure (a fraction of a millisecond each)
 
 
 def _median_time(fn: Callable[[], object], repeats: int, warmup: bool = True) -> float:
@@ -119,10 +122,17 @@ def bench_plan(argv: list[str]) -> int:
     true = compose_planar(mean, rng.normal(0.0, level.sigma))
     obs = GeometricSimulator(model.obj, goal.wrt).simulate(true, mean)
     table = goal.tables[args.level]
-    t_upd = _median_time(lambda: update(belief, table, mean, obs), max(20, args.repeats))
+    t_upd = _median_time(lambda: update(belief, table, mean, obs), UPDATE_REPEATS)
     t_upd_ref = _median_time(lambda: update_reference(belief, table, mean, obs), 1, warmup=False)
     rows["belief update"] = (t_upd, t_upd_ref)
     rows["table build / WRT"] = (table_s, None)
+    print(
+        f"[plan] belief update of {belief.grid.size:,} points "
+        f"({'contact' if obs.contact else 'no contact'}): {t_upd * 1e3:.3f} ms "
+        f"(median of {UPDATE_REPEATS})",
+        flush=True,
+    )
+    roof = bench_roofline(belief, table, mean, obs, args.repeats)
     contact = bench_contact_update(belief, table, mean, rng, args.repeats)
 
     print("\n| figure | fast | reference | speed-up | paper |")
@@ -144,10 +154,26 @@ def bench_plan(argv: list[str]) -> int:
         "ref_speedup_update": t_upd_ref / t_upd,
         **contact,
         **bench_core(),
+        "roofline": roof,
     }
     if args.json:
         print(json.dumps(out))
     return 0
+
+
+def bench_roofline(belief, table, e, obs, repeats: int) -> dict:
+    """The roofline of one update by ``obs`` without its transition (what update_roofline
+    counts), timed here, against the memory bandwidth measured now."""
+    from rrg_estimator.obs_model import features_from_observation
+    from rrg_estimator.update import update
+    from rrg_planner.update_roofline import describe, roofline
+
+    feats = features_from_observation(obs, e)
+    t = _median_time(lambda: update(belief, table, e, feats, transition=False), UPDATE_REPEATS)
+    nx, ny, nt = belief.grid.shape
+    r = roofline(belief.grid.size, nx * ny, nt, table, feats, t, repeats)
+    print(describe(r), flush=True)
+    return r
 
 
 def bench_contact_update(belief, table, e, rng, repeats: int) -> dict:
@@ -159,7 +185,7 @@ def bench_contact_update(belief, table, e, rng, repeats: int) -> dict:
 
     row = int(rng.choice(np.flatnonzero(table.contact)))
     feats = features_from_table_rows(table, [row])
-    fast = _median_time(lambda: update(belief, table, e, feats), max(50, repeats))
+    fast = _median_time(lambda: update(belief, table, e, feats), UPDATE_REPEATS)
     naive = _median_time(
         lambda: update_reference(belief, table, e, feats, transition=False), 1, warmup=False
     )
@@ -250,7 +276,28 @@ def bench_hw(argv: list[str]) -> int:
     return run(argv)
 
 
-COMMANDS = {"plan": bench_plan, "sim": bench_sim, "ros": bench_ros, "hw": bench_hw}
+def bench_service(argv: list[str]) -> int:
+    from rrg_planner.bringup.service_benchmark import bench_service as run
+
+    return run(argv)
+
+
+def bench_tables(argv: list[str]) -> int:
+    """``rrg-bench tables OBJECT [--wrt NAME] [--draws K]``: fresh table builds, timed."""
+    from rrg_estimator.obs_tables import main as run
+
+    run(["--bench", *argv])
+    return 0
+
+
+COMMANDS = {
+    "plan": bench_plan,
+    "sim": bench_sim,
+    "ros": bench_ros,
+    "hw": bench_hw,
+    "service": bench_service,
+    "tables": bench_tables,
+}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -27,16 +27,29 @@ the direction of the force on the Nano17).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import math
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
+from itertools import chain
 from typing import Protocol
 
 import mujoco
 import numpy as np
+from numba import njit
 from scipy.spatial.transform import Rotation, Slerp
 
 from .config import GEOMSIM, N_SENSORS
-from .hand import FINGERS, LINKS, BodySpec, GeomSpec, body_poses, hand_tree, joint_angles
+from .hand import (
+    FINGERS,
+    LINKS,
+    BodySpec,
+    GeomSpec,
+    body_poses,
+    finger_link_poses,
+    geom_local_pose,
+    hand_tree,
+    joint_angles,
+)
 from .objects.primitives import Primitive, mjcf_mesh_asset, rotated_half_extents, union_bounds
 from .observation import Observation, grasp_arrived
 from .poses import planar_pose
@@ -250,6 +263,326 @@ CLOSE_CELL = (
 )
 
 
+# ------------------------------------------------------------------ box culling (compiled)
+#: A hand box and an object box (or the table) closer than this [m] count as touching. Chosen:
+#: far above MuJoCo's collision tolerances (its convex solver's 1e-6), far below the sweep's
+#: 5 mm and the closing's 0.04 rad steps, so culling stays conservative and still tight.
+BOX_SLACK = 1e-4
+#: The compiled scans stop at this many candidates per sample (per finger when closing): the
+#: first is nearly always a touch, and what lies past it is deep in the object and costly to
+#: scan. The loops scan the rest only when all of these were free (chosen: fastest of 1-4).
+SCAN_LIMIT = 2
+ANGLE_GROUP = 8  # closing angles under one bounding sphere in the compiled scan (chosen)
+
+
+def _geom_half_extents(g: GeomSpec) -> np.ndarray:
+    """(3,) half extents [m] of the box, in the geom's frame, that holds a hand geom."""
+    return Primitive(g.kind, g.size).local_half_extents()
+
+
+@dataclass(frozen=True)
+class _Boxes:
+    """Oriented boxes that hold a set of primitives: rotations (…,3,3) whose columns are the
+    box axes, centres (…,3) [m], half extents (…,3) [m] and bounding radii (…) [m]."""
+
+    rot: np.ndarray
+    centre: np.ndarray
+    half: np.ndarray
+    radius: np.ndarray
+
+    @classmethod
+    def of_parts(cls, parts: Sequence[Primitive]) -> _Boxes:
+        half = np.array([p.local_half_extents() for p in parts])
+        return cls(
+            np.stack([p.rotation for p in parts]),
+            np.array([p.pos for p in parts], float),
+            half,
+            np.linalg.norm(half, axis=1),
+        )
+
+
+@njit(cache=True)
+def _boxes_touch(Ra, ca, ha, Rb, cb, hb, slack, scratch):  # pragma: no cover - compiled
+    """Whether boxes a and b (axes as columns of R, centre c, half extents h) may come within
+    ``slack`` of each other: False only if one of the 15 separating axes separates them by more
+    (Gottschalk's OBB test; a cross axis's own length ≤ 1 only makes the test more lenient).
+    scratch: (7,3) work space."""
+    R, A, t = scratch[0:3], scratch[3:6], scratch[6]
+    d0, d1, d2 = cb[0] - ca[0], cb[1] - ca[1], cb[2] - ca[2]
+    for i in range(3):
+        t[i] = Ra[0, i] * d0 + Ra[1, i] * d1 + Ra[2, i] * d2
+        for j in range(3):
+            R[i, j] = Ra[0, i] * Rb[0, j] + Ra[1, i] * Rb[1, j] + Ra[2, i] * Rb[2, j]
+            A[i, j] = abs(R[i, j])
+    for i in range(3):
+        rb = hb[0] * A[i, 0] + hb[1] * A[i, 1] + hb[2] * A[i, 2]
+        if abs(t[i]) > ha[i] + rb + slack:
+            return False
+    for j in range(3):
+        ra = ha[0] * A[0, j] + ha[1] * A[1, j] + ha[2] * A[2, j]
+        if abs(t[0] * R[0, j] + t[1] * R[1, j] + t[2] * R[2, j]) > ra + hb[j] + slack:
+            return False
+    for i in range(3):
+        i1, i2 = (i + 1) % 3, (i + 2) % 3
+        for j in range(3):
+            j1, j2 = (j + 1) % 3, (j + 2) % 3
+            ra = ha[i1] * A[i2, j] + ha[i2] * A[i1, j]
+            rb = hb[j1] * A[i, j2] + hb[j2] * A[i, j1]
+            if abs(t[i2] * R[i1, j] - t[i1] * R[i2, j]) > ra + rb + slack:
+                return False
+    return True
+
+
+@njit(cache=True)
+def _dot3(a, b):  # pragma: no cover - compiled
+    """a · b of two 3-vectors (no BLAS call)."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit(cache=True)
+def _sphere_near_box(x, y, z, r, centre, half):  # pragma: no cover - compiled
+    """Whether the sphere at (x, y, z) of radius r meets the axis-aligned box (centre, half)."""
+    gx = max(abs(x - centre[0]) - half[0], 0.0)
+    gy = max(abs(y - centre[1]) - half[1], 0.0)
+    gz = max(abs(z - centre[2]) - half[2], 0.0)
+    return gx * gx + gy * gy + gz * gz < r * r
+
+
+@njit(cache=True)
+def _box_touches_object(
+    Rb, cb, hb, rb, part_rot, part_centre, part_half, part_radius, slack, scratch
+):  # pragma: no cover - compiled
+    """Whether a box (object frame, bounding radius rb) may touch some part's box."""
+    for p in range(part_rot.shape[0]):
+        dx = cb[0] - part_centre[p, 0]
+        dy = cb[1] - part_centre[p, 1]
+        dz = cb[2] - part_centre[p, 2]
+        reach = rb + part_radius[p] + slack
+        if dx * dx + dy * dy + dz * dz >= reach * reach:
+            continue
+        if _boxes_touch(part_rot[p], part_centre[p], part_half[p], Rb, cb, hb, slack, scratch):
+            return True
+    return False
+
+
+@njit(cache=True)
+def _sweep_box_candidates(
+    w,
+    start,
+    limit,
+    hand_centre,
+    hand_radius,
+    geom_rot,
+    geom_centre,
+    geom_half,
+    geom_radius,
+    part_rot,
+    part_centre,
+    part_half,
+    part_radius,
+    union_centre,
+    union_half,
+    table_hit,
+    slack,
+):  # pragma: no cover - compiled
+    """Coarse path samples where the hand's geom boxes (path frame, (S,G,…)) may touch the
+    object at w (N,3) (or the table, from sample ``table_hit`` on): (N, S) bool, scanned from
+    sample start[n] until ``limit`` are found, and (N,) the sample each scan stopped before
+    (S: scanned to the end)."""
+    n_w, n_s, n_g = w.shape[0], geom_rot.shape[0], geom_rot.shape[1]
+    out = np.zeros((n_w, n_s), np.bool_)
+    resume = np.full(n_w, n_s)
+    Rb = np.empty((3, 3))
+    cb = np.empty(3)
+    scratch = np.empty((7, 3))
+    for n in range(n_w):
+        c, s = np.cos(w[n, 2]), np.sin(w[n, 2])
+        found = 0
+        for k in range(start[n], n_s):
+            if k >= table_hit:  # the table: every later sample (no need to count them)
+                out[n, k:] = True
+                break
+            hit = False
+            dx, dy = hand_centre[k, 0] - w[n, 0], hand_centre[k, 1] - w[n, 1]
+            if not _sphere_near_box(
+                c * dx + s * dy,
+                c * dy - s * dx,
+                hand_centre[k, 2],
+                hand_radius + slack,
+                union_centre,
+                union_half,
+            ):
+                continue
+            for g in range(n_g):
+                dx, dy = geom_centre[k, g, 0] - w[n, 0], geom_centre[k, g, 1] - w[n, 1]
+                cb[0], cb[1], cb[2] = c * dx + s * dy, c * dy - s * dx, geom_centre[k, g, 2]
+                if not _sphere_near_box(
+                    cb[0], cb[1], cb[2], geom_radius[g] + slack, union_centre, union_half
+                ):
+                    continue
+                for j in range(3):
+                    Rb[0, j] = c * geom_rot[k, g, 0, j] + s * geom_rot[k, g, 1, j]
+                    Rb[1, j] = c * geom_rot[k, g, 1, j] - s * geom_rot[k, g, 0, j]
+                    Rb[2, j] = geom_rot[k, g, 2, j]
+                if _box_touches_object(
+                    Rb,
+                    cb,
+                    geom_half[g],
+                    geom_radius[g],
+                    part_rot,
+                    part_centre,
+                    part_half,
+                    part_radius,
+                    slack,
+                    scratch,
+                ):
+                    hit = True
+                    break
+            if hit:
+                out[n, k] = True
+                found += 1
+                if found == limit:
+                    resume[n] = k + 1
+                    break
+    return out, resume
+
+
+@njit(cache=True)
+def _closing_box_candidates(
+    T_stop,
+    w,
+    start,
+    limit,
+    reach_centre,
+    reach_radius,
+    group_centre,
+    group_radius,
+    finger_centre,
+    finger_radius,
+    link_rot,
+    link_centre,
+    link_half,
+    link_radius,
+    part_rot,
+    part_centre,
+    part_half,
+    part_radius,
+    union_centre,
+    union_half,
+    slack,
+):  # pragma: no cover - compiled
+    """Coarse closing angles where each finger's link boxes (hand frame, (A,3,3,…)) may touch
+    the object at w (N,3) or the table, the hand stopped at T_stop (N,4,4): (N, A, 3) bool,
+    each finger scanned from angle start[n, f] until ``limit`` are found, and (N, 3) the angle
+    each scan stopped before (A: scanned to the end).
+
+    Bounding spheres first: of a finger over all its angles (reach_*), over each ANGLE_GROUP of
+    them (group_*), at one angle (finger_*), of one link (link_radius); then each link's box
+    against the table plane and the parts' boxes."""
+    n_w, n_a = w.shape[0], link_rot.shape[0]
+    out = np.zeros((n_w, n_a, 3), np.bool_)
+    resume = np.full((n_w, 3), n_a)
+    scratch = np.empty((7, 3))
+    M = np.empty((3, 3))
+    b = np.empty(3)
+    Rb = np.empty((3, 3))
+    cb = np.empty(3)
+    for n in range(n_w):
+        c, s = np.cos(w[n, 2]), np.sin(w[n, 2])
+        for j in range(3):  # hand → object frame
+            M[0, j] = c * T_stop[n, 0, j] + s * T_stop[n, 1, j]
+            M[1, j] = c * T_stop[n, 1, j] - s * T_stop[n, 0, j]
+            M[2, j] = T_stop[n, 2, j]
+        dx, dy = T_stop[n, 0, 3] - w[n, 0], T_stop[n, 1, 3] - w[n, 1]
+        b[0], b[1], b[2] = c * dx + s * dy, c * dy - s * dx, T_stop[n, 2, 3]
+        for f in range(3):
+            if start[n, f] >= n_a:
+                continue
+            x = _dot3(M[0], reach_centre[f]) + b[0]
+            y = _dot3(M[1], reach_centre[f]) + b[1]
+            z = _dot3(M[2], reach_centre[f]) + b[2]
+            r = reach_radius[f] + slack
+            if z >= r and not _sphere_near_box(x, y, z, r, union_centre, union_half):
+                continue
+            found = 0
+            for a in range(start[n, f], n_a):
+                if a == start[n, f] or a % ANGLE_GROUP == 0:  # entering a group of angles
+                    group = a // ANGLE_GROUP
+                    x = _dot3(M[0], group_centre[group, f]) + b[0]
+                    y = _dot3(M[1], group_centre[group, f]) + b[1]
+                    z = _dot3(M[2], group_centre[group, f]) + b[2]
+                    r = group_radius[group, f] + slack
+                    group_free = z >= r and not _sphere_near_box(
+                        x, y, z, r, union_centre, union_half
+                    )
+                if group_free:
+                    continue
+                x = _dot3(M[0], finger_centre[a, f]) + b[0]
+                y = _dot3(M[1], finger_centre[a, f]) + b[1]
+                z = _dot3(M[2], finger_centre[a, f]) + b[2]
+                r = finger_radius[a, f] + slack
+                if z >= r and not _sphere_near_box(x, y, z, r, union_centre, union_half):
+                    continue
+                hit = False
+                for link in range(link_rot.shape[2]):
+                    for i in range(3):
+                        cb[i] = _dot3(M[i], link_centre[a, f, link]) + b[i]
+                    r = link_radius[f, link] + slack
+                    near_object = _sphere_near_box(cb[0], cb[1], cb[2], r, union_centre, union_half)
+                    if cb[2] >= r and not near_object:
+                        continue
+                    R = link_rot[a, f, link]
+                    h = link_half[f, link]
+                    for i in range(3):
+                        for j in range(3):
+                            Rb[i, j] = M[i, 0] * R[0, j] + M[i, 1] * R[1, j] + M[i, 2] * R[2, j]
+                    lowest = cb[2] - (abs(Rb[2, 0]) * h[0] + abs(Rb[2, 1]) * h[1])
+                    lowest -= abs(Rb[2, 2]) * h[2]
+                    if lowest < slack or (
+                        near_object
+                        and _box_touches_object(
+                            Rb,
+                            cb,
+                            h,
+                            link_radius[f, link],
+                            part_rot,
+                            part_centre,
+                            part_half,
+                            part_radius,
+                            slack,
+                            scratch,
+                        )
+                    ):
+                        hit = True
+                        break
+                if hit:
+                    out[n, a, f] = True
+                    found += 1
+                    if found == limit:
+                        resume[n, f] = a + 1
+                        break
+    return out, resume
+
+
+def _flagged_in_order(flagged: np.ndarray) -> list[list[list[int]]]:
+    """Per sample m and column f of flagged (M, K, F) bool, the flagged k in increasing order."""
+    m_idx, f_idx, k_idx = np.nonzero(flagged.transpose(0, 2, 1))
+    n_f = flagged.shape[2]
+    ends = np.cumsum(np.bincount(m_idx * n_f + f_idx, minlength=flagged.shape[0] * n_f)).tolist()
+    ks = k_idx.tolist()
+    starts = [0] + ends[:-1]
+    return [
+        [ks[starts[m * n_f + f] : ends[m * n_f + f]] for f in range(n_f)]
+        for m in range(flagged.shape[0])
+    ]
+
+
+def _enclosing_spheres(centre: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A sphere (centre (…,3), radius (…)) holding the spheres centre (K,…,3), radius (K,…)."""
+    c = centre.mean(axis=0)
+    return c, (np.linalg.norm(centre - c, axis=-1) + radius).max(axis=0)
+
+
 # ------------------------------------------------------------------ the simulator
 @dataclass(frozen=True)
 class _FramedPath:
@@ -259,6 +592,12 @@ class _FramedPath:
     palm_qpos: np.ndarray  # (S,7)
     centres: np.ndarray  # (S_coarse·G, 3) hand sphere centres at the coarse samples
     table_hit: int  # first coarse sample touching the table (n_coarse if none)
+    geom_rot: np.ndarray  # (S_coarse, G, 3, 3) hand geom boxes' axes at the coarse samples
+    geom_centre: np.ndarray  # (S_coarse, G, 3) [m] their centres
+    hand_centre: np.ndarray  # (S_coarse, 3) [m] centre of the hand's bounding sphere
+    #: (S,4,4) the fine hand poses as the robot measures them (its forward kinematics): the
+    #: stop poses reported; ``poses`` itself unless the hand is truly off (simulate_offset).
+    measured_poses: np.ndarray
 
 
 class GeometricSimulator:
@@ -280,17 +619,12 @@ class GeometricSimulator:
         self._init_geom_maps()
         lo, hi = union_bounds(obj.parts)
         self._obj_centre, self._obj_half = (lo + hi) / 2, (hi - lo) / 2
-        self._part_rot = np.stack(
-            [
-                Rotation.from_quat(np.asarray(p.quat, float), scalar_first=True).as_matrix()
-                for p in obj.parts
-            ]
-        )
-        self._part_centre = np.array([p.pos for p in obj.parts], float)
-        self._part_half = np.array([p.local_half_extents() for p in obj.parts])
+        self._parts = _Boxes.of_parts(obj.parts)
         self.path = SweptPath.from_wrt(wrt)
         self._init_sweep_spheres()
+        self._init_sweep_boxes()
         self._init_closing()
+        self._init_closing_boxes()
         self._relative = self._frame(np.eye(4))
 
     # ------------------------------------------------------------ setup
@@ -317,6 +651,20 @@ class GeometricSimulator:
             [c @ poses[b][:3, :3].T + poses[b][:3, 3] for b, (c, _) in covers.items()]
         )
         self._sweep_radii = np.concatenate([r for _, r in covers.values()])
+
+    def _init_sweep_boxes(self) -> None:
+        """Boxes holding the hand's geoms at the preshape (hand frame) and a sphere holding
+        them all."""
+        poses = body_poses(self.wrt.spread, np.full(3, self.wrt.preclose))
+        geoms = [(b.name, g) for b in hand_tree() for g in b.geoms]
+        T = np.stack([poses[b] @ geom_local_pose(g) for b, g in geoms])
+        half = np.array([_geom_half_extents(g) for _, g in geoms])
+        radius = np.linalg.norm(half, axis=1)
+        self._hand_boxes = _Boxes(T[:, :3, :3], T[:, :3, 3], half, radius)
+        self._hand_sphere_centre = T[:, :3, 3].mean(axis=0)
+        self._hand_sphere_radius = float(
+            (np.linalg.norm(T[:, :3, 3] - self._hand_sphere_centre, axis=1) + radius).max()
+        )
 
     def _init_closing(self) -> None:
         """Fine lattice of closing angles and the finger link spheres at its coarse angles."""
@@ -355,8 +703,41 @@ class GeometricSimulator:
         )  # (3, L) coordinate-major
         self._link_r = np.broadcast_to(np.stack(radii), self._link_shape).ravel()  # (L,)
 
-    def _frame(self, F: np.ndarray) -> _FramedPath:
-        """The path placed in path frame F, with its table-contact sample found by a sweep."""
+    def _init_closing_boxes(self) -> None:
+        """Boxes holding each finger link's geom at the coarse closing angles (hand frame), and
+        spheres holding a finger at one angle and over all of them."""
+        coarse = self._angles[::FINE_CLOSE]
+        links = finger_link_poses(self.wrt.spread, np.repeat(coarse[:, None], 3, axis=1))
+        geoms = {b.name: b.geoms[0] for b in hand_tree() if b.name[0] == "f" and b.geoms}
+        local = np.stack(
+            [np.stack([geom_local_pose(geoms[f"f{i}_{k}"]) for k in LINKS]) for i in FINGERS]
+        )
+        T = links @ local  # (A, 3 fingers, 3 links, 4, 4)
+        half = np.array([[_geom_half_extents(geoms[f"f{i}_{k}"]) for k in LINKS] for i in FINGERS])
+        radius = np.linalg.norm(half, axis=2)  # (3, 3)
+        self._link_boxes = _Boxes(
+            np.ascontiguousarray(T[..., :3, :3]), np.ascontiguousarray(T[..., :3, 3]), half, radius
+        )
+        centre = T[..., :3, 3].mean(axis=2)  # (A, 3)
+        self._finger_centre = centre
+        self._finger_radius = (
+            np.linalg.norm(T[..., :3, 3] - centre[:, :, None], axis=3) + radius
+        ).max(axis=2)
+        self._reach_centre, self._reach_radius = _enclosing_spheres(centre, self._finger_radius)
+        groups = [
+            _enclosing_spheres(
+                centre[a : a + ANGLE_GROUP], self._finger_radius[a : a + ANGLE_GROUP]
+            )
+            for a in range(0, len(centre), ANGLE_GROUP)
+        ]
+        self._group_centre = np.stack([c for c, _ in groups])  # (groups, 3 fingers, 3)
+        self._group_radius = np.stack([r for _, r in groups])  # (groups, 3 fingers)
+
+    def _frame(self, F: np.ndarray, measured: np.ndarray | None = None) -> _FramedPath:
+        """The path placed in path frame F, with its table-contact sample found by a sweep.
+
+        measured: the frame the robot believes the path is in (default F; see _FramedPath).
+        """
         poses = F @ self.path.poses
         coarse = poses[::FINE_PATH]
         centres = (
@@ -372,7 +753,19 @@ class GeometricSimulator:
             if self._collide():
                 table_hit = c
                 break
-        return _FramedPath(poses, palm_qpos, centres, table_hit)
+        hb = self._hand_boxes
+        return _FramedPath(
+            poses,
+            palm_qpos,
+            centres,
+            table_hit,
+            geom_rot=np.ascontiguousarray(coarse[:, None, :3, :3] @ hb.rot),
+            geom_centre=np.ascontiguousarray(
+                np.einsum("sij,gj->sgi", coarse[:, :3, :3], hb.centre) + coarse[:, None, :3, 3]
+            ),
+            hand_centre=coarse[:, :3, :3] @ self._hand_sphere_centre + coarse[:, :3, 3],
+            measured_poses=poses if measured is None else measured @ self.path.poses,
+        )
 
     # ------------------------------------------------------------ collision queries
     def _set_object(self, w, z: float = 0.0) -> None:
@@ -401,8 +794,9 @@ class GeometricSimulator:
 
     def _near_parts(self, X: np.ndarray, r: np.ndarray) -> np.ndarray:
         """(K,) bool: sphere k (object-frame centre X[k], radius r[k]) touches some part's box."""
-        local = np.matmul(X[None] - self._part_centre[:, None], self._part_rot)  # (P, K, 3)
-        gap = np.maximum(np.abs(local) - self._part_half[:, None], 0.0)
+        parts = self._parts
+        local = np.matmul(X[None] - parts.centre[:, None], parts.rot)  # (P, K, 3)
+        gap = np.maximum(np.abs(local) - parts.half[:, None], 0.0)
         return ((gap * gap).sum(axis=2) < r * r).any(axis=0)
 
     def _near_object(
@@ -416,16 +810,79 @@ class GeometricSimulator:
         gy = np.maximum(np.abs(y - o[1]) - h[1], 0.0)
         gz = np.maximum(np.abs(z - o[2]) - h[2], 0.0)
         near = gx * gx + gy * gy + gz * gz < r * r
-        if per_part and len(self._part_half) > 1:
+        if per_part and len(self._parts.half) > 1:
             idx = np.nonzero(near)
             X = np.stack([np.broadcast_to(v, near.shape)[idx] for v in (x, y, z)], axis=1)
             near[idx] = self._near_parts(X, np.broadcast_to(r, near.shape)[idx])
         return near
 
     # ------------------------------------------------------------ culling
-    def _sweep_candidates(self, framed: _FramedPath, w: np.ndarray) -> np.ndarray:
+    def _sweep_candidates(
+        self, framed: _FramedPath, w: np.ndarray, start: np.ndarray | None = None, limit=SCAN_LIMIT
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Coarse samples where the hand may touch the object at w[n] or the table (the hand's
+        geom boxes against the parts' boxes; compiled): (N, S_coarse) bool scanned from start[n]
+        (default 0) until ``limit`` are found, and (N,) where each scan stopped (S_coarse: done).
+
+        Samples scanned and not flagged are certainly free: the sweep tests only flagged ones.
+        """
+        hb, parts = self._hand_boxes, self._parts
+        return _sweep_box_candidates(
+            np.ascontiguousarray(w, dtype=float),
+            np.zeros(len(w), np.int64) if start is None else start,
+            limit,
+            framed.hand_centre,
+            self._hand_sphere_radius,
+            framed.geom_rot,
+            framed.geom_centre,
+            hb.half,
+            hb.radius,
+            parts.rot,
+            parts.centre,
+            parts.half,
+            parts.radius,
+            self._obj_centre,
+            self._obj_half,
+            framed.table_hit,
+            BOX_SLACK,
+        )
+
+    def _closing_candidates(
+        self, T_stop: np.ndarray, w: np.ndarray, start: np.ndarray | None = None, limit=SCAN_LIMIT
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Coarse closing angles where each finger may touch the object or the table, for hands
+        stopped at T_stop (N,4,4) with the objects at w (N,3) (the finger links' boxes against
+        the table and the parts' boxes; compiled): (N, A_coarse, 3) bool, each finger scanned
+        from start[n, f] (default 0) until ``limit`` are found, and (N, 3) where each scan
+        stopped (A_coarse: done). Angles scanned and not flagged are certainly free."""
+        lb, parts = self._link_boxes, self._parts
+        return _closing_box_candidates(
+            np.ascontiguousarray(T_stop, dtype=float),
+            np.ascontiguousarray(w, dtype=float),
+            np.zeros((len(w), 3), np.int64) if start is None else start,
+            limit,
+            self._reach_centre,
+            self._reach_radius,
+            self._group_centre,
+            self._group_radius,
+            self._finger_centre,
+            self._finger_radius,
+            lb.rot,
+            lb.centre,
+            lb.half,
+            lb.radius,
+            parts.rot,
+            parts.centre,
+            parts.half,
+            parts.radius,
+            self._obj_centre,
+            self._obj_half,
+            BOX_SLACK,
+        )
+
+    def _sweep_candidates_spheres(self, framed: _FramedPath, w: np.ndarray) -> np.ndarray:
         """(N, S_coarse) bool: coarse samples where the hand may touch the object at w[n] or the
-        table.
+        table: the reference path's culling (sphere covers, looser than _sweep_candidates).
 
         Samples not flagged are certainly free, so the sweep only tests flagged ones. The union
         box suffices here: the sweep stops at its first touching sample anyway.
@@ -444,9 +901,10 @@ class GeometricSimulator:
         near[:, framed.table_hit :] = True
         return near
 
-    def _closing_candidates(self, T_stop: np.ndarray, w: np.ndarray) -> np.ndarray:
+    def _closing_candidates_spheres(self, T_stop: np.ndarray, w: np.ndarray) -> np.ndarray:
         """(N, A_coarse, 3) bool: coarse closing angles where each finger may touch the object or
-        the table, for hands stopped at T_stop (N,4,4) with the objects at w (N,3).
+        the table, for hands stopped at T_stop (N,4,4) with the objects at w (N,3): the reference
+        path's culling (looser than _closing_candidates).
 
         Link spheres (hand frame) are tested against the object's parts and the table plane.
         Angles not flagged are certainly free.
@@ -463,9 +921,34 @@ class GeometricSimulator:
         near |= X[:, 2] < self._link_r  # the table: object-frame z is height above it
         return near.reshape((len(w),) + self._link_shape).any(axis=3)
 
+    # ------------------------------------------------------------ candidates in order
+    def _sweep_rest(self, framed: _FramedPath, w: np.ndarray, resume: int) -> Iterator[int]:
+        """The coarse samples a sweep with the object at w (3,) tests past ``resume``, where the
+        first scan stopped: scanned only if the sweep gets there."""
+        if resume < self.path.n_coarse:
+            rest, _ = self._sweep_candidates(
+                framed, w[None], np.array([resume]), limit=self.path.n_coarse
+            )
+            yield from np.flatnonzero(rest[0]).tolist()
+
+    def _closing_rest(
+        self, T_stop: np.ndarray, w: np.ndarray, resume: int, f: int
+    ) -> Iterator[int]:
+        """Finger f's coarse closing angles to test past ``resume``, where its first scan
+        stopped, for the hand stopped at T_stop (4,4) and the object at w (3,): scanned only if
+        the closing gets there."""
+        n_a = self._link_shape[0]
+        if resume < n_a:
+            start = np.full((1, 3), n_a)
+            start[0, f] = resume
+            rest, _ = self._closing_candidates(T_stop[None], w[None], start, limit=n_a)
+            yield from np.flatnonzero(rest[0, :, f]).tolist()
+
     # ------------------------------------------------------------ one execution
-    def _sweep(self, framed: _FramedPath, candidates: np.ndarray) -> int | None:
+    def _sweep(self, framed: _FramedPath, candidates: Iterable[int]) -> int | None:
         """Fine index of the first touching sample (bisected), or None if the path is free.
+
+        candidates: the coarse samples that may touch, in order (the others are free).
 
         On a hit, the last collision query was at the returned sample (its contacts are current).
         """
@@ -478,7 +961,7 @@ class GeometricSimulator:
             collision(m, d)
             return d.ncon
 
-        for c in np.flatnonzero(candidates).tolist():
+        for c in candidates:
             if touch(c * FINE_PATH):
                 break
         else:
@@ -499,24 +982,24 @@ class GeometricSimulator:
             touch(hi)
         return hi
 
-    def _close(self, candidates: np.ndarray) -> tuple[list[int], bool]:
+    def _close(self, candidates: Sequence[Iterable[int]]) -> tuple[list[int], bool]:
         """Fine closing-angle index per finger where it stops (touching, or its limit), and
         whether any finger touched.
 
-        candidates: (A_coarse, 3). Fingers step together through their candidate coarse
-        angles (the others are free); one that touches is bisected back to its first touching
-        fine angle.
+        candidates: per finger, its coarse angles that may touch, in order. Fingers step
+        together through their candidates (the other angles are free); one that touches is
+        bisected back to its first touching fine angle.
         """
         last = len(self._angles) - 1
-        fingers, coarse = np.nonzero(candidates.T)
-        todo = [(coarse[fingers == f] * FINE_CLOSE).tolist() for f in range(3)]
-        final, ptr = [last] * 3, [0] * 3
-        active = [f for f in range(3) if todo[f]]
+        todo = [iter(c) for c in candidates]
+        upcoming = [next(t, None) for t in todo]
+        final = [last] * 3
+        active = [f for f in range(3) if upcoming[f] is not None]
         touched = False
         while active:
             cur = final[:]
             for f in active:
-                cur[f] = todo[f][ptr[f]]
+                cur[f] = upcoming[f] * FINE_CLOSE
             self._set_fingers(cur)
             self._collide()
             touching = self._touching_fingers()
@@ -543,8 +1026,8 @@ class GeometricSimulator:
                     active.remove(f)
                 touched = True
             for f in active[:]:
-                ptr[f] += 1
-                if ptr[f] == len(todo[f]):
+                upcoming[f] = next(todo[f], None)
+                if upcoming[f] is None:
                     active.remove(f)
         return final, touched
 
@@ -576,40 +1059,75 @@ class GeometricSimulator:
         signed = normal * np.where(tip[:, 0] >= 0, -1.0, 1.0)[:, None]
         R, t = T_stop[:3, :3], T_stop[:3, 3]
         for f in fingers:
-            sel = np.flatnonzero(on_tip == f)
+            sel = on_tip == f
             n_sum = signed[sel].sum(axis=0)
-            norm = np.linalg.norm(n_sum)
+            norm = math.sqrt(n_sum.dot(n_sum))  # np.linalg.norm's own arithmetic
             if norm < 1e-6:
-                n_sum, norm = signed[sel[np.argmin(dist[sel])]], 1.0
-            points[f] = (pos[sel].mean(axis=0) - t) @ R
+                on_f = np.flatnonzero(sel)
+                n_sum, norm = signed[on_f[np.argmin(dist[on_f])]], 1.0
+            points[f] = (pos[sel].sum(axis=0) / np.count_nonzero(sel) - t) @ R  # the mean
             normals[f] = n_sum @ R / norm
         return points, normals
 
     def _execute(
-        self, framed: _FramedPath, w: np.ndarray, sweep_candidates: np.ndarray
+        self, framed: _FramedPath, w: np.ndarray, reference: bool = False
     ) -> ObservationArrays:
-        """Sweep, then close, for objects at w (N,3); everything in the path frame of ``framed``."""
+        """Sweep, then close, for objects at w (N,3); everything in the path frame of ``framed``.
+
+        Only objects whose culling leaves something to test go through the per-sample MuJoCo
+        loops; the others get the free result (no contact, full path, fingers closed to their
+        limit) as arrays, which is what the loops would give them. ``reference``: the loose
+        sphere culling and every sample through the loops (the path the fast one is tested
+        against).
+        """
         n = len(w)
         out = ObservationArrays.empty(n)
-        stops = np.empty(n, int)
+        last = len(framed.poses) - 1
+        stops = np.full(n, last)
         contact_points = np.full((n, 3), np.nan)
-        for i in range(n):
+        if reference:
+            flagged = self._sweep_candidates_spheres(framed, w)
+            to_sweep = range(n)
+        else:
+            flagged, resume = self._sweep_candidates(framed, w)
+            to_sweep = np.flatnonzero(flagged.any(axis=1)).tolist()
+        orders = _flagged_in_order(flagged[to_sweep, :, None])
+        for k, i in enumerate(to_sweep):
             self._set_object(w[i])
             self._set_fingers(PRESHAPE)
-            hit = self._sweep(framed, sweep_candidates[i])
-            stops[i] = len(framed.poses) - 1 if hit is None else hit
+            order = orders[k][0]
+            if not reference and resume[i] < self.path.n_coarse:
+                order = chain(order, self._sweep_rest(framed, w[i], resume[i]))
+            hit = self._sweep(framed, order)
             if hit is not None:
+                stops[i] = hit
                 geoms, pos, _, _ = self._contact_arrays()
                 out.sensors[i], contact_points[i] = self._sensors(geoms), pos.mean(axis=0)
                 out.contact[i] = not grasp_arrived(
                     self.wrt.kind, self.path.length - self.path.progress[hit]
                 )
         T_stop = framed.poses[stops]
-        close_candidates = self._closing_candidates(T_stop, w)
-        for i in range(n):
+        out.closure[:] = self._angles[-1]
+        if reference:
+            flagged = self._closing_candidates_spheres(T_stop, w)
+            to_close = range(n)
+        else:
+            flagged, resume = self._closing_candidates(T_stop, w)
+            to_close = np.flatnonzero(flagged.any(axis=(1, 2)) | out.contact).tolist()
+        orders = _flagged_in_order(flagged[to_close])
+        n_a = self._link_shape[0]
+        for k, i in enumerate(to_close):
             self._set_object(w[i])
             self._qpos[self._palm_adr : self._palm_adr + 7] = framed.palm_qpos[stops[i]]
-            final, touched = self._close(close_candidates[i])
+            order = orders[k]
+            if not reference:
+                order = [
+                    chain(order[f], self._closing_rest(T_stop[i], w[i], int(resume[i, f]), f))
+                    if resume[i, f] < n_a
+                    else order[f]
+                    for f in range(3)
+                ]
+            final, touched = self._close(order)
             out.closure[i] = self._angles[final]
             if not (touched or out.contact[i]):
                 continue  # nothing touched: the final pose is certified free
@@ -621,7 +1139,7 @@ class GeometricSimulator:
                     geoms, pos, normal, dist, T_stop[i]
                 )
         out.progress[:] = self.path.progress[stops]
-        out.stop_pose[:] = T_stop
+        out.stop_pose[:] = framed.measured_poses[stops]
         out.motion_dir[:] = self._motion_dirs(framed.poses, stops, contact_points)
         return out
 
@@ -652,15 +1170,39 @@ class GeometricSimulator:
         The home → first-pose segment is assumed free. hand_pose, motion_dir in ``world``.
         """
         w = np.asarray(w, dtype=float).reshape(1, 3)
-        framed = self._frame(planar_pose(e))
-        return self._execute(framed, w, self._sweep_candidates(framed, w)).observation(0)
+        return self._execute(self._frame(planar_pose(e)), w).observation(0)
 
     def simulate_batch(self, deltas: np.ndarray, chunk: int = 256) -> ObservationArrays:
         """simulate_relative for each of the (N,3) offsets, as arrays."""
+        return self._run_batch(self._relative, deltas, chunk, reference=False)
+
+    def simulate_batch_reference(self, deltas: np.ndarray, chunk: int = 256) -> ObservationArrays:
+        """simulate_batch the slow way: the sphere culling, every offset through the per-sample
+        MuJoCo loops. The reference the fast batch must equal bit for bit (tests)."""
+        return self._run_batch(self._relative, deltas, chunk, reference=True)
+
+    def simulate_batch_offset(
+        self, deltas: np.ndarray, hand_offset, chunk: int = 256
+    ) -> ObservationArrays:
+        """simulate_batch with the hand truly displaced by hand_offset (3,) [m] (estimate frame)
+        from where the robot measures it, relative to the table and the object (a calibration
+        error, the table's height error). Stop poses are reported as measured (undisplaced);
+        a zero offset gives simulate_batch's arrays exactly."""
+        offset = np.asarray(hand_offset, dtype=float).reshape(3)
+        if not offset.any():
+            return self.simulate_batch(deltas, chunk)
+        F = np.eye(4)
+        F[:3, 3] = offset
+        return self._run_batch(self._frame(F, measured=np.eye(4)), deltas, chunk, reference=False)
+
+    def _run_batch(
+        self, framed: _FramedPath, deltas: np.ndarray, chunk: int, reference: bool
+    ) -> ObservationArrays:
+        """_execute over (N,3) offsets in blocks of ``chunk``."""
         deltas = np.asarray(deltas, dtype=float).reshape(-1, 3)
         return ObservationArrays.concatenate(
             [
-                self._execute(self._relative, block, self._sweep_candidates(self._relative, block))
-                for block in (deltas[s : s + chunk] for s in range(0, len(deltas), chunk))
+                self._execute(framed, deltas[s : s + chunk], reference)
+                for s in range(0, len(deltas), chunk)
             ]
         )

@@ -61,11 +61,12 @@ def names(sensors: np.ndarray) -> set[str]:
 class BruteForce(GeometricSimulator):
     """The same simulator without culling: every sample and closing angle is tested."""
 
-    def _sweep_candidates(self, framed, w):
-        return np.ones((len(w), self.path.n_coarse), bool)
+    def _sweep_candidates(self, framed, w, start=None, limit=None):
+        return np.ones((len(w), self.path.n_coarse), bool), np.full(len(w), self.path.n_coarse)
 
-    def _closing_candidates(self, T_stop, w):
-        return np.ones((len(w),) + self._link_shape[:2], bool)
+    def _closing_candidates(self, T_stop, w, start=None, limit=None):
+        n_a = self._link_shape[0]
+        return np.ones((len(w), n_a, 3), bool), np.full((len(w), 3), n_a)
 
 
 def test_top_down_descent_stops_on_the_fingertips():
@@ -200,3 +201,116 @@ def test_a_grasp_stopped_in_its_last_centimetre_has_arrived(kind):
     assert o.contact == (kind == "info")
     assert o.progress == pytest.approx(sim.path.length - 0.01, abs=STEP_TOL)
     assert names(o.sensors) == {"tip1", "tip2", "tip3"}
+
+
+ARRAY_FIELDS = (
+    "contact",
+    "progress",
+    "sensors",
+    "closure",
+    "tip_points",
+    "tip_normals",
+    "motion_dir",
+    "stop_pose",
+)
+
+
+def assert_same_arrays(a, b) -> None:
+    """Every field of two ObservationArrays equal bit for bit (NaN where NaN)."""
+    for field in ARRAY_FIELDS:
+        np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=field)
+
+
+@pytest.mark.parametrize(
+    ("name", "wrt_names"),
+    [
+        ("powerdrill", ("goal", "info1", "sweep")),
+        ("cup", ("goal", "reorient_ccw")),
+        ("giant_teacup", ("info_handle",)),
+        ("can", ("goal_probe",)),
+    ],
+)
+def test_the_fast_batch_equals_the_per_sample_reference_bit_for_bit(name, wrt_names):
+    """Box culling, the scans that stop early and the samples kept out of the MuJoCo loops
+    change no bit of any field, against the sphere-culled per-sample loop (2000 seeded offsets
+    over the high grid's span per WRT)."""
+    obj = get_object(name)
+    rng = np.random.default_rng(40)
+    deltas = np.column_stack(
+        [
+            rng.uniform(-0.2, 0.2, 2000),
+            rng.uniform(-0.2, 0.2, 2000),
+            rng.uniform(-np.pi / 2, np.pi / 2, 2000),
+        ]
+    )
+    for wrt_name in wrt_names:
+        sim = GeometricSimulator(obj, obj.wrt(wrt_name))
+        fast, reference = sim.simulate_batch(deltas), sim.simulate_batch_reference(deltas)
+        assert 0.05 < fast.contact.mean() < 0.95 or fast.closure.std() > 0.1  # varied outcomes
+        assert_same_arrays(fast, reference)
+
+
+def test_a_scan_stopped_early_is_resumed_when_its_candidates_are_free():
+    """With one candidate per scan, free first candidates make the loops scan on; the result
+    is still the reference's."""
+    obj = get_object("powerdrill")
+    rng = np.random.default_rng(5)
+    deltas = np.column_stack(
+        [rng.uniform(-0.1, 0.1, 400), rng.uniform(-0.1, 0.1, 400), rng.uniform(-1, 1, 400)]
+    )
+    sim = GeometricSimulator(obj, obj.goal_wrt)
+    full, resume = sim._sweep_candidates(sim._relative, deltas, limit=1)
+    assert (resume < sim.path.n_coarse).any()  # some scans did stop early
+    assert (full.sum(axis=1) <= 1).all()
+
+    class OneCandidate(GeometricSimulator):
+        def _sweep_candidates(self, framed, w, start=None, limit=1):
+            return super()._sweep_candidates(
+                framed, w, start, min(limit, 1) if start is None else limit
+            )
+
+        def _closing_candidates(self, T_stop, w, start=None, limit=1):
+            return super()._closing_candidates(
+                T_stop, w, start, min(limit, 1) if start is None else limit
+            )
+
+    assert_same_arrays(
+        OneCandidate(obj, obj.goal_wrt).simulate_batch(deltas), sim.simulate_batch_reference(deltas)
+    )
+
+
+def test_box_culling_is_tighter_than_the_sphere_culling_and_covers_every_touch():
+    """Every coarse sample the brute-force sweep finds touching is a candidate, and the box
+    test flags fewer samples than the sphere covers do."""
+    obj = get_object("powerdrill")
+    rng = np.random.default_rng(9)
+    deltas = np.column_stack(
+        [rng.uniform(-0.1, 0.1, 300), rng.uniform(-0.1, 0.1, 300), rng.uniform(-1, 1, 300)]
+    )
+    sim = GeometricSimulator(obj, obj.goal_wrt)
+    boxes, _ = sim._sweep_candidates(sim._relative, deltas, limit=sim.path.n_coarse)
+    spheres = sim._sweep_candidates_spheres(sim._relative, deltas)
+    assert boxes.sum() < 0.8 * spheres.sum()
+    q = sim._relative.palm_qpos
+    for i in range(0, len(deltas), 10):  # MuJoCo at every coarse sample of 30 offsets
+        sim._set_object(deltas[i])
+        sim._set_fingers([0, 0, 0])
+        for c in range(sim.path.n_coarse):
+            sim._qpos[sim._palm_adr : sim._palm_adr + 7] = q[c * 2**GEOMSIM.refine_iters]
+            if sim._collide():
+                assert boxes[i, c], (i, c)
+
+
+def test_a_zero_hand_offset_is_the_nominal_batch_and_a_raised_hand_stops_later():
+    sim = GeometricSimulator(BOX, top_down(0.235))
+    deltas = np.array([[0.0, 0.0, 0.0], [0.01, -0.01, 0.3], [0.6, 0.0, 0.0]])
+    nominal = sim.simulate_batch(deltas)
+    assert_same_arrays(sim.simulate_batch_offset(deltas, (0.0, 0.0, 0.0)), nominal)
+    up = sim.simulate_batch_offset(deltas, (0.0, 0.0, 0.01))  # the hand truly 1 cm higher
+    assert up.contact[0] and nominal.contact[0]
+    assert up.progress[0] == pytest.approx(nominal.progress[0] + 0.01, abs=STEP_TOL)
+    # Stop poses as the robot measures them: on the nominal path, 1 cm further along it.
+    np.testing.assert_allclose(up.stop_pose[0, :3, :3], nominal.stop_pose[0, :3, :3], atol=1e-6)
+    assert up.stop_pose[0, 2, 3] == pytest.approx(nominal.stop_pose[0, 2, 3] - 0.01, abs=STEP_TOL)
+    assert not up.contact[2]
+    np.testing.assert_allclose(up.stop_pose[2], nominal.stop_pose[2], atol=1e-6)

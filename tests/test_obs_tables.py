@@ -137,3 +137,50 @@ def test_full_high_grid_build_agrees_with_the_coarse_table(side_table):
     np.testing.assert_array_equal(full.contact[idx], side_table.contact)
     np.testing.assert_array_equal(full.sensors[idx], side_table.sensors)
     np.testing.assert_allclose(full.progress[idx], side_table.progress, atol=1e-6)
+
+
+def test_one_zero_draw_gives_the_nominal_table_exactly(side_table):
+    marginal = obs_tables.build_marginal_table(
+        BOX, SIDE, COARSE, np.zeros((1, 3)), workers=1, progress=False
+    )
+    (table,) = marginal.tables
+    for field in obs_tables.ARRAY_FIELDS:
+        np.testing.assert_array_equal(getattr(table, field), getattr(side_table, field))
+    assert len(marginal) == len(side_table)
+    assert len(marginal.observations(5)) == 1
+
+
+def test_nuisance_draws_are_seeded_vertical_and_zero_in_the_nominal_world():
+    a = obs_tables.nuisance_offsets("realistic", 64, seed=3)
+    np.testing.assert_array_equal(a, obs_tables.nuisance_offsets("realistic", 64, seed=3))
+    assert not a[:, :2].any() and a[:, 2].std() > 0.003  # σ ≈ 7.4 mm: 7 mm hand, 2.3 mm table
+    assert not obs_tables.nuisance_offsets("nominal", 4, seed=3).any()
+
+
+def test_a_marginal_table_holds_one_table_per_draw():
+    """Draws of the hand's height move a top-down grasp's stop by as much, draw by draw; stop
+    poses stay where the robot measures its hand."""
+    offsets = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.008], [0.0, 0.0, -0.005]])
+    grid = Grid((0.0, 0.0, 0.0), (0.01, 0.01, 0.5), (3, 3, 3))
+    marginal = obs_tables.build_marginal_table(
+        BOX, TOP_DOWN, grid, offsets, workers=2, progress=False
+    )
+    nominal = build_table(BOX, TOP_DOWN, grid, workers=1, progress=False)
+    np.testing.assert_array_equal(marginal.tables[0].progress, nominal.progress)
+    assert nominal.contact.all()  # the box under the hand everywhere
+    for k in (1, 2):
+        t = marginal.tables[k]
+        np.testing.assert_allclose(t.progress, nominal.progress + offsets[k, 2], atol=2e-4)
+        np.testing.assert_allclose(
+            t.stop_pose[:, 2, 3], nominal.stop_pose[:, 2, 3] - offsets[k, 2], atol=2e-4
+        )
+    obs = marginal.observations(4)
+    assert [o.progress for o in obs] == [t.progress[4] for t in marginal.tables]
+
+
+def test_the_bench_entry_times_a_fresh_build(capsys, monkeypatch):
+    monkeypatch.setattr(Grid, "for_level", classmethod(lambda cls, level: COARSE))
+    obs_tables.main(["--bench", "box", "--wrt", "goal", "--workers", "1", "--draws", "2"])
+    out = capsys.readouterr().out
+    assert "box, high grid (405 offsets), 1 workers" in out
+    assert "goal" in out and "µs/simulation" in out and "marginal ×2 (realistic)" in out
