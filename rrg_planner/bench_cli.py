@@ -22,28 +22,15 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import statistics
 import sys
 import time
-from collections.abc import Callable
 
 import numpy as np
 
+from rrg_planner.update_roofline import median_seconds
+
 PAPER_SELECT_S = {1: 3.0, 2: 30.0, 3: 180.0}  # the paper's reported times (non-optimized Python)
 UPDATE_REPEATS = 200  # timed belief updates per figure (a fraction of a millisecond each)
-
-
-def _median_time(fn: Callable[[], object], repeats: int, warmup: bool = True) -> float:
-    """Median wall time of fn over repeats calls, after one untimed warm-up call (lazy loads)
-    unless warmup is False (the slow reference runs)."""
-    if warmup:
-        fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def bench_plan(argv: list[str]) -> int:
@@ -104,12 +91,14 @@ def bench_plan(argv: list[str]) -> int:
 
     rows: dict[str, tuple[float, float | None]] = {}
     for h in (1, 2, 3):
-        t_fast = _median_time(
+        t_fast = median_seconds(
             lambda h=h: fast.select(belief, h),
             args.repeats if h < 3 else max(1, args.repeats // 2),
         )
         t_ref = (
-            _median_time(lambda h=h: ref.select(belief, h), 1, warmup=False) if h in ref_h else None
+            median_seconds(lambda h=h: ref.select(belief, h), 1, warmup=False)
+            if h in ref_h
+            else None
         )
         rows[f"select H={h}"] = (t_fast, t_ref)
         print(
@@ -122,8 +111,8 @@ def bench_plan(argv: list[str]) -> int:
     true = compose_planar(mean, rng.normal(0.0, level.sigma))
     obs = GeometricSimulator(model.obj, goal.wrt).simulate(true, mean)
     table = goal.tables[args.level]
-    t_upd = _median_time(lambda: update(belief, table, mean, obs), UPDATE_REPEATS)
-    t_upd_ref = _median_time(lambda: update_reference(belief, table, mean, obs), 1, warmup=False)
+    t_upd = median_seconds(lambda: update(belief, table, mean, obs), UPDATE_REPEATS)
+    t_upd_ref = median_seconds(lambda: update_reference(belief, table, mean, obs), 1, warmup=False)
     rows["belief update"] = (t_upd, t_upd_ref)
     rows["table build / WRT"] = (table_s, None)
     print(
@@ -169,7 +158,7 @@ def bench_roofline(belief, table, e, obs, repeats: int) -> dict:
     from rrg_planner.update_roofline import describe, roofline
 
     feats = features_from_observation(obs, e)
-    t = _median_time(lambda: update(belief, table, e, feats, transition=False), UPDATE_REPEATS)
+    t = median_seconds(lambda: update(belief, table, e, feats, transition=False), UPDATE_REPEATS)
     nx, ny, nt = belief.grid.shape
     r = roofline(belief.grid.size, nx * ny, nt, table, feats, t, repeats)
     print(describe(r), flush=True)
@@ -185,8 +174,8 @@ def bench_contact_update(belief, table, e, rng, repeats: int) -> dict:
 
     row = int(rng.choice(np.flatnonzero(table.contact)))
     feats = features_from_table_rows(table, [row])
-    fast = _median_time(lambda: update(belief, table, e, feats), UPDATE_REPEATS)
-    naive = _median_time(
+    fast = median_seconds(lambda: update(belief, table, e, feats), UPDATE_REPEATS)
+    naive = median_seconds(
         lambda: update_reference(belief, table, e, feats, transition=False), 1, warmup=False
     )
     print(
@@ -215,14 +204,14 @@ def bench_core() -> dict:
     out = {}
     e = np.array([0.62, 0.01, 0.3])
     grid, table_grid = Grid.for_level(HIGH, center=e), Grid.for_level(HIGH)
-    out["table_indices_ms"] = 1e3 * _median_time(lambda: table_indices(grid, e, table_grid), 100)
+    out["table_indices_ms"] = 1e3 * median_seconds(lambda: table_indices(grid, e, table_grid), 100)
     low = Belief.for_level(LOW, (0.62, 0.0, 0.0))
-    out["bump_ms"] = 1e3 * _median_time(lambda: bump(low, (0.6, 0.8)), 50)
+    out["bump_ms"] = 1e3 * median_seconds(lambda: bump(low, (0.6, 0.8)), 50)
     coarse = Grid.for_level(HIGH, center=(0.62, 0.0, 0.0))
     concentrated = Belief.gaussian(coarse, (0.6237, -0.0141, 0.237), (0.005, 0.004, 0.04))
     spread = Belief.for_level(HIGH, (0.62, 0.0, 0.0))
-    out["refine_ms"] = 1e3 * _median_time(lambda: maybe_refine(concentrated), 20)
-    out["refine_reject_ms"] = 1e3 * _median_time(lambda: maybe_refine(spread), 20)
+    out["refine_ms"] = 1e3 * median_seconds(lambda: maybe_refine(concentrated), 20)
+    out["refine_reject_ms"] = 1e3 * median_seconds(lambda: maybe_refine(spread), 20)
     print(
         f"[plan] table_indices for {grid.size:,} points: {out['table_indices_ms']:.3f} ms; "
         f"bump on {low.grid.size:,} points: {out['bump_ms']:.3f} ms; maybe_refine: refine "

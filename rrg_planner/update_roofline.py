@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import statistics
 import time
+from collections.abc import Callable
 
 import numpy as np
 from numba import njit
@@ -28,9 +29,11 @@ from rrg_estimator.obs_model import ObsFeatures, TableLike
 MAIN_MEMORY_BYTES = 512 * 2**20  # far beyond any L3 of the machines we run on (32 MiB here)
 
 
-def _median_seconds(fn, repeats: int) -> float:
-    """Median wall time [s] of fn over repeats calls after one warm-up call."""
-    fn()
+def median_seconds(fn: Callable[[], object], repeats: int, warmup: bool = True) -> float:
+    """Median wall time [s] of fn over repeats calls, after one untimed warm-up call (lazy
+    loads, compilation) unless warmup is False (the slow reference runs)."""
+    if warmup:
+        fn()
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
@@ -52,7 +55,7 @@ def _read_all(a: np.ndarray) -> float:
 def read_bandwidth(n_bytes: int, repeats: int = 5) -> float:
     """Read bandwidth [B/s] of one thread over a float64 array of n_bytes (median of repeats)."""
     a = np.ones(n_bytes // 8)
-    return a.nbytes / _median_seconds(lambda: _read_all(a), repeats)
+    return a.nbytes / median_seconds(lambda: _read_all(a), repeats)
 
 
 def copy_bandwidth(n_bytes: int, repeats: int = 5) -> float:
@@ -60,7 +63,7 @@ def copy_bandwidth(n_bytes: int, repeats: int = 5) -> float:
     STREAM's copy does): np.copyto between two float64 arrays of n_bytes (median of repeats)."""
     src = np.ones(n_bytes // 8)
     dst = np.zeros_like(src)
-    return 2 * src.nbytes / _median_seconds(lambda: np.copyto(dst, src), repeats)
+    return 2 * src.nbytes / median_seconds(lambda: np.copyto(dst, src), repeats)
 
 
 def likelihood_columns_bytes(table: TableLike, feats: ObsFeatures) -> int:
