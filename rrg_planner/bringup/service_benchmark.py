@@ -63,13 +63,18 @@ def client_main(argv: list[str]) -> int:
     return 0
 
 
-def start_node(module: str, params: list[str], env: dict, log_path: Path) -> subprocess.Popen:
-    """``python -m module --ros-args -p PARAM ...``, its output in ``log_path``."""
-    args = [sys.executable, "-m", module, "--ros-args"]
-    for param in params:
-        args += ["-p", param]
+def start_node(module: str, params: dict, env: dict, log_path: Path) -> subprocess.Popen:
+    """``python -m module --ros-args -p k:=v ...``, its output in ``log_path``."""
+    from rrg_planner.bringup.graph import ros_args
+
     with log_path.open("w") as log:
-        return subprocess.Popen(args, env=env, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+        return subprocess.Popen(
+            [sys.executable, "-m", module, *ros_args(params)],
+            env=env,
+            cwd=ROOT,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
 
 
 def bench_service(argv: list[str]) -> int:
@@ -98,11 +103,11 @@ def bench_service(argv: list[str]) -> int:
         nodes = [
             start_node(
                 "rrg_planner.ros.planner_node",
-                [f"levels:=['{args.level}']", f"preload:=['{args.object}']"],
+                {"levels": [args.level], "preload": [args.object]},
                 env,
                 log_path,
             ),
-            start_node("rrg_estimator.ros.estimator_node", [], env, Path(tmp) / "estimator.log"),
+            start_node("rrg_estimator.ros.estimator_node", {}, env, Path(tmp) / "estimator.log"),
         ]
         procs: list[subprocess.Popen] = []
         busy: list[subprocess.Popen] = []
