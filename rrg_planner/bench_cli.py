@@ -4,6 +4,7 @@
     rrg-bench sim  [--json]
     rrg-bench ros  [--json]
     rrg-bench hw   [--trials 50] [--json]
+    rrg-bench service | tables | campaign  (each with --help)
 
 ``plan`` times action selection at H = 1, 2, 3, one belief update and one table build,
 for the fast and the naive reference implementations, and prints their ratios; the update's
@@ -271,6 +272,12 @@ def bench_service(argv: list[str]) -> int:
     return run(argv)
 
 
+def bench_campaign(argv: list[str]) -> int:
+    from rrg_planner.bringup.campaign_benchmark import run
+
+    return run(argv)
+
+
 def bench_tables(argv: list[str]) -> int:
     """``rrg-bench tables OBJECT [--wrt NAME] [--draws K]``: fresh table builds, timed."""
     from rrg_estimator.obs_tables import main as run
@@ -286,6 +293,7 @@ COMMANDS = {
     "hw": bench_hw,
     "service": bench_service,
     "tables": bench_tables,
+    "campaign": bench_campaign,
 }
 
 

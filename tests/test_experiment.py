@@ -28,6 +28,7 @@ from rrg_planner.experiment.trials import (
     check_stamps,
     drop_torn_tail,
     load_records,
+    model_key,
     outcome,
     schedule,
 )
@@ -296,9 +297,11 @@ def test_a_cell_key_names_its_cell_and_nothing_else():
             Cell.from_key(bad)
 
 
-def test_schedule_runs_the_longest_cells_first_and_keeps_each_cell_together():
-    """Planning cells before open-loop, high before low, deeper searches first; a cell's trials
-    run together in index order; no trial is lost or repeated."""
+def test_schedule_keeps_each_model_and_cell_together_longest_first():
+    """The cells of one planning model run together (a worker loads it once), the models with
+    the longest cells first (high before low, deeper searches first), and within a model its
+    planning cells before open-loop; a cell's trials run together in index order; no trial is
+    lost or repeated."""
     from rrg_planner.experiment.experiment_cli import campaign_specs
 
     specs = campaign_specs(
@@ -315,9 +318,15 @@ def test_schedule_runs_the_longest_cells_first_and_keeps_each_cell_together():
             s.index for s in specs if s.cell == c
         )
     assert cells[0].horizon == max(c.horizon for c in cells) and cells[0].level == "high"
-    open_loop = [i for i, c in enumerate(cells) if c.strategy == "open-loop"]
-    assert min(open_loop) > max(i for i, c in enumerate(cells) if c.strategy != "open-loop")
-    assert cells[-1].level == "low"
+    models = [model_key(c.object, c.level, "nominal", c.without) for c in cells]
+    changes = [i for i in range(1, len(models)) if models[i] != models[i - 1]]
+    assert len(changes) == len(set(models)) - 1  # each model's trials are contiguous
+    for m in set(models):
+        mine = [c for c, k in zip(cells, models, strict=True) if k == m]
+        planning = [i for i, c in enumerate(mine) if c.strategy != "open-loop"]
+        assert all(c.strategy == "open-loop" for c in mine[max(planning) + 1 :])
+    assert all(c.level == "high" for c in cells[: changes[0]])
+    assert cells[-1].level == "low" and cells[-1].strategy == "open-loop"
 
 
 @pytest.mark.parametrize(
@@ -503,3 +512,23 @@ def test_report_rewrites_the_outputs_of_recorded_trials_without_running_any(tmp_
     assert summary["campaign"]["seed_source"] == "--seed"  # not the one drawn from abc1234
     assert (tmp_path / "fig8_high.png").exists() and not (tmp_path / "fig7_low.png").exists()
     assert "| box | – | – | 100% (1/1" in capsys.readouterr().out
+
+
+def test_a_worker_keeps_its_most_recent_models_only():
+    """The worker caches keep the most recently used entries up to their bound, building each
+    on a miss only (a campaign of any length has bounded memory)."""
+    from collections import OrderedDict
+
+    from rrg_planner.experiment.trials import _cached
+
+    cache, built = OrderedDict(), []
+
+    def get(key):
+        return _cached(cache, key, 2, lambda: built.append(key) or key.upper())
+
+    assert [get(k) for k in "abab"] == ["A", "B", "A", "B"] and built == ["a", "b"]
+    get("c")  # evicts a, the least recently used
+    assert list(cache) == ["b", "c"]
+    get("b")
+    get("a")  # a again: built anew; c was least recently used
+    assert list(cache) == ["b", "a"] and built == ["a", "b", "c", "a"]

@@ -147,3 +147,23 @@ def test_careful_pinch_reports_every_touch_and_leaves_a_light_box_in_place():
     tips = [SENSOR_NAMES.index(n) for n in ("tip1", "tip2", "tip3")]
     assert obs.sensors[tips].all()
     assert not after[tips].all()  # what the reading after the closing alone would have said
+
+
+def test_quiet_checks_agree_with_their_numpy_forms():
+    """The compiled per-period checks of sensing.py give the numpy expressions' answers
+    (NaN counts as loud), on seeded readings around the thresholds."""
+    from rrg_sim.physics.sensing import _any_reaches, _may_fire
+
+    rng = np.random.default_rng(7)
+    pads, forces = np.arange(7), np.arange(7, 16).reshape(3, 3)
+    for k in range(2000):
+        data = rng.normal(0.0, 0.3, 25)
+        if k % 97 == 0:
+            data[rng.integers(25)] = np.nan
+        bias = rng.normal(0.0, 0.1, (3, 6))[:, :3]  # a strided view, as HandSensors holds it
+        quiet_pad, quiet_tip2 = 0.3, 0.25
+        f = data[forces] - bias
+        numpy_quiet = data[pads].max() < quiet_pad and (f * f).sum(axis=1).max() < quiet_tip2
+        assert _may_fire(data, pads, forces, bias, quiet_pad, quiet_tip2) == (not numpy_quiet)
+        dofs = np.array([0, 2, 4, 6, 8, 10, 12])
+        assert _any_reaches(data, dofs, 0.5) == (not np.abs(data[dofs]).max() < 0.5)

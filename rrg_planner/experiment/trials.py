@@ -17,7 +17,8 @@ import multiprocessing as mp
 import sys
 import time
 import zlib
-from collections.abc import Iterable, Iterator
+from collections import OrderedDict
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -128,8 +129,31 @@ def model_levels(level: str) -> tuple[str, ...]:
 
 
 # ------------------------------------------------------------ worker process
-_MODELS: dict = {}
-_ENVS: dict = {}
+#: Planning models a worker keeps loaded (about 0.3 GB and 5 s to load each at high
+#: uncertainty): ``schedule`` runs the cells of one model together, so a worker loads each
+#: model about once per campaign, and its memory stays bounded over a campaign of any length.
+KEPT_MODELS = 2
+#: Physics worlds a worker keeps (about 0.1 s to build each).
+KEPT_ENVS = 4
+_MODELS: OrderedDict = OrderedDict()
+_ENVS: OrderedDict = OrderedDict()
+
+
+def _cached(cache: OrderedDict, key, kept: int, build: Callable[[], object]):
+    """cache[key], built on a miss; the least recently used entries beyond ``kept`` dropped."""
+    if key in cache:
+        cache.move_to_end(key)
+    else:
+        cache[key] = build()
+        while len(cache) > kept:
+            cache.popitem(last=False)
+    return cache[key]
+
+
+def model_key(obj: str, level: str, world: str, without: tuple[str, ...] = ()) -> tuple:
+    """What a trial's planning model depends on (``_model``): the object, the level's grids,
+    the world profile, and the capabilities switched off."""
+    return (obj, model_levels(level), world, tuple(without))
 
 
 def _model(obj: str, level: str, world: str, without: tuple[str, ...] = ()):
@@ -139,29 +163,31 @@ def _model(obj: str, level: str, world: str, without: tuple[str, ...] = ()):
     from rrg_planner.planning_model import PlanningModel
     from rrg_sim.objects import get_object
 
-    key = (obj, model_levels(level), world, without)
-    if key not in _MODELS:
+    def build() -> PlanningModel:
         names = None
         if "probe" in without:
             names = tuple(w.name for w in get_object(obj).wrts() if w.name != "goal_probe")
-        _MODELS[key] = PlanningModel(
+        return PlanningModel(
             obj,
-            levels=key[1],
+            levels=model_levels(level),
             workers=1,  # no nested pools
             progress=False,
             world="nominal" if "frames" in without else world,
             wrt_names=names,
         )
-    return _MODELS[key]
+
+    return _cached(_MODELS, model_key(obj, level, world, without), KEPT_MODELS, build)
 
 
 def _env(obj: str, world: str, confirm_stops: bool = True):
     from rrg_planner.physics_env import PhysicsEnvironment
 
-    key = (obj, world, confirm_stops)
-    if key not in _ENVS:
-        _ENVS[key] = PhysicsEnvironment.for_object(obj, profile=world, confirm_stops=confirm_stops)
-    return _ENVS[key]
+    return _cached(
+        _ENVS,
+        (obj, world, confirm_stops),
+        KEPT_ENVS,
+        lambda: PhysicsEnvironment.for_object(obj, profile=world, confirm_stops=confirm_stops),
+    )
 
 
 def run_trial(spec: TrialSpec) -> dict:
@@ -350,10 +376,12 @@ def run_campaign(
 
 
 def schedule(todo: list[TrialSpec]) -> list[TrialSpec]:
-    """The trials in the order to run them: the likely longest cells first (planning before
-    open-loop, high uncertainty before low, deeper searches first, RRG-Info before RRG-Goal),
-    each cell's trials together, so the last to run are short and the workers finish together.
-    The order changes no record: each trial depends on its spec only."""
+    """The trials in the order to run them: the cells of one planning model (``model_key``)
+    together, so a worker loads each model about once; the models whose cells are likely
+    longest first (planning before open-loop, high uncertainty before low, deeper searches
+    first, RRG-Info before RRG-Goal), and within a model its longest cells first, each cell's
+    trials together, so the last to run are short and the workers finish together. The order
+    changes no record: each trial depends on its spec only."""
 
     def cell_order(c: Cell) -> tuple:
         return (
@@ -364,7 +392,13 @@ def schedule(todo: list[TrialSpec]) -> list[TrialSpec]:
             c.key,
         )
 
-    return sorted(todo, key=lambda s: (cell_order(s.cell), s.index))
+    def key(s: TrialSpec) -> tuple:
+        return model_key(s.cell.object, s.cell.level, s.world, s.cell.without)
+
+    first: dict[tuple, tuple] = {}  # model key → the order of its longest cell
+    for s in todo:
+        first[key(s)] = min(first.get(key(s), cell_order(s.cell)), cell_order(s.cell))
+    return sorted(todo, key=lambda s: (first[key(s)], cell_order(s.cell), s.index))
 
 
 def _imap(todo: list[TrialSpec], workers: int, ray: str | None, desc: str) -> Iterator[dict]:
@@ -381,7 +415,7 @@ def _imap(todo: list[TrialSpec], workers: int, ray: str | None, desc: str) -> It
             yield run_trial(spec)
             bar.update()
     else:
-        with mp.get_context("fork").Pool(workers, maxtasksperchild=200) as pool:
+        with mp.get_context("fork").Pool(workers) as pool:
             for rec in pool.imap_unordered(run_trial, todo, chunksize=4):
                 yield rec
                 bar.update()

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
+from numba import njit
 
 from rrg_sim.executor.wrt_executor import Reading
 
@@ -24,6 +25,40 @@ from .mjcf_robot import PAD_TOUCH, PALM_BODY, TIP_BODIES, TIP_FORCE, TIP_TORQUE
 
 #: A noise-free signal this many σ below its threshold cannot fire (P < 1e-9): skip the noise.
 QUIET_SIGMAS = 6.0
+
+
+@njit(cache=True)
+def _may_fire(
+    sensordata: np.ndarray,
+    pads: np.ndarray,
+    forces: np.ndarray,
+    bias_force: np.ndarray,
+    quiet_pad: float,
+    quiet_tip2: float,
+) -> bool:
+    """Whether a noise-free pad force (sensordata[pads], [N]) reaches quiet_pad or a tared tip
+    force (sensordata[forces] (3,3) − bias_force, [N]) has a squared norm reaching quiet_tip2
+    (NaN counts as reaching): one pass instead of the numpy calls of every control period."""
+    for i in pads:
+        if not sensordata[i] < quiet_pad:
+            return True
+    for t in range(forces.shape[0]):
+        norm2 = 0.0
+        for k in range(forces.shape[1]):
+            f = sensordata[forces[t, k]] - bias_force[t, k]
+            norm2 += f * f
+        if not norm2 < quiet_tip2:
+            return True
+    return False
+
+
+@njit(cache=True)
+def _any_reaches(values: np.ndarray, index: np.ndarray, limit: float) -> bool:
+    """Whether any |values[index]| reaches limit (NaN counts as reaching)."""
+    for i in index:  # noqa: SIM110 (a loop numba compiles; any() of a generator it does not)
+        if not abs(values[i]) < limit:
+            return True
+    return False
 
 
 class HandSensors:
@@ -80,6 +115,11 @@ class HandSensors:
         self.false_alarm_at = np.full(7, -1)  # the control period of each pad's false alarm
         self._pad_sample_at = -1  # the control period of the held pad sample
         self._pad_held = np.zeros(7, dtype=bool)
+        self._pad_held_any = False
+        # Read every control period: the arrays over the data's own buffers, made once.
+        self._sensordata, self._qfrc = data.sensordata, data.qfrc_constraint
+        self._arm_sigma = PHYSICS.arm_torque_noise * noise  # N m
+        self._arm_quiet = SENSING.arm_torque_threshold - QUIET_SIGMAS * self._arm_sigma
 
     def _raw(self) -> np.ndarray:
         """Pads (7,), then tip forces (9,) and torques (9,), with noise."""
@@ -130,6 +170,7 @@ class HandSensors:
                 self.false_alarm_at < sample + self.pad_period
             )
             self._pad_held = (now & ~self.dead) | false
+            self._pad_held_any = bool(self._pad_held.any())
         return self._pad_held
 
     def read(self) -> tuple[np.ndarray, np.ndarray]:
@@ -153,11 +194,16 @@ class HandSensors:
         """(10,) bool: the sensors that fire now (``fired()``), or None when none can: the
         noisy reading is skipped while every noise-free signal is more than QUIET_SIGMAS noise
         σ below its threshold and no pad sample is held high."""
-        s = self.data.sensordata
-        f = s[self._force] - self._bias_force
-        if s[self._pad].max() < self._quiet_pad and (f * f).sum(axis=1).max() < self._quiet_tip2:
+        if not _may_fire(
+            self._sensordata,
+            self._pad,
+            self._force,
+            self._bias_force,
+            self._quiet_pad,
+            self._quiet_tip2,
+        ):
             pads = self._pads(None)
-            if not pads.any():
+            if not self._pad_held_any:
                 return None
             out = np.zeros(N_SENSORS, dtype=bool)
             out[:7] = pads
@@ -175,10 +221,10 @@ class HandSensors:
         any of the arm joints ``arm_dofs``, with noise (PHYSICS.arm_torque_noise), over
         SENSING.arm_torque_threshold. Skips the noise draw while every joint is more than
         QUIET_SIGMAS σ below the threshold."""
-        external = np.abs(self.data.qfrc_constraint[arm_dofs])
-        sigma = PHYSICS.arm_torque_noise * self.noise
-        if external.max() < SENSING.arm_torque_threshold - QUIET_SIGMAS * sigma:
+        if not _any_reaches(self._qfrc, arm_dofs, self._arm_quiet):
             return False
+        sigma = self._arm_sigma
+        external = np.abs(self._qfrc[arm_dofs])
         noisy = external + (self.rng.normal(0.0, sigma, external.shape) if sigma > 0 else 0.0)
         return bool((np.abs(noisy) > SENSING.arm_torque_threshold).any())
 
