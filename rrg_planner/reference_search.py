@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -16,9 +17,72 @@ from rrg_planner.config import SEARCH, SearchParams
 from rrg_planner.planning_model import PlanningModel
 from rrg_sim.poses import compose_planar, relative_planar
 
-from .search import BLUR_NODES, TIE_DECIMALS, TIE_RTOL, SearchResult, merge_branches
-
 Points = list[tuple[float, float, float]]
+
+# The reference shares no code with the fast search (search.py); these constants must equal its
+# own (tests/test_search.py checks that they do).
+#: weights this close (relative) to the maximum tie for w*(b), broken by index
+TIE_RTOL = 1e-9
+#: branch probabilities are ordered rounded to this many decimals, ties by index
+TIE_DECIMALS = 12
+#: three-point Gauss–Hermite rule, centre first: offsets [σ] and weights of a turn's θ blur
+BLUR_NODES = ((0.0, 2.0 / 3.0), (-math.sqrt(3.0), 1.0 / 6.0), (math.sqrt(3.0), 1.0 / 6.0))
+
+
+@dataclass
+class SearchResult:
+    """The root decision: chosen action, its value, every action's value, v(b) and time."""
+
+    action: int
+    value: float
+    action_values: np.ndarray
+    p_goal: float
+    planning_time: float
+
+
+def _most_probable_first(probs) -> list[int]:
+    """Indices ordering probabilities from the largest, ties (to TIE_DECIMALS) by index."""
+    return sorted(range(len(probs)), key=lambda k: -round(float(probs[k]), TIE_DECIMALS))
+
+
+def _frobenius(m) -> float:
+    """The Frobenius norm of a 3×3 matrix (nested sequences)."""
+    return math.sqrt(sum(float(m[i][j]) ** 2 for i in range(3) for j in range(3)))
+
+
+def merge_branches(
+    probs, entropies, covs, params: SearchParams = SEARCH
+) -> list[tuple[int, float]]:
+    """Online merging (paper), one branch at a time: a branch whose posterior has entropy within
+    merge_entropy_tol and covariance within merge_cov_tol (relative Frobenius difference) of an
+    earlier, more probable representative's joins it; the most probable merged branches that
+    cover online_keep_mass of the mass are kept and renormalized.
+
+    Returns [(branch index, probability)], most probable first.
+    """
+    reps: list[int] = []
+    mass: list[float] = []
+    for k in _most_probable_first(probs):
+        for r_i, r in enumerate(reps):
+            diff = [[covs[k][i][j] - covs[r][i][j] for j in range(3)] for i in range(3)]
+            if (
+                abs(entropies[k] - entropies[r]) < params.merge_entropy_tol
+                and _frobenius(diff) / max(_frobenius(covs[r]), 1e-12) < params.merge_cov_tol
+            ):
+                mass[r_i] += float(probs[k])
+                break
+        else:
+            reps.append(k)
+            mass.append(float(probs[k]))
+    total = sum(mass)
+    kept, acc = [], 0.0
+    for i in _most_probable_first(mass):
+        kept.append((reps[i], mass[i]))
+        acc += mass[i]
+        if acc >= params.online_keep_mass * total:
+            break
+    z = sum(p for _, p in kept)
+    return [(k, p / z) for k, p in kept]
 
 
 def _wrap(a: float) -> float:
@@ -102,9 +166,8 @@ class ReferenceSearch:
         if total <= 0:
             return []
         pc = [p / total for p in pc]
-        order = sorted(range(len(pc)), key=lambda c: -round(pc[c], TIE_DECIMALS))
         cand, acc = [], 0.0
-        for c in order:
+        for c in _most_probable_first(pc):
             if pc[c] <= 0:
                 break
             cand.append(c)
@@ -123,9 +186,7 @@ class ReferenceSearch:
             ents.append(ent)
             covs.append(cov)
         branches = []
-        for k, p in merge_branches(
-            np.array([pc[c] for c in cand]), np.array(ents), np.array(covs), self.params
-        ):
+        for k, p in merge_branches([pc[c] for c in cand], ents, covs, self.params):
             child_pts, child_w = points, posts[k]
             if act.kind == "reorient" and act.turns[level][cand[k]]:
                 child_pts, child_w = self._reorient(

@@ -28,6 +28,11 @@ estimator applies when a belief changes frame (rrg_estimator.transition.change_f
 out of the search's posteriors, as the bump is. A reorientation is valued only where half the
 belief (SearchParams.reorient_min_in_box) lies in its measured outcome's box about w*(b)
 (``turn_is_measured``): held from further off, the object turns unpredictably.
+
+The work over a belief's support runs in compiled kernels (search_kernels.py) that compute
+every value with NumPy's own operations and order (so ties between actions break as NumPy's
+sums break them); only the posteriors' moments, which decide merges by tolerances, are summed
+in another order.
 """
 
 from __future__ import annotations
@@ -40,6 +45,7 @@ from threadpoolctl import ThreadpoolController
 
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import TRANSITION
+from rrg_planner import search_kernels as kernels
 from rrg_planner.config import SEARCH, SearchParams
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.requests import check_search
@@ -53,25 +59,17 @@ def _wrap(a: np.ndarray) -> np.ndarray:
     return a - (2 * np.pi) * np.round(a / (2 * np.pi))
 
 
-#: A belief whose support fills at least this fraction of its span of table entries gets its
-#: posterior moments in table space (scatter_moments: one matrix product per action); a sparser
-#: one gathers its likelihood rows per point instead (measured cross-over ≈ 0.4 on this machine).
-DENSE_FRACTION = 0.4
-
 #: Ties, which a symmetric object's mirror-image states and branches make exact, are broken
 #: by index, not by rounding: weights this close (relative) to the maximum tie for w*(b), and
-#: branch probabilities are ordered rounded to TIE_DECIMALS (ReferenceSearch does the same).
+#: branch probabilities are ordered rounded to TIE_DECIMALS (search_kernels.most_probable_first;
+#: ReferenceSearch does the same).
 TIE_RTOL = 1e-9
 TIE_DECIMALS = 12
+_TIE_SCALE = 10.0**TIE_DECIMALS  # np.round's factor for TIE_DECIMALS
 
 
-def _most_probable_first(probs) -> np.ndarray:
-    """Indices ordering probabilities (…,) from the largest, ties (to TIE_DECIMALS) by index."""
-    return np.argsort(-np.round(probs, TIE_DECIMALS), kind="stable")
-
-
-#: The search's matrices are small (K×S by S×11): multi-threaded BLAS only spins and roughly
-#: doubles the time on 2 cores, so planning runs with one BLAS thread.
+#: The search's BLAS calls are dot products over a belief's support: multi-threaded BLAS only
+#: spins on 2 cores, and one thread sums them in the same order in any process.
 _BLAS = ThreadpoolController()
 
 
@@ -80,17 +78,22 @@ class SparseBelief:
     """A belief restricted to its support: points (S,3) in world (x, y, θ), weights (S,) sum 1,
     held in ``frame`` (Belief.frame; a reading puts its posterior in the reading's frame).
 
-    table_index caches, per point, the table entry of its offset from w*(b); moments the
-    belief's weighted moment_features, per table entry (scatter_moments) or per point (set by
-    the search).
+    table_index caches, per point, the table entry of its offset from w*(b) (set when the
+    search expands the belief, and only then: best_goal reads it); features the weighted
+    moment features (11,S) of its posteriors (search_kernels.weighted_features); parent_index,
+    for a posterior the search made, (e, the parent's table_index about e, the indices of its
+    points among the parent's): its points' table entries about e, without recomputing them;
+    _w_star w*(b), when whoever made the belief found it already (``w_star``).
     """
 
     points: np.ndarray
     weights: np.ndarray
     level: str
     table_index: np.ndarray | None = None
-    moments: tuple | None = None
+    features: np.ndarray | None = None
     frame: str = ""
+    parent_index: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    _w_star: np.ndarray | None = None
 
     @classmethod
     def compact(
@@ -102,71 +105,30 @@ class SparseBelief:
         frame: str = "",
     ) -> SparseBelief:
         """Drop the points below support_rel of the max weight and renormalize."""
-        keep = np.flatnonzero(weights >= params.support_rel * weights.max())
-        return cls(points[keep], weights[keep] / weights[keep].sum(), level, frame=frame)
+        pts, w, star = kernels.compact(
+            np.ascontiguousarray(points, dtype=float),
+            np.ascontiguousarray(weights, dtype=float),
+            params.support_rel,
+            1.0 - TIE_RTOL,
+        )
+        return cls(pts, w, level, frame=frame, _w_star=pts[star])
 
     @classmethod
     def from_belief(cls, belief: Belief, level: str, params: SearchParams = SEARCH) -> SparseBelief:
-        return cls.compact(belief.grid.points(), belief.weights, level, params, belief.frame)
+        ax, ay, at = belief.grid.axes()
+        pts, w, star = kernels.compact_grid(
+            belief.weights, params.support_rel, 1.0 - TIE_RTOL, ax, ay, at
+        )
+        return cls(pts, w, level, frame=belief.frame, _w_star=pts[star])
 
     @property
     def w_star(self) -> np.ndarray:
-        """The most likely point; of points tied within TIE_RTOL, the first."""
-        w = self.weights
-        return self.points[int(np.argmax(w >= w.max() * (1.0 - TIE_RTOL)))]
-
-
-def moment_features(
-    points: np.ndarray, weights: np.ndarray, ref: np.ndarray, sigma: np.ndarray
-) -> np.ndarray:
-    """(S,11) per-point features whose weighted sums give a posterior's mass, first and second
-    moments and Σ p·log w: [1, d (3), d⊗d (6 unique), log w], with deviations d from ``ref``
-    (θ wrapped) scaled by ``sigma`` so the axes compare."""
-    d = points - ref
-    d[:, 2] = _wrap(d[:, 2])
-    d = d / sigma
-    iu = np.triu_indices(3)
-    with np.errstate(divide="ignore"):
-        logw = np.log(weights)
-    return np.column_stack(
-        [np.ones(len(d)), d, d[:, iu[0]] * d[:, iu[1]], np.where(weights > 0, logw, 0.0)]
-    )
-
-
-def scatter_moments(
-    idx: np.ndarray, weights: np.ndarray, features: np.ndarray
-) -> tuple[int, np.ndarray]:
-    """Σ over the states of each table entry of weight · moment_features, for the entries
-    lo … max(idx): (lo, (m, 11) float32). The moments of every posterior b·L_c are then one
-    product L_c[lo:lo+m] @ it, with no gather per cluster."""
-    lo = int(idx.min())
-    local = idx - lo
-    m = int(idx.max()) - lo + 1
-    weighted = weights[:, None] * features
-    if np.bincount(local, minlength=m).max() <= 1:  # one state per entry (the usual case)
-        tab = np.zeros((m, features.shape[1]), dtype=np.float32)
-        tab[local] = weighted
-    else:
-        tab = np.column_stack([np.bincount(local, weights=col, minlength=m) for col in weighted.T])
-    return lo, tab.astype(np.float32, copy=False)
-
-
-def branch_statistics(
-    moments: np.ndarray, sum_l_log_l: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Mass Z (K,), entropy (K,) and covariance (K,3,3) of K posteriors b·L_k, given their
-    moments Σ b L_k f (K,11) over moment_features f and Σ b L_k log L_k (K,):
-    H = log Z − Σ b L (log L + log b) / Z."""
-    mom = moments.astype(np.float64)
-    z = mom[:, 0]
-    mean = mom[:, 1:4] / z[:, None]
-    second = np.empty((len(z), 3, 3))
-    iu = np.triu_indices(3)
-    second[:, iu[0], iu[1]] = mom[:, 4:10] / z[:, None]
-    second[:, iu[1], iu[0]] = second[:, iu[0], iu[1]]
-    cov = second - mean[:, :, None] * mean[:, None, :]
-    ent = np.log(z) - (sum_l_log_l.astype(np.float64) + mom[:, 10]) / z
-    return z, ent, cov
+        """The most likely point; of points tied within TIE_RTOL, the first (the same array
+        each time)."""
+        if self._w_star is None:
+            w = self.weights
+            self._w_star = self.points[int(np.argmax(w >= w.max() * (1.0 - TIE_RTOL)))]
+        return self._w_star
 
 
 def merge_branches(
@@ -174,37 +136,20 @@ def merge_branches(
 ) -> list[tuple[int, float]]:
     """Online merging (paper): branches whose posteriors have similar entropy and covariance
     are merged into the more probable one; then the most probable merged branches that
-    cover ``online_keep_mass`` of the mass are kept and renormalized.
+    cover ``online_keep_mass`` of the mass are kept and renormalized (search_kernels.merge).
 
     Returns [(branch index, probability)], most probable first.
     """
-    flat = covs.reshape(len(covs), -1)
-    scale = np.maximum(np.linalg.norm(flat, axis=1), 1e-12)  # Frobenius norm of each covariance
-    # similar[k, r]: branch k may merge into representative r (criteria of the paper)
-    similar = (np.abs(entropies[:, None] - entropies[None, :]) < params.merge_entropy_tol) & (
-        np.linalg.norm(flat[:, None, :] - flat[None, :, :], axis=2) / scale[None, :]
-        < params.merge_cov_tol
+    kept, p = kernels.merge(
+        np.asarray(probs, dtype=float),
+        np.asarray(entropies, dtype=float),
+        np.ascontiguousarray(covs, dtype=float).reshape(len(covs), 9),
+        params.merge_entropy_tol,
+        params.merge_cov_tol,
+        params.online_keep_mass,
+        _TIE_SCALE,
     )
-    reps: list[int] = []
-    mass: list[float] = []
-    for k in _most_probable_first(probs):
-        for r_i, r in enumerate(reps):
-            if similar[k, r]:
-                mass[r_i] += float(probs[k])
-                break
-        else:
-            reps.append(int(k))
-            mass.append(float(probs[k]))
-    order = _most_probable_first(mass)
-    total = float(np.sum(mass))
-    kept, acc = [], 0.0
-    for i in order:
-        kept.append((reps[i], mass[i]))
-        acc += mass[i]
-        if acc >= params.online_keep_mass * total:
-            break
-    z = sum(p for _, p in kept)
-    return [(k, p / z) for k, p in kept]
+    return [(int(k), float(q)) for k, q in zip(kept, p)]
 
 
 def rotate_about(points: np.ndarray, center_xy: np.ndarray, angle: float) -> np.ndarray:
@@ -241,6 +186,20 @@ def full_turn(
     measured ``outcome`` box move to its mean (rrg_estimator.transition.reorient, without the
     blur)."""
     return _full_turn(points, e, angle, outcome)[0]
+
+
+def _compose(e: np.ndarray, d: tuple[float, float, float]) -> np.ndarray:
+    """compose_planar(e, d) of one pose e (3,) and offset d [m, m, rad]: the same operations
+    on scalars, to the bit (NumPy's cos and sin, Python's float remainder as NumPy's)."""
+    c, s = float(np.cos(e[2])), float(np.sin(e[2]))
+    x, y, th = float(e[0]), float(e[1]), float(e[2])
+    wrapped = (th + d[2] + np.pi) % (2 * np.pi) - np.pi
+    return np.array([x + c * d[0] - s * d[1], y + s * d[0] + c * d[1], wrapped])
+
+
+def _close(a: np.ndarray, b: np.ndarray) -> bool:
+    """np.allclose(a, b) of two finite poses (3,), on scalars."""
+    return all(abs(float(u) - float(v)) <= 1e-8 + 1e-5 * abs(float(v)) for u, v in zip(a, b))
 
 
 #: Three-point Gauss–Hermite rule, centre first: offsets [σ] and weights that give a Gaussian
@@ -301,23 +260,16 @@ def reorient_mixture(
 
 def table_index(points: np.ndarray, e: np.ndarray, grid) -> np.ndarray:
     """Flat table index of each point's offset from e (relative_planar + Grid.nearest_index,
-    clamped), fused in float32: the search's hot path."""
-    n = np.asarray(grid.shape)
-    half = (n - 1) / 2
-    c, s_ = np.cos(e[2]), np.sin(e[2])
-    p = points.astype(np.float32)
-    dx, dy = p[:, 0] - np.float32(e[0]), p[:, 1] - np.float32(e[1])
-    sx, sy, st = (np.float32(v) for v in grid.spacing)
-    ix = np.rint((np.float32(c) * dx + np.float32(s_) * dy) / sx + np.float32(half[0]))
-    iy = np.rint((np.float32(c) * dy - np.float32(s_) * dx) / sy + np.float32(half[1]))
-    dth = (p[:, 2] - np.float32(e[2]) + np.float32(np.pi)) % np.float32(2 * np.pi) - np.float32(
-        np.pi
+    clamped), fused in float32: the search's hot path (search_kernels.table_index)."""
+    e = np.asarray(e, dtype=float)
+    return kernels.table_index(
+        np.ascontiguousarray(points, dtype=float),
+        e,
+        np.cos(e[2]),
+        np.sin(e[2]),
+        np.asarray(grid.spacing, dtype=float),
+        np.asarray(grid.shape, dtype=np.int64),
     )
-    it = np.rint(dth / st + np.float32(half[2]))
-    np.clip(ix, 0, n[0] - 1, out=ix)
-    np.clip(iy, 0, n[1] - 1, out=iy)
-    np.clip(it, 0, n[2] - 1, out=it)
-    return (ix.astype(np.int64) * n[1] + iy.astype(np.int64)) * n[2] + it.astype(np.int64)
 
 
 @dataclass
@@ -350,6 +302,15 @@ class ForwardSearch:
         #: asks about the same estimates over and over (the drill at H = 3: 6,674 asks, 1,838
         #: distinct)
         self._feasible_memo: dict[tuple[int, bytes], bool] = {}
+        #: goal_estimates by (w*(b)'s bytes, level), during one ``select`` only (None outside
+        #: it): blocked and spent pairs, which they depend on, cannot change within one
+        self._estimates_memo: dict[tuple[bytes, str], list[tuple[int, np.ndarray | None]]] | None
+        self._estimates_memo = None
+        #: per (goal action, level), ``_aim_offset``
+        self._aim_offsets: dict[tuple[int, str], tuple[float, float, float]] = {}
+        #: per level: grid spacing (3,) [m, m, rad], shape (3,), and the goal's reach about an
+        #: estimate: radius in x, y [m] and |θ| [rad], each with one cell of margin
+        self._geometry: dict[str, tuple[np.ndarray, np.ndarray, float, float]] = {}
 
     @staticmethod
     def _key(action: int, e) -> tuple[int, bytes]:
@@ -403,18 +364,39 @@ class ForwardSearch:
         outcome = self.model.actions[action].wrt.reorient_outcome
         if outcome is None:
             return True
-        inside = outcome.inside(relative_planar(sb.w_star, sb.points))
-        return float(sb.weights[inside].sum()) >= self.params.reorient_min_in_box
+        e = sb.w_star
+        inside = kernels.mass_in_box(
+            sb.points, sb.weights, e, np.cos(e[2]), np.sin(e[2]), np.asarray(outcome.box, float)
+        )
+        return inside >= self.params.reorient_min_in_box
 
     # ---------------------------------------------------------------- helpers
     def _table_index(self, sb: SparseBelief) -> np.ndarray:
         """Table entry of every support point's offset from w*(b) (cached on the belief)."""
         if sb.table_index is None:
-            sb.table_index = table_index(sb.points, sb.w_star, self._grid(sb.level))
+            e = sb.w_star
+            spacing, shape, _, _ = self._level_geometry(sb.level)
+            sb.table_index = kernels.table_index(
+                sb.points, e, np.cos(e[2]), np.sin(e[2]), spacing, shape
+            )
         return sb.table_index
 
     def _grid(self, level: str):
         return self.model.actions[0].tables[level].grid
+
+    def _level_geometry(self, level: str) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """The level's table spacing and shape, and the goal's reach (``_geometry``)."""
+        geo = self._geometry.get(level)
+        if geo is None:
+            grid = self._grid(level)
+            reach = self.model.goal_reach[level]
+            geo = self._geometry[level] = (
+                np.asarray(grid.spacing, dtype=float),
+                np.asarray(grid.shape, dtype=np.int64),
+                np.hypot(reach[0], reach[1]) + np.hypot(grid.spacing[0], grid.spacing[1]),
+                reach[2] + grid.spacing[2],
+            )
+        return geo
 
     def goal_estimates(self, w_star: np.ndarray, level: str) -> list[tuple[int, np.ndarray]]:
         """(goal action, estimate) pairs a goal grasp may run at, the feasible ones of: w*(b)
@@ -422,11 +404,20 @@ class ForwardSearch:
         (model.goal_aim: where the measured closing leaves it best placed)."""
         out = []
         for g in self.model.goal_actions:
-            aim = self.model.actions[g].aim[level]
-            for e in (w_star, compose_planar(w_star, relative_planar(aim, np.zeros(3)))):
-                if self.feasible(g, e) and not any(g == h and np.allclose(e, f) for h, f in out):
+            for e in (w_star, _compose(w_star, self._aim_offset(g, level))):
+                if self.feasible(g, e) and not any(g == h and _close(e, f) for h, f in out):
                     out.append((g, e))
         return out
+
+    def _aim_offset(self, g: int, level: str) -> tuple[float, float, float]:
+        """relative_planar(Δ_aim, 0) of goal action g: composed with w*(b), the estimate that
+        puts an object at w*(b) at the aim (cached per action and level)."""
+        offset = self._aim_offsets.get((g, level))
+        if offset is None:
+            aim = self.model.actions[g].aim[level]
+            offset = tuple(float(v) for v in relative_planar(aim, np.zeros(3)))
+            self._aim_offsets[(g, level)] = offset
+        return offset
 
     def best_goal(
         self, sb: SparseBelief, goals: tuple[int, ...] | None = None
@@ -437,35 +428,48 @@ class ForwardSearch:
         table index is cached."""
         best = (0.0, -1, None)
         w_star = sb.w_star
-        for g, e in self.goal_estimates(w_star, sb.level):
+        spacing, shape, radius, reach_theta = self._level_geometry(sb.level)
+        for g, e in self._goal_estimates(w_star, sb.level):
             if goals is not None and g not in goals:
                 continue
+            table = self.model.goal_table(g, sb.level, sb.frame)
             if sb.table_index is not None and e is w_star:
-                idx, w = sb.table_index, sb.weights
+                p = float(sb.weights @ table[sb.table_index])
             else:
-                near = self._near_goal(sb.points, e, sb.level)
-                idx, w = table_index(sb.points[near], e, self._grid(sb.level)), sb.weights[near]
-            p = float(w @ self.model.goal_table(g, sb.level, sb.frame)[idx])
+                w, goal = kernels.goal_terms(
+                    sb.points,
+                    sb.weights,
+                    e,
+                    np.cos(e[2]),
+                    np.sin(e[2]),
+                    spacing,
+                    shape,
+                    radius,
+                    reach_theta,
+                    table,
+                )
+                p = float(w @ goal)
             if p > best[0]:
                 best = (p, g, e)
         return best
+
+    def _goal_estimates(self, w_star: np.ndarray, level: str) -> list[tuple[int, np.ndarray]]:
+        """goal_estimates, remembered during a ``select`` (w*(b) itself is returned as given,
+        so that best_goal may tell it from the aimed estimates)."""
+        if self._estimates_memo is None:
+            return self.goal_estimates(w_star, level)
+        key = (w_star.tobytes(), level)
+        known = self._estimates_memo.get(key)
+        if known is None:
+            known = self._estimates_memo[key] = [
+                (g, None if e is w_star else e) for g, e in self.goal_estimates(w_star, level)
+            ]
+        return [(g, w_star if e is None else e) for g, e in known]
 
     def static_value(self, sb: SparseBelief) -> float:
         """v(b): max over feasible goal WRTs and their estimates (goal_estimates) of P_b(goal
         after executing it there)."""
         return self.best_goal(sb)[0]
-
-    def _near_goal(self, points: np.ndarray, e: np.ndarray, level: str) -> np.ndarray:
-        """Indices of points whose offset from e may have P(G | Δ) > 0 (one cell of margin;
-        x, y as a radius, since the offsets are in e's frame)."""
-        grid = self._grid(level)
-        reach = self.model.goal_reach[level]
-        radius = np.hypot(reach[0], reach[1]) + np.hypot(grid.spacing[0], grid.spacing[1])
-        d = points[:, :2] - e[:2]
-        ok = np.einsum("ij,ij->i", d, d) <= radius * radius
-        return np.flatnonzero(
-            ok & (np.abs(_wrap(points[:, 2] - e[2])) <= reach[2] + grid.spacing[2])
-        )
 
     def expand(self, sb: SparseBelief, a: int) -> list[tuple[float, SparseBelief]]:
         """Observation branches of action a at w*(b): [(P(c | b, a), SE(b, a, o_c))]."""
@@ -474,29 +478,29 @@ class ForwardSearch:
         e = sb.w_star
         frame = self.model.reading_frame(a, sb.frame)  # the frame the posterior is held in
         idx = self._table_index(sb)
-        cl = clusters.assign[idx]
-        known = cl >= 0
-        pc = np.bincount(cl[known], weights=sb.weights[known], minlength=clusters.count)
-        total = pc.sum()
-        if total <= 0:
-            return []
-        pc /= total
-        order = _most_probable_first(pc)
-        cum = np.cumsum(pc[order])
-        n_cand = int(np.searchsorted(cum, 0.95) + 1)
-        cand = order[:n_cand][pc[order[:n_cand]] > 0]
-        z, ent, cov = branch_statistics(*self._posterior_moments(sb, clusters, cand))
+        if sb.features is None:
+            sigma = np.asarray(self.model.levels[sb.level].sigma, dtype=float)
+            sb.features = kernels.weighted_features(sb.points, sb.weights, e, sigma)
+        kept, probs = kernels.expand_branches(
+            clusters.assign,
+            clusters.count,
+            clusters.likelihood,
+            clusters.l_log_l,
+            idx,
+            sb.weights,
+            sb.features,
+            self.params.merge_entropy_tol,
+            self.params.merge_cov_tol,
+            self.params.online_keep_mass,
+            _TIE_SCALE,
+        )
         branches = []
-        for k, p in merge_branches(pc[cand], ent, cov, self.params):
-            w = clusters.likelihood[cand[k]][idx] * sb.weights
-            w /= w.sum()
-            if (
-                act.kind == "reorient" and act.turns[sb.level][cand[k]]
-            ):  # the mixture comes out compact
+        for c, p in zip(kept.tolist(), probs.tolist()):
+            if act.kind == "reorient" and act.turns[sb.level][c]:  # the mixture comes out compact
                 child = SparseBelief(
                     *reorient_mixture(
                         sb.points,
-                        w,
+                        kernels.child_weights(clusters.likelihood[c], idx, sb.weights),
                         e,
                         act.wrt.reorient_angle,
                         self.params.support_rel,
@@ -506,34 +510,19 @@ class ForwardSearch:
                     frame=frame,
                 )
             else:
-                child = SparseBelief.compact(sb.points, w, sb.level, self.params, frame)
+                pts, w, star, keep = kernels.child(
+                    clusters.likelihood[c],
+                    idx,
+                    sb.points,
+                    sb.weights,
+                    self.params.support_rel,
+                    1.0 - TIE_RTOL,
+                )
+                child = SparseBelief(
+                    pts, w, sb.level, frame=frame, parent_index=(e, idx, keep), _w_star=pts[star]
+                )
             branches.append((p, child))
         return branches
-
-    def _posterior_moments(
-        self, sb: SparseBelief, clusters, cand: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Σ b L_c f (K,11) over moment_features f, and Σ b L_c log L_c (K,), for clusters cand."""
-        idx = sb.table_index
-        if sb.moments is None:
-            sigma = np.asarray(self.model.levels[sb.level].sigma)
-            features = moment_features(sb.points, sb.weights, sb.w_star, sigma)
-            if len(idx) >= DENSE_FRACTION * (int(idx.max()) - int(idx.min()) + 1):
-                sb.moments = scatter_moments(idx, sb.weights, features)
-            else:
-                sb.moments = (features.astype(np.float32), sb.weights.astype(np.float32))
-        if isinstance(sb.moments[0], int):  # table space: no per-cluster gathers
-            lo, tab = sb.moments
-            cols = slice(lo, lo + len(tab))
-            return (clusters.likelihood[:, cols] @ tab)[cand], (
-                clusters.l_log_l[:, cols] @ tab[:, 0]
-            )[cand]
-        features, weights32 = sb.moments
-        # take on a row subset is ~3x faster than 2-D fancy indexing
-        return (
-            (np.take(clusters.likelihood[cand], idx, axis=1) * weights32) @ features,
-            np.take(clusters.l_log_l[cand], idx, axis=1) @ weights32,
-        )
 
     # ---------------------------------------------------------------- search
     def action_values(
@@ -555,7 +544,11 @@ class ForwardSearch:
 
     def held_probability(self, child: SparseBelief, goal: int, e: np.ndarray) -> float:
         """P_b(G) of goal grasp ``goal`` just made at e, under its posterior ``child``."""
-        idx = table_index(child.points, e, self._grid(child.level))
+        if child.parent_index is not None and child.parent_index[0] is e:
+            idx = child.parent_index[1][child.parent_index[2]]  # table_index is per point
+        else:
+            spacing, shape, _, _ = self._level_geometry(child.level)
+            idx = kernels.table_index(child.points, e, np.cos(e[2]), np.sin(e[2]), spacing, shape)
         return float(child.weights @ self.model.goal_table(goal, child.level, child.frame)[idx])
 
     def _outcome_value(
@@ -585,9 +578,13 @@ class ForwardSearch:
         check_search(horizon, delta)
         t0 = time.perf_counter()
         sb = SparseBelief.from_belief(belief, self.model.level_of(belief.grid), self.params)
-        with _BLAS.limit(limits=1, user_api="blas"):
-            q = self.action_values(sb, horizon, delta)
-            p_goal, g, e_goal = self.best_goal(sb)
+        self._estimates_memo = {}
+        try:
+            with _BLAS.limit(limits=1, user_api="blas"):
+                q = self.action_values(sb, horizon, delta)
+                p_goal, g, e_goal = self.best_goal(sb)
+        finally:
+            self._estimates_memo = None
         best = int(np.argmax(q)) if np.isfinite(q).any() else -1
         return SearchResult(
             action=best,

@@ -12,15 +12,16 @@ from rrg_estimator.belief import Belief
 from rrg_estimator.config import UncertaintyLevel
 from rrg_estimator.grid import Grid
 from rrg_estimator.update import goal_probability, update
+from rrg_planner import reference_search, search_kernels
 from rrg_planner import search as search_module
 from rrg_planner.clustering import PROGRESS_BIN
 from rrg_planner.config import SEARCH
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.reference_search import ReferenceSearch
-from rrg_planner.search import ForwardSearch, SparseBelief, merge_branches, scatter_moments
+from rrg_planner.search import ForwardSearch, SparseBelief, merge_branches
 from rrg_sim.config import WORLD
 from rrg_sim.geometric_sim import GeometricSimulator
-from rrg_sim.poses import compose_planar
+from rrg_sim.poses import compose_planar, relative_planar
 
 SMALL = UncertaintyLevel(
     "small", sigma=(0.02, 0.02, 0.2), spacing=(0.01, 0.01, 0.1), shape=(9, 9, 5)
@@ -44,14 +45,10 @@ def beliefs(model):
     return [b0, update(b0, goal.tables["small"], mean, obs)]
 
 
-@pytest.mark.parametrize("dense_fraction", [0.0, np.inf], ids=["table-space", "gathered"])
 @pytest.mark.parametrize("horizon", [1, 2])
 @pytest.mark.parametrize("params", [EXACT, SEARCH], ids=["full-support", "default-support"])
 @pytest.mark.parametrize("delta", [SEARCH.delta, 0.5])
-def test_fast_search_matches_reference(
-    model, beliefs, horizon, params, dense_fraction, delta, monkeypatch
-):
-    monkeypatch.setattr(search_module, "DENSE_FRACTION", dense_fraction)  # both moment paths
+def test_fast_search_matches_reference(model, beliefs, horizon, params, delta):
     fast, ref = ForwardSearch(model, params), ReferenceSearch(model, params)
     for b in beliefs:
         f, r = fast.select(b, horizon, delta), ref.select(b, horizon, delta)
@@ -60,7 +57,7 @@ def test_fast_search_matches_reference(
         ok = np.isfinite(f.action_values)
         np.testing.assert_allclose(
             f.action_values[ok], r.action_values[ok], rtol=1e-4, atol=1e-6
-        )  # float32 gathers
+        )  # float32 table index and moments
         assert f.p_goal == pytest.approx(r.p_goal, abs=1e-9)
 
 
@@ -107,9 +104,8 @@ H3_BELIEFS = {
 
 @pytest.mark.parametrize("params", [EXACT, SEARCH], ids=["full-support", "default-support"])
 @pytest.mark.parametrize("kind", list(H3_BELIEFS))
-def test_fast_search_matches_reference_at_horizon_3(model, kind, params, monkeypatch):
-    """Beliefs the centred ones above do not cover (seeded), three levels deep, through both
-    of the fast search's moment paths."""
+def test_fast_search_matches_reference_at_horizon_3(model, kind, params):
+    """Beliefs the centred ones above do not cover (seeded), three levels deep."""
     belief = H3_BELIEFS[kind](np.random.default_rng(17))
     cells = (belief.grid.points() - np.asarray(belief.grid.center)) / np.asarray(SMALL.spacing)
     w_star = cells[np.argmax(belief.weights)]
@@ -123,16 +119,14 @@ def test_fast_search_matches_reference_at_horizon_3(model, kind, params, monkeyp
         assert np.all(np.rint(np.abs(w_star[:2])) == 4)  # on the border in x and y
     r = ReferenceSearch(model, params).select(belief, 3, SEARCH.delta)
     assert np.isfinite(r.action_values).sum() >= 3
-    for dense_fraction in (0.0, np.inf):
-        monkeypatch.setattr(search_module, "DENSE_FRACTION", dense_fraction)
-        f = ForwardSearch(model, params).select(belief, 3, SEARCH.delta)
-        assert f.action == r.action, dense_fraction
-        assert np.array_equal(np.isfinite(f.action_values), np.isfinite(r.action_values))
-        ok = np.isfinite(f.action_values)
-        np.testing.assert_allclose(
-            f.action_values[ok], r.action_values[ok], rtol=1e-4, atol=1e-6
-        )  # float32 gathers
-        assert f.p_goal == pytest.approx(r.p_goal, abs=1e-9)
+    f = ForwardSearch(model, params).select(belief, 3, SEARCH.delta)
+    assert f.action == r.action
+    assert np.array_equal(np.isfinite(f.action_values), np.isfinite(r.action_values))
+    ok = np.isfinite(f.action_values)
+    np.testing.assert_allclose(
+        f.action_values[ok], r.action_values[ok], rtol=1e-4, atol=1e-6
+    )  # float32 table index and moments
+    assert f.p_goal == pytest.approx(r.p_goal, abs=1e-9)
 
 
 def test_static_value_is_goal_probability_at_w_star(model, beliefs):
@@ -232,16 +226,79 @@ def test_a_goal_grasp_the_agent_would_declare_ends_its_branch(model, search_cls)
     assert q2 > q1 + 0.03
 
 
-@pytest.mark.parametrize("duplicates", [False, True], ids=["one-per-entry", "shared-entries"])
-def test_scatter_moments_sums_states_per_table_entry(duplicates):
-    rng = np.random.default_rng(7)
-    idx = rng.choice(np.arange(40, 140), size=60, replace=duplicates)
-    w, f = rng.random(60), rng.random((60, 11))
-    lo, tab = scatter_moments(idx, w, f)
-    expected = np.zeros((idx.max() - idx.min() + 1, 11))
-    np.add.at(expected, idx - idx.min(), w[:, None] * f)
-    assert lo == idx.min() and tab.dtype == np.float32
-    np.testing.assert_allclose(tab, expected, rtol=1e-6)
+def test_the_reference_shares_the_fast_searchs_constants():
+    """reference_search keeps its own copies (it shares no code with search.py)."""
+    assert reference_search.TIE_RTOL == search_module.TIE_RTOL
+    assert reference_search.TIE_DECIMALS == search_module.TIE_DECIMALS
+    assert reference_search.BLUR_NODES == search_module.BLUR_NODES
+
+
+def test_merging_agrees_with_the_reference():
+    """search.merge_branches (compiled) and the reference's Python loops, on seeded branches
+    whose entropies and covariances straddle the merge tolerances."""
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        k = int(rng.integers(1, 12))
+        probs = rng.dirichlet(np.ones(k))
+        ent = rng.uniform(1.0, 1.6, k)
+        a = rng.normal(size=(k, 3, 3)) * 0.1 + np.eye(3)
+        covs = a @ a.transpose(0, 2, 1) * rng.uniform(0.8, 1.2, (k, 1, 1))
+        fast = merge_branches(probs, ent, covs)
+        slow = reference_search.merge_branches(probs, ent, covs)
+        assert [i for i, _ in fast] == [i for i, _ in slow]
+        np.testing.assert_allclose([p for _, p in fast], [p for _, p in slow], rtol=1e-12)
+
+
+@pytest.mark.parametrize("shape", [(5,), (130,), (1000,), (54321,)])
+def test_kernel_sums_are_numpys(shape):
+    """The compiled pairwise sum and the cluster masses are NumPy's to the bit (the search's
+    values depend on it)."""
+    rng = np.random.default_rng(3)
+    w = rng.random(shape) * 10.0 ** rng.integers(-9, 1, shape)
+    assert search_kernels.pairwise_sum(w) == w.sum()
+    assign = rng.integers(-1, 7, 2 * shape[0])
+    idx = rng.integers(0, 2 * shape[0], shape[0])
+    cl = assign[idx]
+    expected = np.bincount(cl[cl >= 0], weights=w[cl >= 0], minlength=7)
+    assert np.array_equal(search_kernels.cluster_mass(assign, idx, w, 7), expected)
+
+
+def test_kernel_tie_order_is_numpys_rounded_stable_sort():
+    """Branch probabilities that tie to TIE_DECIMALS (as a symmetric object's mirror branches
+    do, to the last bits) are ordered by index, as np.argsort of np.round ordered them."""
+    rng = np.random.default_rng(5)
+    scale = 10.0**search_module.TIE_DECIMALS
+    for _ in range(500):
+        base = rng.dirichlet(np.ones(8))
+        probs = np.concatenate([base, base[::-1] * (1 + rng.normal(0, 1e-14, 8))])
+        expected = np.argsort(-np.round(probs, search_module.TIE_DECIMALS), kind="stable")
+        assert np.array_equal(search_kernels.most_probable_first(probs, scale), expected)
+
+
+def test_aimed_estimates_are_compose_planars():
+    """The goal's aimed estimate and its duplicate test, on scalars, are compose_planar's and
+    np.allclose's to the bit (goal_estimates feeds the feasibility memo by the exact bytes)."""
+    rng = np.random.default_rng(8)
+    for k in range(2000):
+        e = np.array([0.62, 0.0, 0.0]) + rng.normal(0, [0.05, 0.05, 2.0])
+        if k % 3 == 0:
+            e[2] = 0.1 * rng.integers(-35, 35)  # a grid θ, wrapping past ±π
+        d = relative_planar(rng.normal(0, [0.01, 0.01, 0.1]), np.zeros(3))
+        aimed = search_module._compose(e, tuple(float(v) for v in d))
+        assert aimed.tobytes() == compose_planar(e, d).tobytes()
+        other = aimed + rng.normal(0, 1e-8, 3) * rng.choice([0.0, 1.0, 1e3], 3)
+        assert search_module._close(aimed, other) == np.allclose(aimed, other)
+
+
+def test_table_index_is_the_grids_nearest_index(beliefs):
+    """The compiled table index is Grid.nearest_index of each offset from the estimate
+    (float32 rounding aside: offsets off the cell boundaries)."""
+    b = beliefs[1]
+    e = b.w_star() + np.array([0.003, -0.002, 0.03])
+    grid = Grid((0.0, 0.0, 0.0), b.grid.spacing, b.grid.shape)
+    idx = search_module.table_index(b.grid.points(), e, grid)
+    expected = grid.nearest_index(relative_planar(e, b.grid.points()))
+    assert np.mean(idx == expected) > 0.999
 
 
 #: θ steps of 0.08 rad: the teacup's aim is a whole step (on SMALL's 0.1 rad it is a half step,
