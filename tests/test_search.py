@@ -45,20 +45,25 @@ def beliefs(model):
     return [b0, update(b0, goal.tables["small"], mean, obs)]
 
 
+def assert_same_choice(f, r) -> None:
+    """The fast search's result f and the reference's r choose alike: the same action, the
+    same feasible actions, their values within the float32 tables' rounding, the same v(b)."""
+    assert f.action == r.action
+    assert np.array_equal(np.isfinite(f.action_values), np.isfinite(r.action_values))
+    ok = np.isfinite(f.action_values)
+    np.testing.assert_allclose(
+        f.action_values[ok], r.action_values[ok], rtol=1e-4, atol=1e-6
+    )  # float32 table index and moments
+    assert f.p_goal == pytest.approx(r.p_goal, abs=1e-9)
+
+
 @pytest.mark.parametrize("horizon", [1, 2])
 @pytest.mark.parametrize("params", [EXACT, SEARCH], ids=["full-support", "default-support"])
 @pytest.mark.parametrize("delta", [SEARCH.delta, 0.5])
 def test_fast_search_matches_reference(model, beliefs, horizon, params, delta):
     fast, ref = ForwardSearch(model, params), ReferenceSearch(model, params)
     for b in beliefs:
-        f, r = fast.select(b, horizon, delta), ref.select(b, horizon, delta)
-        assert f.action == r.action
-        assert np.array_equal(np.isfinite(f.action_values), np.isfinite(r.action_values))
-        ok = np.isfinite(f.action_values)
-        np.testing.assert_allclose(
-            f.action_values[ok], r.action_values[ok], rtol=1e-4, atol=1e-6
-        )  # float32 table index and moments
-        assert f.p_goal == pytest.approx(r.p_goal, abs=1e-9)
+        assert_same_choice(fast.select(b, horizon, delta), ref.select(b, horizon, delta))
 
 
 def _noisy(belief: Belief, rng: np.random.Generator) -> Belief:
@@ -119,14 +124,7 @@ def test_fast_search_matches_reference_at_horizon_3(model, kind, params):
         assert np.all(np.rint(np.abs(w_star[:2])) == 4)  # on the border in x and y
     r = ReferenceSearch(model, params).select(belief, 3, SEARCH.delta)
     assert np.isfinite(r.action_values).sum() >= 3
-    f = ForwardSearch(model, params).select(belief, 3, SEARCH.delta)
-    assert f.action == r.action
-    assert np.array_equal(np.isfinite(f.action_values), np.isfinite(r.action_values))
-    ok = np.isfinite(f.action_values)
-    np.testing.assert_allclose(
-        f.action_values[ok], r.action_values[ok], rtol=1e-4, atol=1e-6
-    )  # float32 table index and moments
-    assert f.p_goal == pytest.approx(r.p_goal, abs=1e-9)
+    assert_same_choice(ForwardSearch(model, params).select(belief, 3, SEARCH.delta), r)
 
 
 def test_static_value_is_goal_probability_at_w_star(model, beliefs):
