@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from rrg_estimator.obs_tables import ARRAY_FIELDS
 from rrg_sim.config import GEOMSIM, HAND, SENSOR_NAMES
 from rrg_sim.geometric_sim import GeometricSimulator
 from rrg_sim.objects import Primitive, get_object
@@ -201,18 +202,6 @@ def test_a_grasp_stopped_in_its_last_centimetre_has_arrived(kind):
     assert o.contact == (kind == "info")
     assert o.progress == pytest.approx(sim.path.length - 0.01, abs=STEP_TOL)
     assert names(o.sensors) == {"tip1", "tip2", "tip3"}
-
-
-ARRAY_FIELDS = (
-    "contact",
-    "progress",
-    "sensors",
-    "closure",
-    "tip_points",
-    "tip_normals",
-    "motion_dir",
-    "stop_pose",
-)
 
 
 def assert_same_arrays(a, b) -> None:

@@ -101,16 +101,7 @@ def test_cache_round_trip_and_rebuild_when_stale(tmp_path, monkeypatch):
     monkeypatch.setattr(obs_tables, "build_table", no_build)
     second = load_or_build(BOX, TOP_DOWN, COARSE, cache_dir=tmp_path, workers=1, progress=False)
     assert (second.grid, second.object_name, second.wrt_name) == (COARSE, "testbox", "top_down")
-    for field in (
-        "contact",
-        "progress",
-        "sensors",
-        "closure",
-        "tip_points",
-        "tip_normals",
-        "motion_dir",
-        "stop_pose",
-    ):
+    for field in obs_tables.ARRAY_FIELDS:
         np.testing.assert_array_equal(getattr(second, field), getattr(first, field))
     assert len(list(tmp_path.glob("*.npz"))) == 1
     monkeypatch.setattr(obs_tables, "build_table", counted_build)
