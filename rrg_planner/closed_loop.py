@@ -40,7 +40,7 @@ from rrg_estimator.tracker import BeliefTracker
 from rrg_planner.agent import MAX_BLOCKED, RobustGraspAgent
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.search import SearchResult
-from rrg_sim.config import SENSOR_NAMES
+from rrg_sim.config import SENSOR_NAMES, WORLD
 from rrg_sim.observation import Observation
 from rrg_sim.wrt import WRT, InfeasibleWRT
 
@@ -270,6 +270,13 @@ class ClosedLoop:
             step.p_goal,
             decision.planning_time * 1e3,
         )
+        if np.isfinite(obs.table_height):
+            log.info(
+                "%s began with a table touch: the table read %+.1f mm in its posture, and it "
+                "ran that much higher",
+                decision.wrt,
+                1e3 * (obs.table_height - WORLD.table_top_z),
+            )
         if mismatches:
             log.info(
                 "goal grasp check failed (%s): not believed to hold (P_b(G) %.3f); %s",

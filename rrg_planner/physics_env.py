@@ -21,12 +21,24 @@ class PhysicsEnvironment:
 
     @classmethod
     def for_object(
-        cls, object_name: str, seed: int = 0, profile: str = "nominal", confirm_stops: bool = True
+        cls,
+        object_name: str,
+        seed: int = 0,
+        profile: str = "nominal",
+        confirm_stops: bool = True,
+        touch_table: bool | None = None,
     ) -> PhysicsEnvironment:
         """A world of one object under a world profile (rrg_sim.config.world_profile), its
-        guarded moves confirming their stops unless ``confirm_stops`` is off."""
+        guarded moves confirming their stops unless ``confirm_stops`` is off, and touching the
+        table before a goal grasp as PhysicsWorld's ``touch_table`` says."""
         return cls(
-            PhysicsWorld(object_name, seed=seed, profile=profile, confirm_stops=confirm_stops)
+            PhysicsWorld(
+                object_name,
+                seed=seed,
+                profile=profile,
+                confirm_stops=confirm_stops,
+                touch_table=touch_table,
+            )
         )
 
     def reset(self, true_pose, seed: int) -> None:

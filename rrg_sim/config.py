@@ -403,6 +403,13 @@ class WorldProfile:
     #: σ of the table top's height about its modelled height [m], per trial.
     table_height_sigma: float = 0.0
 
+    @property
+    def uncertain_height(self) -> bool:
+        """Whether the hand's height over the table is uncertain (calibration error or a table
+        height draw): the robot then touches the table before a goal grasp
+        (rrg_sim.table_touch)."""
+        return self.joint_offset_sigma > 0 or self.table_height_sigma > 0
+
 
 NOMINAL = WorldProfile()
 

@@ -287,3 +287,15 @@ def geom_mjcf(g: GeomSpec, extra: str = "") -> str:
         f'<geom name="{g.name}" type="{g.kind}" size="{f(g.size)}" pos="{f(g.pos)}" '
         f'quat="{f(g.quat)}" {extra}/>'
     )
+
+
+def fingertip_lowest_z(T_hand: np.ndarray, spread: float, proximal, finger: int) -> float:
+    """Height [m] in the frame of T_hand (4,4) (e.g. ``world``) of the lowest point of finger
+    ``finger``'s (1-3) Nano17 tip capsule, the hand at (spread, proximal (3,))."""
+    name = f"f{finger}_tip"
+    for g, T in hand_geoms_world(T_hand, spread, np.asarray(proximal, dtype=float)):
+        if g.name == name:
+            radius, half = g.size
+            ends = T[:3, 3] + np.outer([-half, half], T[:3, 2])
+            return float(ends[:, 2].min() - radius)
+    raise ValueError(f"no fingertip {name}")

@@ -79,6 +79,9 @@ class Observation:
     unconfirmed_stops: lone pad trips of the WRT's guarded moves that the next pad sample did
         not confirm, so the move went on (hand_sensing.StopConfirmation; not used by the
         belief, reported for the log and the bag).
+    table_height: the table's height [m] in ``world`` that the table touch run before this
+        WRT read (rrg_sim.table_touch), by which the WRT was raised; NaN without a touch (not
+        used by the belief, reported for the log and the bag).
     """
 
     contact: bool
@@ -90,6 +93,7 @@ class Observation:
     tip_normals: np.ndarray = field(default_factory=lambda: np.full((3, 3), np.nan))
     motion_dir: np.ndarray = field(default_factory=lambda: np.zeros(3))
     unconfirmed_stops: int = 0
+    table_height: float = float("nan")
 
     def __post_init__(self) -> None:
         self.sensors = np.asarray(self.sensors, dtype=bool).reshape(N_SENSORS)

@@ -124,6 +124,17 @@ def arm_clear_of_table(q) -> np.ndarray:
     return points_clear_of_table(arm_points(q))
 
 
+def links_clearance(q, centre_xy, radius: float, top: float) -> np.ndarray:
+    """(…,7) → (…,) least clearance [m] of the arm's links (frames 3-8 and the midpoints
+    between them, each a WAM.link_radius ball) from the vertical cylinder of ``radius`` [m]
+    about ``centre_xy`` (2,) up to height ``top`` [m]: beside it or above it."""
+    origins = fk_frames(q)[..., 3:9, :3, 3]
+    points = np.concatenate([origins, 0.5 * (origins[..., 1:, :] + origins[..., :-1, :])], -2)
+    beside = np.linalg.norm(points[..., :2] - np.asarray(centre_xy), axis=-1) - radius
+    above = points[..., 2] - top
+    return np.maximum(beside, above).min(axis=-1) - WAM.link_radius
+
+
 def within_limits(q) -> np.ndarray:
     """(…,7) → (…,) True when every joint lies within its limits."""
     q = np.asarray(q, dtype=float)

@@ -9,7 +9,7 @@ import numpy as np
 
 from .poses import home_pose, planar_pose, wrap_angle
 
-WrtKind = Literal["goal", "info", "reorient"]
+WrtKind = Literal["goal", "info", "reorient", "touch"]
 
 
 class InfeasibleWRT(RuntimeError):

@@ -322,6 +322,12 @@ def test_the_graph_runs_a_judged_grasp_in_the_realistic_world(tmp_path, ros_doma
         msg = reader.deserialize(first[2], first[0].msgtype)
         conns = [c for c in reader.connections if c.topic == "/rrg/grasp_step"]
         steps = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(conns)]
+        conns = [c for c in reader.connections if c.topic == "/rrg/observation"]
+        observed = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(conns)]
+    # every goal grasp began with a table touch (the executor's world_profile), and only those
+    goal_heights = [o.table_height for o in observed if o.wrt_name == "goal"]
+    assert goal_heights and all(abs(h) < 0.02 for h in goal_heights)
+    assert all(np.isnan(o.table_height) for o in observed if o.wrt_name.startswith("info"))
     arm = [msg.position[list(msg.name).index(n)] for n in ARM_JOINT_NAMES]
     assert arm == pytest.approx(wam.HOME_Q, abs=1e-4)  # the encoders read home
     goals = [s.step for s in steps if s.event == 0 and s.wrt_kind == "goal"]  # EVENT_DECISION

@@ -299,7 +299,7 @@ class Graph:
         )
         sensing = {"unsensed_sensors": list(unsensed or ("",))}
         params = {
-            "executor": {},
+            "executor": {"world_profile": assumed},
             "estimator": {"world_profile": assumed, **sensing, **state.get("estimator", {})},
             "planner": {
                 **sensing,

@@ -37,8 +37,9 @@ log = logging.getLogger(__name__)
 #: The capabilities an ablation can switch off (Cell.without): the goal grasp's own check
 #: (RobustGraspAgent.verify), the guarded moves' stop confirmation (PhysicsWorld.confirm_stops),
 #: the posture frames of the planner's models (PlanningModel(world=...): off, they assume a
-#: robot without calibration error) and the goal probe (objects.wrt_generation.goal_probe_wrt).
-CAPABILITIES = ("verify", "confirm", "frames", "probe")
+#: robot without calibration error), the goal probe (objects.wrt_generation.goal_probe_wrt)
+#: and the table touch before the goal grasp and its probe (PhysicsWorld.touch_table).
+CAPABILITIES = ("verify", "confirm", "frames", "probe", "touch")
 
 
 @dataclass(frozen=True)
@@ -179,14 +180,21 @@ def _model(obj: str, level: str, world: str, without: tuple[str, ...] = ()):
     return _cached(_MODELS, model_key(obj, level, world, without), KEPT_MODELS, build)
 
 
-def _env(obj: str, world: str, confirm_stops: bool = True):
+def _env(obj: str, world: str, confirm_stops: bool = True, touch_table: bool = True):
+    """The physics environment of a trial (kept: KEPT_ENVS); ``touch_table`` off: never, on:
+    where the profile calls for it (PhysicsWorld.touch_table)."""
     from rrg_planner.physics_env import PhysicsEnvironment
 
     return _cached(
         _ENVS,
-        (obj, world, confirm_stops),
+        (obj, world, confirm_stops, touch_table),
         KEPT_ENVS,
-        lambda: PhysicsEnvironment.for_object(obj, profile=world, confirm_stops=confirm_stops),
+        lambda: PhysicsEnvironment.for_object(
+            obj,
+            profile=world,
+            confirm_stops=confirm_stops,
+            touch_table=None if touch_table else False,
+        ),
     )
 
 
@@ -204,7 +212,7 @@ def _run_trial(spec: TrialSpec) -> dict:
     cell = spec.cell
     t0 = time.perf_counter()
     true = spec.true_pose()
-    env = _env(cell.object, spec.world, "confirm" not in cell.without)
+    env = _env(cell.object, spec.world, "confirm" not in cell.without, "touch" not in cell.without)
     env.reset(true, seed=spec.seed)
     agent = RobustGraspAgent(
         _model(cell.object, cell.level, spec.world, cell.without),
@@ -228,6 +236,7 @@ def _run_trial(spec: TrialSpec) -> dict:
             planning_time_s=res.planning_time,
             error=res.error,
             judge=_jsonable(env.last_judgement),
+            table_touch_m=env.world.executor.touched_height,
         )
     except Exception as exc:
         log.exception("trial %s failed", spec.id)

@@ -37,6 +37,7 @@ from rrg_msgs.action import ExecuteWrt
 from rrg_msgs.msg import Observation as ObservationMsg
 from rrg_msgs.msg import Retreated
 from rrg_msgs.srv import Retreat
+from rrg_sim.config import WORLD_PROFILES, world_profile
 from rrg_sim.executor.robot_client import MotionCanceled, MotionFailed, RobotFault, RosRobot
 from rrg_sim.executor.trajectory import InfeasiblePath
 from rrg_sim.executor.wrt_executor import WrtExecutor
@@ -74,6 +75,18 @@ class ExecutorNode(Node):
                 floating_point_range=[FloatingPointRange(from_value=0.1, to_value=600.0)],
             ),
         )
+        self.declare_parameter(
+            "world_profile",
+            "nominal",
+            ParameterDescriptor(
+                description="World profile the robot is taken to be in "
+                f"(rrg_sim.config.world_profile: {', '.join(WORLD_PROFILES)}, …): where its "
+                "calibration or the table's height is uncertain, a goal grasp and its probe "
+                "begin with the object's table touch (rrg_sim.table_touch)",
+                read_only=True,
+            ),
+        )
+        self.touch_table = world_profile(self.get_parameter("world_profile").value).uncertain_height
         group = ReentrantCallbackGroup()
         self.robot = RosRobot(self, group, self.get_parameter("motion_timeout").value)
         self.core = WrtExecutor(self.robot)
@@ -190,7 +203,8 @@ class ExecutorNode(Node):
         try:
             if self.core.last is not None:  # the previous WRT's retreat, announced like any other
                 self.retreat(progress)
-            obs = self.core.execute(wrt, e, progress)
+            touch = get_object(handle.request.object_name).table_touch if self.touch_table else None
+            obs = self.core.execute(wrt, e, progress, touch=touch)
             msg = observation_to_msg(
                 obs, handle.request.object_name, wrt.name, e, self.get_clock().now().to_msg()
             )

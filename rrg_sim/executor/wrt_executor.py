@@ -17,14 +17,14 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from rrg_sim import wam
-from rrg_sim.config import GEOMSIM, N_SENSORS, PHYSICS, REORIENT_MIN_FINGERS
+from rrg_sim.config import GEOMSIM, N_SENSORS, PHYSICS, REORIENT_MIN_FINGERS, WORLD
 from rrg_sim.executor.trajectory import (
     DensePath,
     InfeasiblePath,
@@ -34,7 +34,7 @@ from rrg_sim.executor.trajectory import (
     sample_times,
     solve_path,
 )
-from rrg_sim.hand import hand_geoms_world
+from rrg_sim.hand import fingertip_lowest_z, hand_geoms_world, sensor_id
 from rrg_sim.observation import Observation, grasp_arrived, holds_object
 from rrg_sim.poses import planar_pose, raised
 from rrg_sim.wrt import WRT
@@ -48,7 +48,21 @@ FREE_SPEEDS = (PHYSICS.free_speed, PHYSICS.free_turn_speed)
 RETREAT_TOLERANCE = 0.05
 
 #: Execution phases reported to a progress callback, with the fraction done when each starts.
-PHASES = {"planning": 0.0, "approach": 0.1, "closing": 0.6, "reorient": 0.7, "retreat": 0.8}
+PHASES = {
+    "planning": 0.0,
+    "touch": 0.05,
+    "approach": 0.1,
+    "closing": 0.6,
+    "reorient": 0.7,
+    "retreat": 0.8,
+}
+#: Speed [m/s] of a table touch's guarded descent (rrg_sim.table_touch; chosen: a tenth of a
+#: guarded move's PHYSICS.move_speed, 0.4 mm between two 50 Hz pad samples).
+TOUCH_SPEED = 0.02
+#: A table touch that reads the table further than this [m] from its modelled height touched
+#: something else, and corrects nothing (chosen: 3 σ of the vertical error at a touch, 6-7 mm
+#: at 10 mrad with the table's 2.3 mm).
+TOUCH_VALID = 0.02
 
 
 @dataclass(frozen=True)
@@ -199,10 +213,13 @@ class WrtExecutor:
     def __init__(self, robot: Robot):
         self.robot = robot
         self.last: Execution | None = None
+        #: the table height [m] the last table touch read (None: none, or nothing valid)
+        self.touched_height: float | None = None
 
     def forget(self) -> None:
-        """Drop the pending retreat (the robot was reset elsewhere)."""
+        """Drop the pending retreat and the last table touch (the robot was reset elsewhere)."""
         self.last = None
+        self.touched_height = None
 
     # ------------------------------------------------------------------ motion
     def _follow(
@@ -256,19 +273,35 @@ class WrtExecutor:
 
     # ------------------------------------------------------------------ WRTs
     def execute(
-        self, wrt: WRT, e, progress: Callable[[str, float], None] | None = None
+        self,
+        wrt: WRT,
+        e,
+        progress: Callable[[str, float], None] | None = None,
+        touch: WRT | None = None,
     ) -> Observation:
         """Run τ(e) from home as a guarded move, close the fingers, and return the observation;
         the hand is left closed at the stop (call ``retreat`` next, or judge the grasp first).
-        A pending retreat of the previous WRT runs first. Raises physics.trajectory's
-        InfeasiblePath when no continuous IK path follows τ(e) (for a reorientation: or its
-        lift, turn and put-down from τ(e)'s end); the robot has not moved then."""
+        A pending retreat of the previous WRT runs first. ``touch``: the object's table touch
+        (rrg_sim.table_touch); when it serves ``wrt``, it runs first at e and τ(e) is raised by
+        the table height it read (``touch_table``). Raises physics.trajectory's InfeasiblePath
+        when no continuous IK path follows τ(e) (for a reorientation: or its lift, turn and
+        put-down from τ(e)'s end); the robot has not moved then, or only to touch the table
+        and back home."""
         report = progress or (lambda phase, fraction: None)
         if self.last is not None:
             self.retreat(report)
         e = np.asarray(e, dtype=float)
         report("planning", PHASES["planning"])
         path = wrt_path(wrt, e, self.robot.arm_q())
+        height = None
+        if touch is not None and wrt.name in touch.meta.get("serves", ()):
+            report("touch", PHASES["touch"])
+            try:
+                height = self.touch_table(touch, e)
+            except InfeasiblePath as exc:  # nothing moved: the WRT runs as it is
+                log.info("table touch skipped: %s", exc)
+            if height is not None:
+                wrt, path = self._raised(wrt, e, height - WORLD.table_top_z, path)
         if wrt.kind == "reorient":
             self._check_reorient(wrt, e, path)
         report("approach", PHASES["approach"])
@@ -312,12 +345,93 @@ class WrtExecutor:
             tip_normals=closed.tip_normals,
             motion_dir=motion_dir,
             unconfirmed_stops=unconfirmed,
+            table_height=float("nan") if height is None else height,
         )
         self.last = Execution(wrt, e, path.upto(int(np.floor(index))), obs, self.robot.arm_q())
         if wrt.kind == "reorient" and holds_object(obs.contact, obs.sensors, REORIENT_MIN_FINGERS):
             report("reorient", PHASES["reorient"])
             self._reorient(wrt, e)
         return obs
+
+    def _raised(self, wrt: WRT, e: np.ndarray, dz: float, path: DensePath) -> tuple[WRT, DensePath]:
+        """``wrt`` raised by dz [m] with its path, or by as large a part of dz (halved down to
+        a millimetre) as the arm can reach: a side grasp at the edge of the WAM's workspace
+        cannot go lower."""
+        part = dz
+        while abs(part) >= 1e-3:
+            raised_wrt = replace(wrt, poses=raised(wrt.poses, part))
+            try:
+                raised_path = wrt_path(raised_wrt, e, self.robot.arm_q())
+            except InfeasiblePath:
+                part /= 2
+                continue
+            if part != dz:
+                log.info(
+                    "%s raised %+.1f mm of the %+.1f mm the table touch asked: the arm "
+                    "reaches no further",
+                    wrt.name,
+                    1e3 * part,
+                    1e3 * dz,
+                )
+            return raised_wrt, raised_path
+        if abs(dz) >= 1e-3:
+            log.info("%s not raised by %+.1f mm: the arm cannot reach it", wrt.name, 1e3 * dz)
+        return wrt, path
+
+    def touch_table(self, touch: WRT, e: np.ndarray) -> float | None:
+        """Run the table touch at estimate e and back home: a guarded descent of a fingertip
+        (touch.meta["finger"]) at TOUCH_SPEED that stops at the first sensed contact, the hand
+        held in its preshape. Returns the table's height [m] as the robot reads it (the tip's
+        lowest point, from its measured hand pose), or None when it read nothing: the move
+        ended without a stop, the touching tip's Nano17 was silent at the stop (something
+        else was touched), or the height is further than TOUCH_VALID from the modelled
+        table. Sets ``touched_height``. Raises InfeasiblePath, before anything moves, when no
+        continuous IK path reaches the table or the arm's links would pass into the cylinder
+        about e that the touch keeps out of (touch.meta["clear"]: radius, height [m]); the
+        WRT it serves then runs unraised."""
+        path = wrt_path(touch, e, self.robot.arm_q())
+        radius, top = touch.meta["clear"]
+        clearance = wam.links_clearance(path.q, e[:2], radius, WORLD.table_top_z + top).min()
+        if clearance < 0:
+            raise InfeasiblePath(
+                f"the arm would pass {1e3 * -clearance:.0f} mm into the object's estimated "
+                "space on the way to the table"
+            )
+        self.robot.move_hand(touch.spread, touch.preclose)
+        free = {k: FREE_SPEEDS for k in (0, -1, -2)}
+        stop = self._follow(path, guard=True, speeds={**free, 1: (TOUCH_SPEED, PHYSICS.turn_speed)})
+        spread, proximal = self.robot.hand_angles()
+        height = fingertip_lowest_z(self.robot.hand_pose(), spread, proximal, touch.meta["finger"])
+        index = stop if stop is not None else float(len(path.poses) - 1)
+        reading = self.robot.reading()
+        obs = Observation(
+            contact=stop is not None,
+            progress=0.0,
+            hand_pose=self.robot.hand_pose(),
+            sensors=reading.fired,
+            closure=proximal,
+            tip_points=reading.tip_points,
+            tip_normals=reading.tip_normals,
+        )
+        self.last = Execution(touch, e, path.upto(int(np.floor(index))), obs, self.robot.arm_q())
+        self.retreat()
+        tip_fired = bool(reading.fired[sensor_id(f"tip{touch.meta['finger']}")])
+        valid = stop is not None and tip_fired and abs(height - WORLD.table_top_z) <= TOUCH_VALID
+        self.touched_height = height if valid else None
+        log.info(
+            "table touch: finger %d %s",
+            touch.meta["finger"],
+            f"read the table at {1e3 * (height - WORLD.table_top_z):+.1f} mm"
+            if valid
+            else "read no table"
+            + (
+                ""
+                if stop is None
+                else f" (stopped at {1e3 * (height - WORLD.table_top_z):+.1f} mm, its Nano17 "
+                + ("fired)" if tip_fired else "silent)")
+            ),
+        )
+        return self.touched_height
 
     def _motion_dir(self, path: DensePath, index: float, reading: Reading) -> np.ndarray:
         """Unit direction the sensed contact (a fired Nano17's contact point, else a fired pad,

@@ -6,8 +6,10 @@ An object folder holds:
   contacts, the goal grasp, optional hand-designed info grasps and reorientation, and the
   shape as named collision parts (``[[parts]]``: MuJoCo primitives, or convex mesh parts
   whose files the folder keeps, ``kind = "mesh"`` and ``file``);
-* the artefacts measured for it: ``settling.json`` (rrg_sim.physics.settle) and
-  ``reorientation.json`` (rrg_sim.physics.reorient_study), loaded when present.
+* the artefacts measured or planned for it: ``settling.json`` and
+  ``settling.realistic.json`` (rrg_sim.physics.settle), ``reorientation.json``
+  (rrg_sim.physics.reorient_study) and ``table_touch.json`` (rrg_sim.table_touch), loaded
+  when present.
 
 Units are SI and named in the keys (``_m``, ``_rad``, ``_kg``). Every error names the file
 and the key (``ObjectFileError``).

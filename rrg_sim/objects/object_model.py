@@ -19,6 +19,9 @@ from rrg_sim.wrt import WRT, ReorientOutcome
 
 from .wrt_generation import goal_probe_wrt, info_wrts, sweep_wrt
 
+#: An object folder's planned table touch (rrg_sim.table_touch writes it).
+TABLE_TOUCH_FILE = "table_touch.json"
+
 #: An object folder's measured grasp-settling fit (rrg_sim.physics.settle writes it).
 SETTLING_FILE = "settling.json"
 
@@ -379,9 +382,32 @@ class ObjectModel:
         """The goal WRT, the generated info WRTs, the sweep and the reorientation WRTs (cached)."""
         return self._wrts
 
+    @cached_property
+    def table_touch(self) -> WRT | None:
+        """The planned table touch (rrg_sim.table_touch), a WRT of kind "touch" that is no
+        action of the planner's; None where none was planned."""
+        path = self._artefact(TABLE_TOUCH_FILE)
+        if path is None or not path.exists():
+            return None
+        plan = json.loads(path.read_text())
+        return WRT(
+            name="table_touch",
+            kind="touch",
+            poses=np.asarray(plan["poses"], dtype=float),
+            spread=float(plan["spread"]),
+            preclose=float(plan["preclose"]),
+            description="a guarded descent of a fingertip to the table in the goal's calibration",
+            meta={
+                "finger": int(plan["finger"]),
+                "serves": list(plan["serves"]),
+                "clear": [float(v) for v in plan["clear"]],
+            },
+        )
+
     def wrt(self, name: str) -> WRT:
-        """The WRT called ``name``."""
-        for w in self._wrts:
+        """The WRT called ``name`` (an action's, or the table touch)."""
+        wrts = self._wrts + (() if self.table_touch is None else (self.table_touch,))
+        for w in wrts:
             if w.name == name:
                 return w
-        raise KeyError(f"{self.name} has no WRT {name!r}; valid: {[w.name for w in self._wrts]}")
+        raise KeyError(f"{self.name} has no WRT {name!r}; valid: {[w.name for w in wrts]}")

@@ -64,6 +64,10 @@ class PhysicsWorld:
     values, 0 = noiseless). profile: a config.WorldProfile or its spec (config.world_profile).
     confirm_stops: a guarded move stops on a lone pad only once the next pad sample agrees
     (hand_sensing.StopConfirmation); off only to measure what the confirmation gains.
+    touch_table: the goal grasp and its probe begin with the object's table touch
+    (rrg_sim.table_touch) and are raised by the height it reads; None: where the profile
+    has calibration error or a table height draw (not in the nominal world, whose robot is
+    its own model).
     """
 
     def __init__(
@@ -73,6 +77,7 @@ class PhysicsWorld:
         sensor_noise: float = 1.0,
         profile: WorldProfile | str = NOMINAL,
         confirm_stops: bool = True,
+        touch_table: bool | None = None,
     ):
         self.obj: ObjectModel = get_object(object_name)
         self.confirm_stops = confirm_stops
@@ -80,6 +85,7 @@ class PhysicsWorld:
         #: (the executor's Robot.unconfirmed_stops)
         self.unconfirmed_stops = 0
         self.profile = world_profile(profile)
+        self.touch_table = self.profile.uncertain_height if touch_table is None else touch_table
         self.model = build_model(object_name)
         self.data = mujoco.MjData(self.model)
         self.rng = np.random.default_rng(seed)
@@ -499,8 +505,10 @@ class PhysicsWorld:
         closed at the stop; call ``retreat`` next (for a goal WRT, ``physics.judge.judge_grasp``
         may come first). A "reorient" WRT also lifts the grasped object slightly, turns it by
         wrt.reorient_angle about the vertical through e, puts it down and opens the hand.
-        Raises InfeasiblePath when IK fails."""
-        return self.executor.execute(wrt, e)
+        Raises InfeasiblePath when IK fails. The goal grasp and its probe begin with the
+        object's table touch when ``touch_table``."""
+        touch = self.obj.table_touch if self.touch_table else None
+        return self.executor.execute(wrt, e, touch=touch)
 
     def retreat(self) -> None:
         """Open the hand and retrace the executed path back to home (WrtExecutor.retreat)."""

@@ -137,6 +137,7 @@ def observation_to_msg(
     msg.tip_normals = [vector_to_msg(n) if v else Vector3() for n, v in zip(obs.tip_normals, valid)]
     msg.motion_dir = vector_to_msg(obs.motion_dir)
     msg.unconfirmed_stops = int(obs.unconfirmed_stops)
+    msg.table_height = float(obs.table_height)
     return msg
 
 
@@ -160,4 +161,5 @@ def observation_from_msg(msg: ObservationMsg) -> Observation:
         tip_normals=normals,
         motion_dir=xyz(msg.motion_dir),
         unconfirmed_stops=int(msg.unconfirmed_stops),
+        table_height=float(msg.table_height),
     )
