@@ -80,8 +80,9 @@ class Observation:
         not confirm, so the move went on (hand_sensing.StopConfirmation; not used by the
         belief, reported for the log and the bag).
     table_height: the table's height [m] in ``world`` that the table touch run before this
-        WRT read (rrg_sim.table_touch), by which the WRT was raised; NaN without a touch (not
-        used by the belief, reported for the log and the bag).
+        WRT read (rrg_sim.table_touch); the WRT was raised by it, or by as much of it as the
+        arm reaches; NaN without a touch (not used by the belief, reported for the log and
+        the bag).
     """
 
     contact: bool
