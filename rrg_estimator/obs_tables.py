@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import hashlib
 import logging
-import multiprocessing as mp
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -39,6 +38,7 @@ from rrg_sim.geometric_sim import (
     SweptPath,
 )
 from rrg_sim.observation import Observation
+from rrg_sim.parallel import fork_map
 from rrg_sim.wrt import WRT
 
 log = logging.getLogger(__name__)
@@ -148,10 +148,9 @@ def _simulate_grid(
                 results.append(_run_chunk(c))
                 bar.update(len(c))
         else:
-            with mp.get_context("fork").Pool(workers) as pool:
-                for r in pool.imap(_run_chunk, chunks):
-                    results.append(r)
-                    bar.update(len(r.contact))
+            for r in fork_map(_run_chunk, chunks, workers):
+                results.append(r)
+                bar.update(len(r.contact))
     finally:
         _worker_sim = None
     return ObservationArrays.concatenate(results)

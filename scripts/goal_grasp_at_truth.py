@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import multiprocessing as mp
 from collections import Counter
 
 import numpy as np
 
 from rrg_sim.config import WORLD
 from rrg_sim.executor.trajectory import InfeasiblePath
+from rrg_sim.parallel import fork_map
 from rrg_sim.physics.judge import judge_grasp
 from rrg_sim.physics.world import PhysicsWorld
 from rrg_sim.poses import compose_planar
@@ -90,8 +90,7 @@ def main() -> None:
         jobs = [
             (name, args.world, args.height, seeds[k :: args.workers]) for k in range(args.workers)
         ]
-        with mp.get_context("fork").Pool(args.workers) as pool:
-            outcomes = [o for part in pool.map(run, jobs) for o in part]
+        outcomes = [o for part in fork_map(run, jobs, args.workers) for o in part]
         judged = [o for o in outcomes if o != "infeasible"]
         ok = sum(o == "" for o in judged)
         print(

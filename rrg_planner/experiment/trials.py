@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import logging
-import multiprocessing as mp
 import sys
 import time
 import zlib
@@ -29,6 +28,7 @@ from tqdm import tqdm
 from rrg_estimator.config import LEVELS
 from rrg_planner.config import SEARCH
 from rrg_sim.config import WORLD
+from rrg_sim.parallel import fork_map
 from rrg_sim.poses import compose_planar
 
 log = logging.getLogger(__name__)
@@ -424,8 +424,7 @@ def _imap(todo: list[TrialSpec], workers: int, ray: str | None, desc: str) -> It
             yield run_trial(spec)
             bar.update()
     else:
-        with mp.get_context("fork").Pool(workers) as pool:
-            for rec in pool.imap_unordered(run_trial, todo, chunksize=4):
-                yield rec
-                bar.update()
+        for rec in fork_map(run_trial, todo, workers, ordered=False):
+            yield rec
+            bar.update()
     bar.close()

@@ -24,7 +24,6 @@ one rename at the end, so a refused or failed onboarding leaves nothing installe
 from __future__ import annotations
 
 import logging
-import multiprocessing as mp
 import os
 import re
 import shutil
@@ -65,6 +64,7 @@ from rrg_sim.objects.wrt_generation import (
     top_down_poses,
     top_down_rotation,
 )
+from rrg_sim.parallel import fork_map
 from rrg_sim.poses import wrap_angle
 
 log = logging.getLogger(__name__)
@@ -501,8 +501,8 @@ def _rank(staging, folder, opts, mesh, part_files, mass, source, candidates) -> 
         names.append(name)
     jobs = [(name, RANKING_GRASPS, opts.seed) for name in names]
     try:
-        with _searched_first(staging), mp.get_context("fork").Pool(opts.workers) as pool:
-            return list(pool.map(_score_job, jobs))
+        with _searched_first(staging):
+            return list(fork_map(_score_job, jobs, opts.workers))
     finally:
         for name in names:
             shutil.rmtree(staging / name, ignore_errors=True)

@@ -31,7 +31,6 @@ import argparse
 import copy
 import json
 import logging
-import multiprocessing as mp
 import re
 import time
 from pathlib import Path
@@ -42,6 +41,7 @@ from tqdm import tqdm
 
 from rrg_sim.executor.trajectory import InfeasiblePath
 from rrg_sim.objects.object_model import SETTLING_THETA_BOX, settling_file
+from rrg_sim.parallel import fork_map
 
 from ..config import WORLD, WORLD_PROFILES
 from ..objects import PAPER_OBJECTS, get_object, object_folders
@@ -185,16 +185,15 @@ def run_study(
     folders = object_folders()
     t0 = time.perf_counter()
     jobs = [(name, count, seed, *extra) for name in objects]
-    with mp.get_context("fork").Pool(workers) as pool:
-        for name, records in tqdm(
-            pool.imap_unordered(measure_job, jobs), total=len(jobs), desc=desc
-        ):
-            fit = fit_fn(name, records)
-            print(report(name, fit, records), flush=True)
-            folder = folders[name] if out_dir is None else out_dir / name
-            folder.mkdir(parents=True, exist_ok=True)
-            (folder / filename).write_text(_dumps({"source": source, **fit}) + "\n")
-            print(f"wrote {folder / filename}")
+    for name, records in tqdm(
+        fork_map(measure_job, jobs, workers, ordered=False), total=len(jobs), desc=desc
+    ):
+        fit = fit_fn(name, records)
+        print(report(name, fit, records), flush=True)
+        folder = folders[name] if out_dir is None else out_dir / name
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / filename).write_text(_dumps({"source": source, **fit}) + "\n")
+        print(f"wrote {folder / filename}")
     print(f"{desc}: {len(jobs)} objects in {time.perf_counter() - t0:.0f} s")
 
 

@@ -1,0 +1,40 @@
+"""Running a function over many items on forked worker processes, for the offline studies, the
+table builds and the campaigns.
+
+The workers are forked, so they inherit what this process has loaded (compiled models, caches,
+the object search path). A worker that dies (killed for memory, or crashed) raises
+``BrokenProcessPool`` in the caller instead of leaving it waiting for ever, as
+``multiprocessing.Pool`` does. A process that has started DDS must not fork (its threads' locks
+are copied held): build before any node starts.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from typing import TypeVar
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+def fork_map(
+    fn: Callable[[T], R], items: Iterable[T], workers: int, ordered: bool = True
+) -> Iterator[R]:
+    """``fn(item)`` for every item on ``workers`` forked processes: in the items' order, or
+    (``ordered=False``) as each finishes. Stopping the iteration cancels what has not started."""
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("fork"))
+    try:
+        futures: list[Future] = [pool.submit(fn, item) for item in items]
+        if ordered:
+            for f in futures:
+                yield f.result()
+        else:
+            pending = set(futures)
+            while pending:
+                done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for f in done:
+                    yield f.result()
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
