@@ -23,9 +23,12 @@ by a few mm and costs a convolution per branch); the estimator applies it to the
 belief. Reorientation's rotation is kept, because feasibility depends on it, and so is its
 spread in θ (three nodes per state), because it is what a turn costs in localization.
 A reading puts its posterior in its posture's frame (rrg_sim.posture_calibration), and a goal
-grasp is valued from the frame its belief is in (PlanningModel.goal_table); the blur that the
-estimator applies when a belief changes frame (rrg_estimator.transition.change_frame) is left
-out of the search's posteriors, as the bump is. A reorientation is valued only where half the
+grasp is valued from the frame its belief is in (PlanningModel.goal_table). A reading in
+another frame than the belief's starts, as in the estimator (rrg_estimator.transition.
+change_frame), from the belief blurred by the σ between the two frames (``in_frame``): without
+the blur the search took a change of frame to cost nothing, went back and forth between the
+top-down readings and a side goal's probes, and never held a belief sharp in the goal's frame.
+A reorientation is valued only where half the
 belief (SearchParams.reorient_min_in_box) lies in its measured outcome's box about w*(b)
 (``turn_is_measured``): held from further off, the object turns unpredictably.
 
@@ -45,6 +48,8 @@ from threadpoolctl import ThreadpoolController
 
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import TRANSITION
+from rrg_estimator.grid import Grid
+from rrg_estimator.transition import displace
 from rrg_planner import search_kernels as kernels
 from rrg_planner.config import SEARCH, SearchParams
 from rrg_planner.planning_model import PlanningModel
@@ -94,6 +99,8 @@ class SparseBelief:
     frame: str = ""
     parent_index: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
     _w_star: np.ndarray | None = None
+    #: the belief as readings in other frames start from (ForwardSearch.in_frame), by frame
+    moved: dict[str, SparseBelief] | None = None
 
     @classmethod
     def compact(
@@ -256,6 +263,26 @@ def reorient_mixture(
             ws.append(w[on])
     w = np.concatenate(ws)
     return np.concatenate(pts), w / w.sum()
+
+
+def _blurred(sb: SparseBelief, sigma: np.ndarray, grid, params: SearchParams) -> SparseBelief:
+    """``sb`` blurred by a Gaussian of σ (x [m], y [m], θ [rad]) per axis: its points put on
+    the lattice of ``grid``'s spacing through w*(b), in a box with 3σ of margin, moved by
+    rrg_estimator.transition.displace, and compacted again (the points of the reorientation
+    mixture, off the lattice, go to their nearest lattice point)."""
+    spacing = np.asarray(grid.spacing, dtype=float)
+    e = sb.w_star
+    d = sb.points - e
+    d[:, 2] = _wrap(d[:, 2])
+    cells = np.rint(d / spacing).astype(np.int64)
+    margin = np.ceil(3.0 * np.asarray(sigma) / spacing).astype(np.int64)
+    lo, hi = cells.min(axis=0) - margin, cells.max(axis=0) + margin
+    half = np.maximum(-lo, hi)  # a box centred on w*(b): odd counts, as a Grid has
+    box = Grid(tuple(float(v) for v in e), tuple(spacing), tuple(int(n) for n in 2 * half + 1))
+    a = np.zeros(box.shape)
+    np.add.at(a, tuple((cells + half).T), sb.weights)
+    out = displace(a, box, (0.0, 0.0, 0.0), sigma).ravel()
+    return SparseBelief.compact(box.points(), out, sb.level, params, frame=sb.frame)
 
 
 def table_index(points: np.ndarray, e: np.ndarray, grid) -> np.ndarray:
@@ -471,12 +498,36 @@ class ForwardSearch:
         after executing it there)."""
         return self.best_goal(sb)[0]
 
+    def in_frame(self, sb: SparseBelief, frame: str) -> SparseBelief:
+        """The belief as a reading in ``frame`` starts from: itself in its own frame, else
+        blurred by the σ between the two frames, as the estimator does before such a reading
+        (rrg_estimator.transition.change_frame), on the lattice of the level's spacing through
+        w*(b). Its table entries stay about w*(b) of ``sb``, where the action runs (cached on
+        ``sb``, per frame)."""
+        sigma = self.model.calibration.sigma(sb.frame, frame)
+        if frame == sb.frame or not sigma.any():
+            return sb
+        if sb.moved is None:
+            sb.moved = {}
+        moved = sb.moved.get(frame)
+        if moved is None:
+            moved = sb.moved[frame] = _blurred(sb, sigma, self._grid(sb.level), self.params)
+            moved.frame = frame
+            e = sb.w_star
+            spacing, shape, _, _ = self._level_geometry(sb.level)
+            moved.table_index = kernels.table_index(
+                moved.points, e, np.cos(e[2]), np.sin(e[2]), spacing, shape
+            )
+        return moved
+
     def expand(self, sb: SparseBelief, a: int) -> list[tuple[float, SparseBelief]]:
-        """Observation branches of action a at w*(b): [(P(c | b, a), SE(b, a, o_c))]."""
+        """Observation branches of action a at w*(b): [(P(c | b, a), SE(b, a, o_c))], from the
+        belief moved to the frame of a's reading (``in_frame``)."""
         act = self.model.actions[a]
         clusters = act.clusters[sb.level]
         e = sb.w_star
         frame = self.model.reading_frame(a, sb.frame)  # the frame the posterior is held in
+        sb = self.in_frame(sb, frame)
         idx = self._table_index(sb)
         if sb.features is None:
             sigma = np.asarray(self.model.levels[sb.level].sigma, dtype=float)

@@ -242,3 +242,29 @@ def test_a_lift_the_least_motion_chain_cannot_reach_starts_where_the_arm_is():
     path = plan_path(up[None], q, rigid_from=1)
     assert np.allclose(path.q[0], q, atol=1e-6)
     assert np.abs(wam.fk(path.q[-1])[:3, 3] - up[:3, 3]).max() < 1e-3
+
+
+class HandOnly:
+    """A robot whose hand stands at the given angles [rad], recording the hand commands."""
+
+    def __init__(self, proximal):
+        self.proximal = np.asarray(proximal, dtype=float)
+        self.sent: list[tuple[float, np.ndarray]] = []
+
+    def hand_angles(self) -> tuple[float, np.ndarray]:
+        return 0.3, self.proximal
+
+    def move_hand(self, spread, proximal) -> None:
+        self.sent.append((spread, np.broadcast_to(proximal, 3).copy()))
+
+
+def test_an_opening_never_closes_a_finger():
+    """The hand opens to the preshape without moving a finger that is already more open (one
+    the object pushed past its open stop would otherwise press on it as the hand withdraws)."""
+    from rrg_sim.executor.wrt_executor import WrtExecutor
+
+    robot = HandOnly([0.9, 0.1, -0.0014])
+    WrtExecutor(robot)._open(0.2)
+    [(spread, proximal)] = robot.sent
+    assert spread == 0.3
+    np.testing.assert_array_equal(proximal, [0.2, 0.1, -0.0014])

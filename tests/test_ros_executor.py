@@ -259,29 +259,34 @@ def test_hand_command_and_reset_sim_reject_bad_requests(graph):
     assert reset(client, c).error_code == ResetSim.Response.NONE
 
 
+OPEN_FINGERS = (1.0, 1.0, 1.0)
+
+
 @pytest.mark.parametrize(
-    "target, answers, sent, raised",
+    "target, answers, sent, raised, fingers",
     [
-        (0.2, ["stopped", "ok"], 2, None),  # an opening stopped once: opened again
-        (0.2, ["stopped", "stopped", "ok"], 3, None),  # by one finger, then another
-        (0.2, ["stopped"] * 4, 4, "HandStopped"),  # stopped on every try: for good
-        (0.2, ["stopped", "refused"], 2, "MotionFailed"),  # a retry refused: no more
-        (0.2, ["refused"], 1, "MotionFailed"),  # refused (E-stop, stale data): no retry
-        (1.5, ["stopped"], 1, "HandStopped"),  # a closing is never sent again
+        (0.2, ["stopped", "ok"], 2, None, OPEN_FINGERS),  # an opening stopped once: again
+        (0.2, ["stopped", "stopped", "ok"], 3, None, OPEN_FINGERS),  # by one finger, another
+        (0.2, ["stopped"] * 4, 4, "HandStopped", OPEN_FINGERS),  # stopped every time: for good
+        (0.2, ["stopped", "refused"], 2, "MotionFailed", OPEN_FINGERS),  # a retry refused
+        (0.2, ["refused"], 1, "MotionFailed", OPEN_FINGERS),  # refused (E-stop, stale data)
+        (1.5, ["stopped"], 1, "HandStopped", OPEN_FINGERS),  # a closing is never sent again
+        # a finger the object pushed just past its open stop still opens to it
+        (0.0, ["stopped", "ok"], 2, None, (0.175, 0.175, -0.0014)),
     ],
 )
 def test_an_opening_the_safety_layer_stopped_is_tried_again(
-    monkeypatch, target, answers, sent, raised
+    monkeypatch, target, answers, sent, raised, fingers
 ):
     """The robot client's policy on the bridge's answers to a hand position command, with the
-    fingers at 1.0 rad: an opening that was stopped midway is sent again, up to OPEN_RETRIES
-    times; a refusal, a closing, or the last stop is the caller's."""
+    fingers at the given angles [rad]: an opening that was stopped midway is sent again, up to
+    OPEN_RETRIES times; a refusal, a closing, or the last stop is the caller's."""
     from rrg_sim.executor import robot_client
     from rrg_sim.ros_common.msg_conversions import PROXIMAL_JOINT_NAMES, SPREAD_JOINT_NAME
 
     monkeypatch.setattr(robot_client, "OPEN_RETRY_PAUSE_S", 0.0)
     robot = object.__new__(robot_client.RosRobot)
-    robot._joints = {SPREAD_JOINT_NAME: 0.0, **{n: 1.0 for n in PROXIMAL_JOINT_NAMES}}
+    robot._joints = {SPREAD_JOINT_NAME: 0.0, **dict(zip(PROXIMAL_JOINT_NAMES, fingers))}
     robot.node = rclpy_logger_stub()
     calls = []
 

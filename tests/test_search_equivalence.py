@@ -12,7 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rrg_planner.search import ForwardSearch
+from rrg_estimator.belief import Belief
+from rrg_estimator.transition import change_frame
+from rrg_planner.search import ForwardSearch, SparseBelief
 
 ROOT = Path(__file__).resolve().parents[1]
 _spec = importlib.util.spec_from_file_location(
@@ -62,3 +64,37 @@ def test_decisions_are_unchanged(searches, model_key):
             np.testing.assert_allclose(res.goal_estimate, case["goal_estimate"], atol=1e-12)
         e = belief.w_star()
         assert [search.feasible(a, e) for a in range(len(q))] == case["feasible"], name
+
+
+def _moments(sb) -> tuple[np.ndarray, np.ndarray]:
+    """Mean (3,) and standard deviations (3,) of a sparse belief's points."""
+    mean = sb.weights @ sb.points
+    d = sb.points - mean
+    return mean, np.sqrt(sb.weights @ d**2)
+
+
+def test_a_reading_in_another_frame_starts_from_the_estimators_blurred_belief(searches):
+    """The search moves a belief to a reading's frame as the estimator does (change_frame):
+    the same mean, and the spread grown by the σ between the frames; in its own frame a belief
+    is left as it is."""
+    search = searches["powerdrill-realistic"]
+    model = search.model
+    level = fixture._level(model, "low")
+    held = fixture.centred(model, level, np.random.default_rng(3))
+    belief = Belief(held.grid, held.weights, "info1")
+    sigma = model.calibration.sigma("info1", "goal")
+    assert np.all(sigma > [0.002, 0.005, 0.01])  # the frames differ by millimetres
+    sb = SparseBelief.from_belief(belief, "low")
+    assert search.in_frame(sb, "info1") is sb
+    moved = search.in_frame(sb, "goal")
+    assert moved.frame == "goal" and search.in_frame(sb, "goal") is moved
+    expected = SparseBelief.from_belief(change_frame(belief, sigma, "goal"), "low")
+    (m_moved, s_moved), (m_expected, s_expected) = _moments(moved), _moments(expected)
+    _, s_before = _moments(sb)
+    assert np.all(np.abs(m_moved - m_expected) <= [2e-4, 2e-4, 2e-3])
+    np.testing.assert_allclose(s_moved, s_expected, rtol=0.05)
+    assert np.all(s_moved > s_before)
+    # a probe's branches are taken from the moved belief; the goal's own reading stays put
+    probe, goal = model.index("goal_probe"), model.index("goal")
+    assert all(child.frame == "goal" for _, child in search.expand(sb, probe))
+    assert all(child.frame == "info1" for _, child in search.expand(sb, goal))

@@ -202,7 +202,7 @@ class EstimatorNode(Node):
         self.tracker, self._last_event_ns = tracker, state.last_event_ns
         self._map_load_time = ns_to_stamp(state.map_load_ns)
         self.publish_belief(ns_to_stamp(state.last_event_ns))
-        log.warn(
+        log.warning(
             f"restored the belief about {state.object_name} from {self.state_file}: w* = "
             f"{np.round(tracker.belief.w_star(), 3).tolist()}, grid spacing "
             f"{tracker.belief.grid.spacing}, retreat pending: {state.pending_wrt or 'none'}"
@@ -312,7 +312,7 @@ class EstimatorNode(Node):
         if self.already_applied(msg.header.stamp, f"retreat from {msg.wrt_name or 'nothing'}"):
             return
         if self.tracker is None:
-            self.get_logger().warn(
+            self.get_logger().warning(
                 f"retreat from {msg.object_name}/{msg.wrt_name} ignored: no belief yet"
             )
             return

@@ -486,7 +486,7 @@ class FakeHwNode(Node):
                         box.arm_crossing(v)
                     self._crossing = (v, [False] * len(self.boxes))
             if v != FAULTS[name].default:
-                self.get_logger().warn(f"{name} = {v}")
+                self.get_logger().warning(f"{name} = {v}")
             elif not startup:
                 self.get_logger().info(f"{name} = {v} (off)")
 
@@ -743,7 +743,7 @@ class FakeHwNode(Node):
         try:
             command(*args)
         except ValueError as exc:
-            self.get_logger().warn(f"{what} refused: {exc}")
+            self.get_logger().warning(f"{what} refused: {exc}")
             return False
         return True
 
@@ -878,7 +878,7 @@ class WamNodeInterface:
             resp.message = "Holding WAM Joint Positions"
         else:
             resp.message = "idle: emulated as a hold (the real arm floats in gravity compensation)"
-            self.node.get_logger().warn(f"/wam/holdJointPosition false: {resp.message}")
+            self.node.get_logger().warning(f"/wam/holdJointPosition false: {resp.message}")
         resp.success = True
         return resp
 

@@ -353,7 +353,7 @@ class BridgeNode(Node):
                 self.io, list(p("wrench_topics")), self.on_wrench, time.monotonic, None
             )
         if derive:
-            self.get_logger().warn(
+            self.get_logger().warning(
                 "pad_source 'derived': the hand has no pad feedback; the distal pads read the "
                 f"fingertip forces and {', '.join(DERIVED_PADS_UNSENSED)} never fire (the "
                 "estimator and the planner leave them out: unsensed_sensors, set by rrg-launch)"
@@ -401,7 +401,7 @@ class BridgeNode(Node):
             f"{self.sensors.describe()}, limits {self.limits.name}, speed scale "
             f"{self.speed_scale}, watchdog {self.watchdog_timeout * 1e3:.0f} ms"
         )
-        self.get_logger().warn(
+        self.get_logger().warning(
             f"E-stop latched, {self.estop.reason} (ros2 service call "
             f"/{NAMESPACE}/bridge/reset_estop std_srvs/srv/Trigger); nothing moves until then"
             + (
@@ -669,7 +669,9 @@ class BridgeNode(Node):
                     f"(0, {self.speed_scale_cap}] (its start value)",
                 )
             self.speed_scale = value
-            self.get_logger().warn(f"speed_scale set to {value} (at most {self.speed_scale_cap})")
+            self.get_logger().warning(
+                f"speed_scale set to {value} (at most {self.speed_scale_cap})"
+            )
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ safety reports
@@ -764,7 +766,7 @@ class BridgeNode(Node):
         if config is not None:
             self.get_logger().info(f"{name}: {config.describe()}")
         else:
-            self.get_logger().warn(
+            self.get_logger().warning(
                 f"{name}: {error}; its records are not used until it is read",
                 throttle_duration_sec=10.0,
             )
@@ -950,7 +952,7 @@ class BridgeNode(Node):
         until the stream has been clean for BRIDGE.sensor_fault_hold."""
         self._sensor_fault_s = time.monotonic()
         self._sensor_fault = message
-        self.get_logger().warn(message, throttle_duration_sec=1.0)
+        self.get_logger().warning(message, throttle_duration_sec=1.0)
         self.stop_all(SafetyCode.SENSOR_FAULT, "sensor", message)
 
     def on_tactile(self, msg: TactilePressureArray) -> None:
@@ -1008,7 +1010,7 @@ class BridgeNode(Node):
                 if armed:
                     self.get_logger().info("armed (arm_on_start)")
                 else:
-                    self.get_logger().warn(f"arm_on_start did not arm: {message}")
+                    self.get_logger().warning(f"arm_on_start did not arm: {message}")
         if self.estop.check_heartbeat(now):
             self.emergency_stop(self.estop.reason, True)
         stale = self.watchdog.stale(now)
@@ -1075,7 +1077,7 @@ class BridgeNode(Node):
         silent Net F/T box is asked to stream again."""
         revived = self.sensors.revive(BRIDGE.rdt_revive_after)
         if revived:
-            self.get_logger().warn(
+            self.get_logger().warning(
                 f"no data from {', '.join(revived)}: asked again to stream",
                 throttle_duration_sec=10.0,
             )
@@ -1143,7 +1145,7 @@ class BridgeNode(Node):
     # ------------------------------------------------------------------ guarded move
     def on_move_goal(self, goal: GuardedMove.Goal) -> GoalResponse:
         if self._move_busy.locked():
-            self.get_logger().warn("guarded_move goal rejected: a move is running")
+            self.get_logger().warning("guarded_move goal rejected: a move is running")
             return GoalResponse.REJECT
         return GoalResponse.ACCEPT
 
@@ -1212,7 +1214,7 @@ class BridgeNode(Node):
                 if refusal is not None:
                     message = f"{self._limit_fault}; {refusal.message}"
                     return fail(refusal.code, message, refusal.check)
-                self.get_logger().warn(f"recovery move: {self._limit_fault}; moving it back")
+                self.get_logger().warning(f"recovery move: {self._limit_fault}; moving it back")
             else:
                 t = self.retime(q, t)
                 refusal = check_trajectory(q, t, self.limits)
@@ -1378,7 +1380,7 @@ class BridgeNode(Node):
             elif self.dry_run:
                 resp.error_code, resp.error_msg = H.REFUSED, "dry run: the hand is not commanded"
         if resp.error_code != H.NONE:
-            self.get_logger().warn(f"hand_command refused: {resp.error_msg}")
+            self.get_logger().warning(f"hand_command refused: {resp.error_msg}")
             return resp
         with self._hand_busy:
             motion = HandMotion()
@@ -1504,7 +1506,7 @@ class BridgeNode(Node):
         if resp.success:
             self.get_logger().info(f"E-stop reset: {resp.message}")
         else:
-            self.get_logger().warn(f"E-stop reset: {resp.message}")
+            self.get_logger().warning(f"E-stop reset: {resp.message}")
         return resp
 
     @keep_serving

@@ -174,7 +174,9 @@ class BagRecorder(Node):
             if not publishers:
                 continue  # only subscribers so far: wait for a publisher's QoS
             if len(types) > 1:
-                self.get_logger().warn(f"{topic} has several types {types}; recording {types[0]}")
+                self.get_logger().warning(
+                    f"{topic} has several types {types}; recording {types[0]}"
+                )
             self._subscribe(topic, types[0], publishers)
 
     def _subscribe(self, topic: str, msg_type: str, publishers: list[TopicEndpointInfo]) -> None:
@@ -310,7 +312,7 @@ def main(argv: list[str] | None = None) -> int:
             signal.signal(sig, lambda signum, _frame: signals.append(signum))
         recorder = BagRecorder(writer)
         for name, how in writer.closed_earlier.items():
-            recorder.get_logger().warn(
+            recorder.get_logger().warning(
                 f"closed the split {name} its killed recorder left open ({how})"
             )
         executor = SingleThreadedExecutor()

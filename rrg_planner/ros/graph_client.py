@@ -98,7 +98,7 @@ class GraphClient:
         time."""
         if peer.alive:
             return
-        self.log.warn(f"the {peer.name} is not up: waiting for it before {what}")
+        self.log.warning(f"the {peer.name} is not up: waiting for it before {what}")
         if not peer.wait_alive(self.timeouts()["restart"], self.interrupted):
             if self.interrupted():
                 raise WaitInterrupted(f"interrupted while waiting for the {peer.name}")
@@ -149,7 +149,7 @@ class GraphClient:
             except PeerLost as exc:
                 if attempt == RETRIES:
                     raise GraphError(code, f"{what}: {exc}") from exc
-                self.log.warn(f"{what}: {exc}; calling it again once it is back")
+                self.log.warning(f"{what}: {exc}; calling it again once it is back")
 
     @property
     def belief(self) -> Belief:
@@ -243,7 +243,7 @@ class GraphClient:
     def _lost(self, wrt: WRT, exc: PeerLost) -> ExecutionLost:
         """Bring the hand home after the executor died running ``wrt``, and the error to
         raise."""
-        self.log.warn(f"execute_wrt {wrt.name}: {exc}; bringing the hand home")
+        self.log.warning(f"execute_wrt {wrt.name}: {exc}; bringing the hand home")
         self.retreat()
         self.retreated()
         return ExecutionLost(f"the executor went away while running {wrt.name}")

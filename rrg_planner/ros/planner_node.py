@@ -354,7 +354,7 @@ class PlannerNode(Node):
                 resp.action_values = np.where(np.isfinite(values), values, np.nan).tolist()
         except RequestError as exc:
             resp.error_code, resp.error_msg = exc.code, str(exc)
-            self.get_logger().warn(f"select_action refused: {exc}")
+            self.get_logger().warning(f"select_action refused: {exc}")
         except Exception as exc:  # the node must keep serving whatever the core raises
             resp.error_code, resp.error_msg = SA.UNKNOWN, f"{type(exc).__name__}: {exc}"
             self.get_logger().error(f"select_action failed: {resp.error_msg}")
@@ -362,7 +362,7 @@ class PlannerNode(Node):
     # ------------------------------------------------------------------ robust grasp
     def on_grasp_goal(self, goal: RobustGrasp.Goal) -> GoalResponse:
         if self._grasp_active.locked():
-            self.get_logger().warn("robust_grasp goal rejected: another grasp is running")
+            self.get_logger().warning("robust_grasp goal rejected: another grasp is running")
             return GoalResponse.REJECT
         return GoalResponse.ACCEPT
 
@@ -460,14 +460,14 @@ class PlannerNode(Node):
             )
 
         def on_infeasible(d: Decision, reason: str) -> None:
-            self.get_logger().warn(
+            self.get_logger().warning(
                 f"{d.wrt} infeasible at {np.round(d.estimate, 3).tolist()} ({reason}): replanning"
             )
             self.step_pub.publish(infeasible_record(goal, d, reason, self.now()))
             save(loop)
 
         def on_lost(d: Decision, reason: str) -> None:
-            self.get_logger().warn(f"{d.wrt} lost ({reason}): replanning on the current belief")
+            self.get_logger().warning(f"{d.wrt} lost ({reason}): replanning on the current belief")
             self.step_pub.publish(interrupted_record(goal, d, reason, self.now()))
 
         def on_step(step, belief) -> None:
@@ -500,7 +500,7 @@ class PlannerNode(Node):
             resumed.restore(loop)
             result.actions_taken.extend(s.wrt for s in resumed.steps)
             reason = f"resumed after {len(resumed.steps)} actions: bringing the hand home first"
-            self.get_logger().warn(f"robust grasp of {goal.object_name} {reason}")
+            self.get_logger().warning(f"robust grasp of {goal.object_name} {reason}")
             self.step_pub.publish(resumed_record(goal, len(resumed.steps), reason, self.now()))
             self.graph.resume(goal.object_name, interrupted)
         try:
@@ -523,7 +523,7 @@ class PlannerNode(Node):
             self.get_logger().error(f"no grasp to resume: {exc}")
             return None
         if state is None or not state.active or state.request != request:
-            self.get_logger().warn(
+            self.get_logger().warning(
                 f"resume asked for {goal.object_name}, but no running grasp of that request "
                 "is stored: starting afresh"
             )

@@ -138,7 +138,7 @@ class ExecutorNode(Node):
 
     def on_goal(self, goal: ExecuteWrt.Goal) -> GoalResponse:
         if self._busy.locked():
-            self.get_logger().warn(f"execute_wrt {goal.wrt_name} rejected: busy")
+            self.get_logger().warning(f"execute_wrt {goal.wrt_name} rejected: busy")
             return GoalResponse.REJECT
         return GoalResponse.ACCEPT
 

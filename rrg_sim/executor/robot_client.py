@@ -185,7 +185,7 @@ class RosRobot:
         if guard and res.error_code == R.FORCE_LIMIT and res.stopped_on_contact:
             # the safety layer held the arm at a contact whose first samples spiked over the
             # force ceiling (an impact): the guarded move still stopped where it touched
-            self.node.get_logger().warn(
+            self.node.get_logger().warning(
                 f"guarded move stopped by the force ceiling ({res.error_msg}): taken as its "
                 "stop on contact"
             )
@@ -214,7 +214,10 @@ class RosRobot:
     def move_hand(self, spread: float, proximal) -> None:
         """Move the hand to its targets; an opening (no proximal target beyond where its finger
         is) that the safety layer stopped midway is tried again (OPEN_RETRIES)."""
-        opening = bool(np.all(np.broadcast_to(proximal, 3) <= self.hand_angles()[1] + 1e-3))
+        # a finger pushed just past its open stop (a reading of -1 mrad) still opens to it
+        at = np.maximum(self.hand_angles()[1], HAND.proximal_range[0])
+        targets = np.clip(np.broadcast_to(proximal, 3), *HAND.proximal_range)
+        opening = bool(np.all(targets <= at + 1e-3))
         for attempt in range(OPEN_RETRIES + 1):
             try:
                 self._hand(HandCommand.Request.MODE_POSITION, spread, proximal)
@@ -222,7 +225,7 @@ class RosRobot:
             except HandStopped as exc:
                 if not opening or attempt == OPEN_RETRIES:
                     raise
-                self.node.get_logger().warn(
+                self.node.get_logger().warning(
                     f"the hand's opening was stopped ({exc}): opening again in "
                     f"{OPEN_RETRY_PAUSE_S} s (try {attempt + 2} of {OPEN_RETRIES + 1})"
                 )

@@ -96,8 +96,9 @@ class Robot(Protocol):
         Guarded: stop and hold at the first control period any sensor fires. Returns the
         fractional via-point index commanded at the stop, or None when the move completed."""
 
-    def move_hand(self, spread: float, proximal: float) -> None:
-        """Servo the spread and every proximal joint to the given angles [rad], arm held."""
+    def move_hand(self, spread: float, proximal: float | np.ndarray) -> None:
+        """Servo the spread and the proximal joints (one angle for all, or (3,)) to the given
+        angles [rad], arm held."""
 
     def close_hand(self, guarded: bool = False) -> np.ndarray:
         """Close every finger until it stops (stalls on the object or reaches its limit);
@@ -268,8 +269,11 @@ class WrtExecutor:
                 distance /= 2
 
     def _open(self, proximal: float) -> None:
-        spread, _ = self.robot.hand_angles()
-        self.robot.move_hand(spread, proximal)
+        """Open every finger to ``proximal`` [rad], or leave it where it is if it is already
+        more open: an opening never closes a finger (a finger that stopped short of the
+        preshape would otherwise close on the object as the hand withdraws)."""
+        spread, angles = self.robot.hand_angles()
+        self.robot.move_hand(spread, np.minimum(angles, proximal))
 
     # ------------------------------------------------------------------ WRTs
     def execute(

@@ -118,7 +118,7 @@ class EvalServices:
                 f"y {WORLD.table_y} m)"
             )
         if resp.error_code != ResetSim.Response.NONE:
-            self.get_logger().warn(f"reset_sim refused: {resp.error_msg}")
+            self.get_logger().warning(f"reset_sim refused: {resp.error_msg}")
             return resp
         with self.exclusive():
             self.reset_world(req.object_name, pose)
@@ -183,5 +183,5 @@ class EvalServices:
         if resp.success:
             self.get_logger().info(f"judge_grasp: {resp.message}")
         else:
-            self.get_logger().warn(f"judge_grasp: {resp.message}")
+            self.get_logger().warning(f"judge_grasp: {resp.message}")
         return resp

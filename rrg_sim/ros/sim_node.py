@@ -284,7 +284,7 @@ class SimNode(Node):
     # ------------------------------------------------------------------ guarded move
     def on_move_goal(self, goal: GuardedMove.Goal) -> GoalResponse:
         if self._move_active:
-            self.get_logger().warn("guarded_move goal rejected: a move is running")
+            self.get_logger().warning("guarded_move goal rejected: a move is running")
             return GoalResponse.REJECT
         return GoalResponse.ACCEPT
 
@@ -377,7 +377,7 @@ class SimNode(Node):
     ) -> HandCommand.Response:
         proximal = np.asarray(req.proximal, dtype=float)
         if not check_hand_command(req, resp):
-            self.get_logger().warn(f"hand_command refused: {resp.error_msg}")
+            self.get_logger().warning(f"hand_command refused: {resp.error_msg}")
             return resp
         with self._lock:
             monitor = self.monitor()
