@@ -142,7 +142,7 @@ def _solve(
             np.linalg.norm(t[:2] - e[:2]) - radius,
             np.linalg.norm(T[:2, 3] - e[:2]) - radius,
             float(wam.links_clearance(q, e[:2], radius, WORLD.table_top_z + height)),
-            wam.arm_points(q)[:, 2] - WORLD.table_top_z - 0.08,
+            wam.arm_points(q)[:, 2] - wam.CLEARANCE_Z,  # the arm stays clear of the table
             t[0] - WORLD.table_x[0] - TABLE_MARGIN,
             WORLD.table_x[1] - TABLE_MARGIN - t[0],
             WORLD.table_y[1] - TABLE_MARGIN - abs(t[1]),

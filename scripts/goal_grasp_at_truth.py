@@ -18,28 +18,13 @@ from collections import Counter
 
 import numpy as np
 
+from rrg_planner.experiment.report import judged_failures
 from rrg_sim.config import WORLD
 from rrg_sim.executor.trajectory import InfeasiblePath
 from rrg_sim.parallel import fork_map
 from rrg_sim.physics.judge import judge_grasp
 from rrg_sim.physics.world import PhysicsWorld
 from rrg_sim.poses import compose_planar
-
-
-def _reasons(judged: dict) -> str:
-    """The judge's failure reasons, as the campaign's table names them."""
-    out = [
-        name
-        for name, failed in (
-            ("early contact", judged["early_contact"]),
-            ("out of goal region", not judged["in_region"]),
-            ("too few fingers", not judged["fingers_ok"]),
-            ("required contact missed", not judged["required_ok"]),
-            ("not held", not judged["held"]),
-        )
-        if failed
-    ]
-    return ", ".join(out)
 
 
 def run(args: tuple[str, str, str, list[int]]) -> list[str]:
@@ -70,7 +55,8 @@ def run(args: tuple[str, str, str, list[int]]) -> list[str]:
             outcomes.append("infeasible")
             continue
         success, judged = judge_grasp(world, world.obj, e, obs)
-        outcomes.append("" if success else _reasons(judged))
+        early = ["early contact"] if judged["early_contact"] else []
+        outcomes.append("" if success else ", ".join(early + judged_failures(judged)))
     return outcomes
 
 

@@ -85,6 +85,20 @@ def summarize(records: list[dict]) -> dict[str, dict]:
     return out
 
 
+#: The judge's reasons for a failed grasp: (key, label, the judged field that must hold)
+JUDGE_REASONS = (
+    ("out_of_region", "out of goal region", "in_region"),
+    ("not_held", "not held", "held"),
+    ("fingers", "too few fingers", "fingers_ok"),
+    ("required", "required contact missed", "required_ok"),
+)
+
+
+def judged_failures(judged: dict) -> list[str]:
+    """The labels of the JUDGE_REASONS a judged grasp (physics.judge.judge_grasp) fails."""
+    return [label for _, label, field in JUDGE_REASONS if not judged.get(field, True)]
+
+
 def failure_reasons(records: list[dict]) -> dict[str, int]:
     """Why the failed trials of a cell failed (a trial can count under several judge reasons):
     declared (the agent believed P(G) > 1 − δ), no_grasp (no goal grasp judged: nothing was
@@ -92,14 +106,12 @@ def failure_reasons(records: list[dict]) -> dict[str, int]:
     required (a required contact missed)."""
     failed = [r for r in records if not r["success"]]
     judged = [r.get("judge") or {} for r in failed]
+    labels = [judged_failures(j) for j in judged if j]
     return dict(
         failed=len(failed),
         declared=sum(bool(r["declared"]) for r in failed),
         no_grasp=sum(not j for j in judged),
-        out_of_region=sum(bool(j) and not j.get("in_region", True) for j in judged),
-        not_held=sum(bool(j) and not j.get("held", True) for j in judged),
-        fingers=sum(bool(j) and not j.get("fingers_ok", True) for j in judged),
-        required=sum(bool(j) and not j.get("required_ok", True) for j in judged),
+        **{key: sum(label in f for f in labels) for key, label, _ in JUDGE_REASONS},
     )
 
 
