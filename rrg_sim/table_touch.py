@@ -38,7 +38,7 @@ from .objects import ObjectModel, get_object
 from .objects.object_model import TABLE_TOUCH_FILE
 from .poses import planar_pose
 from .posture_calibration import GRASP_CENTRE_Z, JACOBIAN_STEP, reading_posture
-from .wrt import WRT
+from .wrt import WRT, table_touch_wrt
 
 log = logging.getLogger(__name__)
 
@@ -184,15 +184,7 @@ def touch_wrt(
     poses = np.stack([T.copy(), T.copy()])
     poses[0, 2, 3] += TOUCH_START
     poses[1, 2, 3] -= TOUCH_OVERTRAVEL
-    return WRT(
-        name="table_touch",
-        kind="touch",
-        poses=poses,
-        spread=float(spread),
-        preclose=float(proximal),
-        description=f"finger {finger}'s tip lowered to the table in the goal's calibration",
-        meta={"finger": int(finger), "serves": list(SERVES), "clear": list(clear_cylinder(obj))},
-    )
+    return table_touch_wrt(poses, spread, proximal, finger, SERVES, clear_cylinder(obj))
 
 
 def executed_posture(wrt: WRT, e: np.ndarray) -> np.ndarray:

@@ -77,3 +77,25 @@ class WRT:
     def with_home(self, e) -> np.ndarray:
         """Home, τ(e), as one (K+1,4,4) sequence (the executor retraces it back to home)."""
         return np.concatenate([home_pose()[None], self.world_poses(e)], axis=0)
+
+
+def table_touch_wrt(
+    poses: np.ndarray, spread: float, preclose: float, finger: int, serves, clear
+) -> WRT:
+    """The table touch (rrg_sim.table_touch) as a WRT of kind "touch", no action of the
+    planner's: poses (2,4,4) in the object's frame (above the contact, then below it), the hand's
+    spread and proximal angles [rad], the touching finger (1-3), the WRTs it serves and the
+    cylinder about the estimate (radius, height [m]) its hand and links keep out of."""
+    return WRT(
+        name="table_touch",
+        kind="touch",
+        poses=np.asarray(poses, dtype=float),
+        spread=float(spread),
+        preclose=float(preclose),
+        description=f"finger {int(finger)}'s tip lowered to the table in the goal's calibration",
+        meta={
+            "finger": int(finger),
+            "serves": list(serves),
+            "clear": [float(v) for v in clear],
+        },
+    )

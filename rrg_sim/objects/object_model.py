@@ -15,7 +15,7 @@ from rrg_sim.config import SETTLING_KERNEL_BANDWIDTH
 from rrg_sim.objects.composites import turn_about_z
 from rrg_sim.objects.primitives import Primitive, union_bounds
 from rrg_sim.poses import wrap_angle
-from rrg_sim.wrt import WRT, ReorientOutcome
+from rrg_sim.wrt import WRT, ReorientOutcome, table_touch_wrt
 
 from .wrt_generation import goal_probe_wrt, info_wrts, sweep_wrt
 
@@ -390,18 +390,13 @@ class ObjectModel:
         if path is None or not path.exists():
             return None
         plan = json.loads(path.read_text())
-        return WRT(
-            name="table_touch",
-            kind="touch",
-            poses=np.asarray(plan["poses"], dtype=float),
-            spread=float(plan["spread"]),
-            preclose=float(plan["preclose"]),
-            description="a guarded descent of a fingertip to the table in the goal's calibration",
-            meta={
-                "finger": int(plan["finger"]),
-                "serves": list(plan["serves"]),
-                "clear": [float(v) for v in plan["clear"]],
-            },
+        return table_touch_wrt(
+            plan["poses"],
+            plan["spread"],
+            plan["preclose"],
+            plan["finger"],
+            plan["serves"],
+            plan["clear"],
         )
 
     def wrt(self, name: str) -> WRT:
