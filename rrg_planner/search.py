@@ -265,11 +265,13 @@ def reorient_mixture(
     return np.concatenate(pts), w / w.sum()
 
 
-def _blurred(sb: SparseBelief, sigma: np.ndarray, grid, params: SearchParams) -> SparseBelief:
-    """``sb`` blurred by a Gaussian of σ (x [m], y [m], θ [rad]) per axis: its points put on
-    the lattice of ``grid``'s spacing through w*(b), in a box with 3σ of margin, moved by
-    rrg_estimator.transition.displace, and compacted again (the points of the reorientation
-    mixture, off the lattice, go to their nearest lattice point)."""
+def _blurred(
+    sb: SparseBelief, sigma: np.ndarray, frame: str, grid, params: SearchParams
+) -> SparseBelief:
+    """``sb`` blurred by a Gaussian of σ (x [m], y [m], θ [rad]) per axis, held in ``frame``:
+    its points put on the lattice of ``grid``'s spacing through w*(b), in a box with 3σ of
+    margin, moved by rrg_estimator.transition.displace, and compacted again (the points of the
+    reorientation mixture, off the lattice, go to their nearest lattice point)."""
     spacing = np.asarray(grid.spacing, dtype=float)
     e = sb.w_star
     d = sb.points - e
@@ -282,7 +284,7 @@ def _blurred(sb: SparseBelief, sigma: np.ndarray, grid, params: SearchParams) ->
     a = np.zeros(box.shape)
     np.add.at(a, tuple((cells + half).T), sb.weights)
     out = displace(a, box, (0.0, 0.0, 0.0), sigma).ravel()
-    return SparseBelief.compact(box.points(), out, sb.level, params, frame=sb.frame)
+    return SparseBelief.compact(box.points(), out, sb.level, params, frame=frame)
 
 
 def table_index(points: np.ndarray, e: np.ndarray, grid) -> np.ndarray:
@@ -511,8 +513,7 @@ class ForwardSearch:
             sb.moved = {}
         moved = sb.moved.get(frame)
         if moved is None:
-            moved = sb.moved[frame] = _blurred(sb, sigma, self._grid(sb.level), self.params)
-            moved.frame = frame
+            moved = sb.moved[frame] = _blurred(sb, sigma, frame, self._grid(sb.level), self.params)
             e = sb.w_star
             spacing, shape, _, _ = self._level_geometry(sb.level)
             moved.table_index = kernels.table_index(

@@ -250,13 +250,14 @@ def plan(obj: ObjectModel, sigma: float = 0.010, draws: int = 20, seed: int = 0)
     e = np.asarray(WORLD.nominal_pose, dtype=float)
     q_goal = goal_posture(obj, e)
     J_goal = vertical_jacobian(q_goal, np.array([0.0, 0.0, GRASP_CENTRE_Z]))
+    goal_sigma = sigma * float(np.linalg.norm(J_goal))  # as ``residual`` finds it at e
     found = []
     for spread in SPREADS:
         for proximal in PROXIMALS:
             for finger in (1, 2, 3):
                 for q in _solve(obj, e, J_goal, q_goal, spread, proximal, finger):
                     wrt = touch_wrt(obj, e, q, spread, proximal, finger)
-                    goal_sigma, left = residual(obj, wrt, e, sigma)
+                    _, left = residual(obj, wrt, e, sigma)
                     if left < goal_sigma:
                         found.append((left, wrt))
     if not found:
@@ -278,7 +279,7 @@ def plan(obj: ObjectModel, sigma: float = 0.010, draws: int = 20, seed: int = 0)
         clear=[round(v, 6) for v in clear_cylinder(obj)],
         poses=np.round(wrt.poses, 6).tolist(),
         sigma_rad=sigma,
-        goal_vertical_sigma=round(residual(obj, wrt, e, sigma)[0], 6),
+        goal_vertical_sigma=round(goal_sigma, 6),
         residual_sigma=round(left, 6),
         prior_draws=len(prior),
         prior_goal_vertical_rms=round(float(np.sqrt(np.mean(prior[:, 0] ** 2))), 6),

@@ -24,7 +24,7 @@ from rrg_sim.executor.trajectory import InfeasiblePath
 from rrg_sim.parallel import fork_map
 from rrg_sim.physics.judge import judge_grasp
 from rrg_sim.physics.world import PhysicsWorld
-from rrg_sim.poses import compose_planar
+from rrg_sim.poses import compose_planar, raised
 
 
 def run(args: tuple[str, str, str, list[int]]) -> list[str]:
@@ -45,8 +45,7 @@ def run(args: tuple[str, str, str, list[int]]) -> list[str]:
         where = compose_planar(world.hand_pose_error(), e)
         if height == "oracle":
             dz = world.true_hand_pose()[2, 3] - world.hand_pose()[2, 3]
-            wrt = dataclasses.replace(wrt, poses=wrt.poses.copy())
-            wrt.poses[:, 2, 3] -= dz
+            wrt = dataclasses.replace(wrt, poses=raised(wrt.poses, -dz))
         world.reseed(seed)
         world.reset(where)
         try:

@@ -405,13 +405,14 @@ class WrtExecutor:
         free = {k: FREE_SPEEDS for k in (0, -1, -2)}
         stop = self._follow(path, guard=True, speeds={**free, 1: (TOUCH_SPEED, PHYSICS.turn_speed)})
         spread, proximal = self.robot.hand_angles()
-        height = fingertip_lowest_z(self.robot.hand_pose(), spread, proximal, touch.meta["finger"])
+        hand = self.robot.hand_pose()
+        height = fingertip_lowest_z(hand, spread, proximal, touch.meta["finger"])
         index = stop if stop is not None else float(len(path.poses) - 1)
         reading = self.robot.reading()
         obs = Observation(
             contact=stop is not None,
             progress=0.0,
-            hand_pose=self.robot.hand_pose(),
+            hand_pose=hand,
             sensors=reading.fired,
             closure=proximal,
             tip_points=reading.tip_points,
