@@ -701,8 +701,11 @@ class FakeHwNode(Node):
                 done.set()
         try:
             while not done.wait(FEEDBACK_PERIOD):
-                if handle.is_cancel_requested:  # a cancel that raced the goal's start
-                    if not self.get_parameter("fault.ignore_cancel").value:
+                if handle.is_cancel_requested:
+                    # the server marks a goal canceling after the cancel callback returns: a
+                    # goal still active then had its cancel arrive before it started running
+                    running = self.robot.goal_status(goal_id).state is GoalState.ACTIVE
+                    if running and not self.get_parameter("fault.ignore_cancel").value:
                         self.robot.cancel(goal_id)
                     continue
                 self._feedback(handle, goal_id)
