@@ -84,9 +84,15 @@ def test_a_missing_required_contact_fails_a_grasp_that_holds():
 
 
 def test_a_lift_that_cannot_be_planned_fails(monkeypatch):
-    """A lift beyond the WAM's reach (1.5 m) has no IK path: the grasp cannot be held."""
+    """A lift beyond the WAM's reach (1.5 m) has no IK path: the grasp cannot be held. (The
+    grasp's own plan chose its lift to 10 cm; without it the executor plans one.)"""
+    from rrg_sim.executor import wrt_executor
+
     world, obs = _grasp("box", (0.0, 0.0, 0.0))
-    monkeypatch.setattr(judge, "PHYSICS", dataclasses.replace(PHYSICS, lift_height=1.5))
+    world.executor.last.lift = None
+    far = dataclasses.replace(PHYSICS, lift_height=1.5)
+    monkeypatch.setattr(judge, "PHYSICS", far)
+    monkeypatch.setattr(wrt_executor, "PHYSICS", far)
     ok, info = judge_grasp(world, world.obj, E)
     assert not info["lift_feasible"] and not info["held"] and not ok
 

@@ -82,6 +82,9 @@ class DensePath:
     poses: np.ndarray
     q: np.ndarray
     segment: np.ndarray
+    #: The chain ``plan_path`` chose through its ``then`` waypoints, continuing from the last
+    #: sample (not part of the path; segment k leads to then[k]); None without them.
+    after: DensePath | None = None
 
     @property
     def arc(self) -> np.ndarray:
@@ -92,6 +95,16 @@ class DensePath:
     def upto(self, index: int) -> DensePath:
         """The samples 0..index."""
         return DensePath(self.poses[: index + 1], self.q[: index + 1], self.segment[: index + 1])
+
+    def then_path(self) -> DensePath | None:
+        """The path's last sample followed by ``after`` (segment 0); None without it."""
+        if self.after is None:
+            return None
+        return DensePath(
+            np.concatenate([self.poses[-1:], self.after.poses]),
+            np.vstack([self.q[-1:], self.after.q]),
+            np.zeros(len(self.after.q) + 1, int),
+        )
 
     def reversed(self) -> DensePath:
         """The same samples backwards, segment k renumbered max - k (a lead-in becomes last)."""
@@ -231,7 +244,8 @@ def plan_path(
     from the current hand pose through hand waypoints (K,4,4); segment 0 passes through the
     ``via`` pose (4,4) when one is given. ``then`` (L,4,4): hand waypoints the arm must be
     able to go on to from the last one (e.g. the lift after a grasp, J3 free along them);
-    the IK chain is chosen through them too, and they are not part of the returned path.
+    the IK chain is chosen through them too, and they are not part of the returned path
+    (its ``after`` holds their chain).
 
     The joints follow the ``chain_ik`` chain; segments before ``rigid_from`` (segment 0 leads
     to waypoints[0]) may swivel the elbow on the way. When the chain starts in another
@@ -250,28 +264,30 @@ def plan_path(
 
     def chain(
         start: np.ndarray, q0: np.ndarray, from_prev: bool = False
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, DensePath | None]:
         poses, segment = _densify_via(start, waypoints, via)
         q = chain_ik(poses, q0, (segment < rigid_from) | (segment >= K), from_prev)
         keep = segment < K
-        return poses[keep], segment[keep], q[keep]
+        after = None if then is None else DensePath(poses[~keep], q[~keep], segment[~keep] - K)
+        return poses[keep], segment[keep], q[keep], after
 
     here = wam.fk(q_start)
-    poses, segment, q = chain(here, q_start)
+    poses, segment, q, after = chain(here, q_start)
     try:
         lead = self_motion(here, q_start, q[0])[:-1]
         return DensePath(
             np.concatenate([np.repeat(here[None], len(lead), axis=0), poses]),
             np.vstack([lead, q]),
             np.r_[np.full(len(lead), -1), segment],
+            after,
         )
     except InfeasiblePath:
         pass
     # No elbow swivel reaches the least-motion chain: take the least-motion one that starts
     # where the arm is (a grasp near J2's limit lifts the can only from its own configuration).
     try:
-        poses, segment, q = chain(here, q_start, from_prev=True)
-        return DensePath(poses, q, segment)
+        poses, segment, q, after = chain(here, q_start, from_prev=True)
+        return DensePath(poses, q, segment, after)
     except InfeasiblePath:
         if not reconfigure:
             raise
@@ -280,13 +296,14 @@ def plan_path(
     rise, ok = wam.ik_batch(rise_poses, q_start)
     if not ok.all() or _largest_step(rise) > MAX_JOINT_STEP:
         raise InfeasiblePath("cannot rise to reconfigure the arm")
-    poses, segment, q = chain(up, rise[-1])
+    poses, segment, q, after = chain(up, rise[-1])
     move = joint_path(rise[-1], q[0])
     lead_poses = np.concatenate([rise_poses, move.poses[1:-1]])
     return DensePath(
         np.concatenate([lead_poses, poses]),
         np.vstack([rise, move.q[1:-1], q]),
         np.r_[np.full(len(rise_poses), -2), np.full(len(move.q) - 2, -1), segment],
+        after,
     )
 
 

@@ -43,9 +43,12 @@ log = logging.getLogger(__name__)
 
 #: (m/s, rad/s) through free space: from home to a WRT's first pose, and back.
 FREE_SPEEDS = (PHYSICS.free_speed, PHYSICS.free_turn_speed)
-#: A retreat retraces the path only if the arm is still where the WRT left it, within this
+#: A retreat retraces the path only if the arm is still where the WRT left it, and a lift
+#: follows the lift planned with a grasp only if the arm is where that plan ends, within this
 #: joint distance [rad] (chosen: far above servo error, far below any real move).
 RETREAT_TOLERANCE = 0.05
+#: (m/s, rad/s) of the lift after a goal grasp.
+LIFT_SPEEDS = (PHYSICS.lift_speed, PHYSICS.turn_speed)
 
 #: Execution phases reported to a progress callback, with the fraction done when each starts.
 PHASES = {
@@ -125,6 +128,9 @@ class Execution:
     q_end: np.ndarray  # (7,) where the arm was when the execution ended
     #: Rigid motion (4,4) the object was given (a reorientation), applied to the way back.
     moved: np.ndarray = field(default_factory=lambda: np.eye(4))
+    #: The lift the plan chose through a goal grasp, from the planned path's end
+    #: (DensePath.then_path); None for other WRTs.
+    lift: DensePath | None = None
 
     def turned_approach(self) -> np.ndarray:
         """(P,4,4) the way back after the object was moved: the WRT poses the hand passed,
@@ -351,7 +357,14 @@ class WrtExecutor:
             unconfirmed_stops=unconfirmed,
             table_height=float("nan") if height is None else height,
         )
-        self.last = Execution(wrt, e, path.upto(int(np.floor(index))), obs, self.robot.arm_q())
+        self.last = Execution(
+            wrt,
+            e,
+            path.upto(int(np.floor(index))),
+            obs,
+            self.robot.arm_q(),
+            lift=path.then_path() if wrt.kind == "goal" else None,
+        )
         if wrt.kind == "reorient" and holds_object(obs.contact, obs.sensors, REORIENT_MIN_FINGERS):
             report("reorient", PHASES["reorient"])
             self._reorient(wrt, e)
@@ -492,6 +505,28 @@ class WrtExecutor:
         self._move((G @ T)[None], rigid_from=1)
         self._open(wrt.preclose)
         self.last.moved, self.last.q_end = G, self.robot.arm_q()
+
+    def lift(self) -> None:
+        """Lift the closed hand PHYSICS.lift_height straight up at LIFT_SPEEDS. When the last
+        WRT was a goal grasp and the arm is still where its planned path ends (it arrived, or
+        stopped within RETREAT_TOLERANCE of the end), the lift follows the chain that plan
+        chose through the grasp (``wrt_path``'s ``lift_after``), so the lift that made the
+        grasp feasible is the one that runs; otherwise the lift is planned from where the arm
+        stands. A fresh plan can miss a lift the grasp's plan found: near the wrist
+        singularity a few mrad of servo error decide whether a straight lift needs a wrist
+        flip. Raises InfeasiblePath when no lift is planned (nothing moved); a retreat after a
+        lift is dropped (the arm has left the WRT's path)."""
+        hand, q = self.robot.hand_pose(), self.robot.arm_q()
+        planned = None if self.last is None else self.last.lift
+        if planned is not None and np.abs(q - planned.q[0]).max() <= RETREAT_TOLERANCE:
+            path = DensePath(
+                np.concatenate([hand[None], planned.poses[1:]]),
+                np.vstack([q, planned.q[1:]]),
+                planned.segment,
+            )
+        else:
+            path = plan_path(raised(hand, PHYSICS.lift_height)[None], q, rigid_from=1)
+        self._follow(path, speeds={0: LIFT_SPEEDS})
 
     def recover(self, progress: Callable[[str, float], None] | None = None) -> None:
         """Bring the arm home with no record of how it got where it is (an executor restarted

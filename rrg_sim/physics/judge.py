@@ -13,6 +13,8 @@ After a goal WRT has closed the hand, the grasp succeeds iff
   fingers must reach) in that window, and
 * the object stays in the hand while the arm lifts it PHYSICS.lift_height and holds it
   PHYSICS.hold_time: still touching the hand and risen by at least HELD_FRACTION of the lift.
+  The robot lifts as its executor does (WrtExecutor.lift: along the lift the goal grasp's
+  plan chose, when the grasp ran to its end).
 
 The judge judges the truth only. What the robot's own sensors said of the grasp (the
 observation's fingers, ``info["sensed_fingers"]``) is the robot's business: its verification
@@ -34,7 +36,7 @@ from rrg_sim.executor.trajectory import InfeasiblePath
 from ..config import PHYSICS
 from ..objects import ObjectModel
 from ..observation import Observation, fingers_in_contact
-from ..poses import compose_planar, invert, raised, relative_planar
+from ..poses import compose_planar, invert, relative_planar
 from .world import PhysicsWorld
 
 #: The object counts as lifted when it rose at least this fraction of the lift (chosen: a
@@ -84,11 +86,8 @@ def judge_grasp(
     touch_delta = relative_planar(e_hand, touch_pose)
     touch_in_region = bool(replace(obj.goal, centre=(0.0, 0.0, 0.0)).contains(touch_delta))
     z0, grip0 = world.object_height(), _object_in_hand_frame(world)
-    lift = {0: (PHYSICS.lift_speed, PHYSICS.turn_speed)}
     try:
-        world.move_through(
-            raised(world.hand_pose(), PHYSICS.lift_height)[None], speeds=lift, rigid_from=1
-        )
+        world.executor.lift()
         lift_feasible = True
     except InfeasiblePath:  # the arm cannot lift from this grasp: it cannot be held either
         lift_feasible = False
