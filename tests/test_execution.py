@@ -300,7 +300,12 @@ def test_a_goal_grasp_is_lifted_along_the_lift_its_plan_chose():
     """WrtExecutor.lift follows the chain plan_path chose through the grasp's ``then`` lift
     when the arm stands within RETREAT_TOLERANCE of the planned end, and plans a fresh lift
     otherwise: here the fresh plan has no chain, the planned one lifts."""
-    from rrg_sim.executor.wrt_executor import RETREAT_TOLERANCE, Execution, WrtExecutor
+    from rrg_sim.executor.wrt_executor import (
+        LIFT_START_TOLERANCE,
+        RETREAT_TOLERANCE,
+        Execution,
+        WrtExecutor,
+    )
     from rrg_sim.objects import get_object
     from rrg_sim.poses import raised
 
@@ -324,12 +329,20 @@ def test_a_goal_grasp_is_lifted_along_the_lift_its_plan_chose():
     rise = wam.fk(q[-1])[2, 3] - wam.fk(LIFT_ACTUAL)[2, 3]
     assert rise == pytest.approx(PHYSICS.lift_height, abs=2e-3)
 
-    # Without the plan's lift (no WRT ran, or the arm stands elsewhere) the lift is planned
-    # from where the arm is
+    # Without the plan's lift (no WRT ran) the lift is planned from where the arm is ...
     executor.last = None
     with pytest.raises(InfeasiblePath):
         executor.lift()
     assert len(robot.sent) == 1
-    robot.q = LIFT_PLANNED
+    # nor is a hand that stands off the planned end (here J4 alone 10 mrad off: the hand 4 mm)
+    short = LIFT_PLANNED + np.array([0.0, 0.0, 0.0, -0.01, 0.0, 0.0, 0.0])
+    gap = np.linalg.norm(wam.fk(short)[:3, 3] - top[:3, 3])
+    assert LIFT_START_TOLERANCE < gap and np.abs(short - LIFT_PLANNED).max() <= RETREAT_TOLERANCE
+    robot.q = short
+    executor.last = Execution(goal, np.zeros(3), planned, None, short, lift=planned.then_path())
+    executor.lift()
+    assert np.abs(robot.sent[-1][0] - short).max() < 1e-6
+    assert not np.array_equal(robot.sent[-1][1:], planned.after.q)
+    robot.q, executor.last = LIFT_PLANNED, None
     executor.lift()
     assert np.abs(robot.sent[-1][0] - LIFT_PLANNED).max() < 1e-6

@@ -43,12 +43,16 @@ log = logging.getLogger(__name__)
 
 #: (m/s, rad/s) through free space: from home to a WRT's first pose, and back.
 FREE_SPEEDS = (PHYSICS.free_speed, PHYSICS.free_turn_speed)
-#: A retreat retraces the path only if the arm is still where the WRT left it, and a lift
-#: follows the lift planned with a grasp only if the arm is where that plan ends, within this
+#: A retreat retraces the path only if the arm is still where the WRT left it, within this
 #: joint distance [rad] (chosen: far above servo error, far below any real move).
 RETREAT_TOLERANCE = 0.05
 #: (m/s, rad/s) of the lift after a goal grasp.
 LIFT_SPEEDS = (PHYSICS.lift_speed, PHYSICS.turn_speed)
+#: A lift follows the lift planned with its grasp only when the hand stands this close [m] to
+#: the planned path's end (chosen: an arrived grasp's servo lag leaves < 1 mm; the planned
+#: lift's first step, 1 cm up from the planned end, would first carry a hand that stopped a
+#: centimetre short towards the object).
+LIFT_START_TOLERANCE = 0.003
 
 #: Execution phases reported to a progress callback, with the fraction done when each starts.
 PHASES = {
@@ -508,17 +512,21 @@ class WrtExecutor:
 
     def lift(self) -> None:
         """Lift the closed hand PHYSICS.lift_height straight up at LIFT_SPEEDS. When the last
-        WRT was a goal grasp and the arm is still where its planned path ends (it arrived, or
-        stopped within RETREAT_TOLERANCE of the end), the lift follows the chain that plan
-        chose through the grasp (``wrt_path``'s ``lift_after``), so the lift that made the
-        grasp feasible is the one that runs; otherwise the lift is planned from where the arm
-        stands. A fresh plan can miss a lift the grasp's plan found: near the wrist
+        WRT was a goal grasp and the hand stands where its planned path ends (within
+        LIFT_START_TOLERANCE, the joints within RETREAT_TOLERANCE), the lift follows the chain
+        that plan chose through the grasp (``wrt_path``'s ``lift_after``), so the lift that
+        made the grasp feasible is the one that runs; otherwise the lift is planned from
+        where the arm stands. A fresh plan can miss a lift the grasp's plan found: near the wrist
         singularity a few mrad of servo error decide whether a straight lift needs a wrist
         flip. Raises InfeasiblePath when no lift is planned (nothing moved); a retreat after a
         lift is dropped (the arm has left the WRT's path)."""
         hand, q = self.robot.hand_pose(), self.robot.arm_q()
         planned = None if self.last is None else self.last.lift
-        if planned is not None and np.abs(q - planned.q[0]).max() <= RETREAT_TOLERANCE:
+        if (
+            planned is not None
+            and np.abs(q - planned.q[0]).max() <= RETREAT_TOLERANCE
+            and np.linalg.norm(hand[:3, 3] - planned.poses[0][:3, 3]) <= LIFT_START_TOLERANCE
+        ):
             path = DensePath(
                 np.concatenate([hand[None], planned.poses[1:]]),
                 np.vstack([q, planned.q[1:]]),
