@@ -109,6 +109,17 @@ def test_wilson_interval_matches_hand_computed_values_where_wald_fails():
     assert lo == pytest.approx(0.888246, abs=1e-5) and hi == pytest.approx(0.978457, abs=1e-5)
 
 
+def test_a_wilson_interval_holds_its_proportion_exactly():
+    """At k = n (k = 0) the upper (lower) end is exactly 1 (0): in floating point the formula
+    left 1 less a round-off for 740 of n = 1 … 2000 (158, a campaign's top bin, among them),
+    and the reliability diagram's error bar of an all-success bin came out negative, which
+    matplotlib refuses."""
+    for n in range(1, 2001):
+        assert wilson(n, n)[1] == 1.0 and wilson(0, n)[0] == 0.0
+        lo, hi = wilson(n // 3, n)
+        assert lo <= (n // 3) / n <= hi
+
+
 def test_the_base_seed_comes_from_the_code_version():
     """A reported campaign's seed is a function of the code version: another version,
     another seed; the development seed is reserved for probes."""

@@ -28,14 +28,15 @@ BINS = (0.0, 0.5, 0.9, 0.95, 0.99, 1.0)
 
 
 def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """Wilson score 95 % interval of a binomial proportion."""
+    """Wilson score 95 % interval of a binomial proportion (it holds k/n: at k = n its upper
+    end is exactly 1, not 1 less a round-off)."""
     if n == 0:
         return (0.0, 1.0)
     p = k / n
     den = 1 + z * z / n
     mid = (p + z * z / (2 * n)) / den
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
-    return (max(0.0, mid - half), min(1.0, mid + half))
+    return (min(p, max(0.0, mid - half)), max(p, min(1.0, mid + half)))
 
 
 def rrg_info_at_defaults(record: dict) -> bool:
