@@ -298,8 +298,9 @@ LIFT_PLANNED = LIFT_ACTUAL + np.array([0.0, 0.0, 0.0, 0.0, 0.002, 0.0, 0.01])
 
 def test_a_goal_grasp_is_lifted_along_the_lift_its_plan_chose():
     """WrtExecutor.lift follows the chain plan_path chose through the grasp's ``then`` lift
-    when the arm stands within RETREAT_TOLERANCE of the planned end, and plans a fresh lift
-    otherwise: here the fresh plan has no chain, the planned one lifts."""
+    when the hand stands within LIFT_START_TOLERANCE of the planned end (the joints within
+    RETREAT_TOLERANCE), and plans a fresh lift otherwise: here the fresh plan has no chain, the
+    planned one lifts."""
     from rrg_sim.executor.wrt_executor import (
         LIFT_START_TOLERANCE,
         RETREAT_TOLERANCE,
@@ -334,7 +335,8 @@ def test_a_goal_grasp_is_lifted_along_the_lift_its_plan_chose():
     with pytest.raises(InfeasiblePath):
         executor.lift()
     assert len(robot.sent) == 1
-    # nor is a hand that stands off the planned end (here J4 alone 10 mrad off: the hand 4 mm)
+    # ... and so it is for a hand that stands off the planned end (J4 alone 10 mrad off: the
+    # hand 4 mm)
     short = LIFT_PLANNED + np.array([0.0, 0.0, 0.0, -0.01, 0.0, 0.0, 0.0])
     gap = np.linalg.norm(wam.fk(short)[:3, 3] - top[:3, 3])
     assert LIFT_START_TOLERANCE < gap and np.abs(short - LIFT_PLANNED).max() <= RETREAT_TOLERANCE

@@ -14,7 +14,7 @@ After a goal WRT has closed the hand, the grasp succeeds iff
 * the object stays in the hand while the arm lifts it PHYSICS.lift_height and holds it
   PHYSICS.hold_time: still touching the hand and risen by at least HELD_FRACTION of the lift.
   The robot lifts as its executor does (WrtExecutor.lift: along the lift the goal grasp's
-  plan chose, when the grasp ran to its end).
+  plan chose, when the hand stands where that plan ends).
 
 The judge judges the truth only. What the robot's own sensors said of the grasp (the
 observation's fingers, ``info["sensed_fingers"]``) is the robot's business: its verification
