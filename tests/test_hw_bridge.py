@@ -389,6 +389,7 @@ def assert_stopped(rig: Rig, handle, code: int, since: float) -> float:
     rig.last_result = res
     assert status == GoalStatus.STATUS_ABORTED and res.error_code == code, res.error_msg
     cancel = rig.wait_event("cancel_received", since)
+    rig.spin(0.2)  # joint states sampled before the hold can arrive after the cancel's event
     q = rig.arm_q()
     rig.spin(0.3)
     np.testing.assert_allclose(rig.arm_q(), q, atol=5e-3)  # holding

@@ -171,3 +171,76 @@ def test_a_destroyed_node_serves_its_action_no_longer(ros_domain, destroy_action
     finally:
         for c in contexts:
             rclpy.try_shutdown(context=c)
+
+
+#: A node (run by run_node, single-threaded) whose timer callback takes argv[1] seconds.
+SLOW_CALLBACK_NODE = """
+import sys, time
+from rclpy.node import Node
+from rrg_sim.ros_common.node_main import run_node
+
+class SlowCallback(Node):
+    def __init__(self):
+        super().__init__("slow_callback")
+        self.create_timer(0.05, self.work)
+
+    def work(self):
+        print("started", flush=True)
+        time.sleep(float(sys.argv[1]))
+        print("finished", flush=True)
+
+sys.exit(run_node(SlowCallback, argv=[]))
+"""
+
+
+def signalled_node(ros_domain: int, callback_s: float, signals: list[int]) -> tuple[int, str]:
+    """Run SLOW_CALLBACK_NODE, send ``signals`` 0.3 s apart once its first callback started;
+    its exit status and output."""
+    import signal
+    import subprocess
+    import sys
+
+    from ros_testing import ROOT, ros_env
+
+    proc = subprocess.Popen(
+        [sys.executable, "-c", SLOW_CALLBACK_NODE, str(callback_s)],
+        env=ros_env(ros_domain),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        cwd=ROOT,
+    )
+    try:
+        assert proc.stdout.readline() == "started\n"
+        for sig in signals:
+            proc.send_signal(sig)
+            time.sleep(0.3)
+        output, _ = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGKILL)
+            proc.wait()
+    return proc.returncode, "started\n" + output
+
+
+def test_a_signal_lets_the_callback_in_hand_finish_then_ends_the_node(ros_domain):
+    """rclpy's handlers raised KeyboardInterrupt at whatever bytecode the main thread ran: it
+    cut this callback short, and landing in rclpy's Task.__init__ it left a half-built task
+    whose __del__ printed a traceback."""
+    import signal
+
+    status, output = signalled_node(ros_domain, 1.0, [signal.SIGINT])
+    assert status == 0, output
+    assert output.splitlines() == ["started", "finished"], output
+    assert "Traceback" not in output
+
+
+def test_a_second_signal_interrupts_a_callback_that_does_not_return(ros_domain):
+    """The launcher's escalation (SIGINT, then SIGTERM) still ends a node stuck in a callback."""
+    import signal
+
+    start = time.monotonic()
+    status, output = signalled_node(ros_domain, 60.0, [signal.SIGINT, signal.SIGTERM])
+    assert status == 0, output
+    assert "finished" not in output and "Traceback" not in output, output
+    assert time.monotonic() - start < 20.0

@@ -2,8 +2,15 @@
 persistent executor until shutdown, and exit cleanly on Ctrl-C or SIGINT/SIGTERM.
 
 ``spin_once`` in a ``while rclpy.ok()`` loop, not ``spin()``: a node blocked in ``spin()``
-sometimes missed the first SIGINT (shared/notes/ros2-on-pip.md). In Jazzy SIGINT raises
-ExternalShutdownException, so both it and KeyboardInterrupt end the loop.
+sometimes missed the first SIGINT (shared/notes/ros2-on-pip.md).
+
+The first SIGINT or SIGTERM is latched, not raised: rclpy's own handlers chain to Python's,
+which raises KeyboardInterrupt at whatever bytecode the main thread is running. Landing inside
+rclpy's ``Task.__init__`` it left a half-built task, whose ``__del__`` printed a traceback
+("'Task' object has no attribute '_exception'"); in a single-threaded node it cut the callback
+in hand short. The spin loop shuts the context down at the latch, once the callback in hand
+has returned. A second signal while the node spins (the launcher's escalation) raises
+KeyboardInterrupt, for a callback that does not return.
 """
 
 from __future__ import annotations
@@ -11,6 +18,7 @@ from __future__ import annotations
 import ctypes
 import functools
 import logging
+import signal
 import sys
 import time
 from collections.abc import Callable
@@ -30,6 +38,7 @@ from rclpy.executors import (
 )
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Task
 
 log = logging.getLogger(__name__)
@@ -128,17 +137,44 @@ def release_free_memory() -> None:
         pass
 
 
-def spin_until_shutdown(executor: Executor) -> None:
-    """Spin ``executor`` until its context shuts down. A shutdown (a signal's handler) that
-    lands while it waits makes rclpy raise RCLError ("the given context is not valid") from
-    the wait; that ends the spin like any other shutdown."""
+def spin_until_shutdown(executor: Executor, stop: Callable[[], bool] = lambda: False) -> None:
+    """Spin ``executor`` until its context shuts down, or until ``stop()`` turns true, which
+    shuts the context down. A shutdown (a signal's handler) that lands while it waits makes
+    rclpy raise RCLError ("the given context is not valid") from the wait; that ends the spin
+    like any other shutdown."""
     context = executor.context
     while context.ok():
+        if stop():
+            context.try_shutdown()
+            return
         try:
             executor.spin_once(timeout_sec=0.1)
         except RCLError:
             if context.ok():
                 raise
+
+
+class ShutdownSignals:
+    """SIGINT and SIGTERM, latched while the node spins (see the module doc): the first asks
+    the spin to end, a second raises KeyboardInterrupt; once the spin has ended, signals are
+    only counted, so the node's clean-up runs to its end."""
+
+    def __init__(self) -> None:
+        self.received: list[int] = []
+        self.spinning = True
+
+    def install(self) -> None:
+        """Handle SIGINT and SIGTERM in this process (call from the main thread)."""
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, self._on_signal)
+
+    def _on_signal(self, signum: int, _frame) -> None:
+        self.received.append(signum)
+        if self.spinning and len(self.received) > 1:
+            raise KeyboardInterrupt
+
+    def __bool__(self) -> bool:
+        return bool(self.received)
 
 
 def destroy_action_endpoints(node: Node) -> None:
@@ -159,7 +195,11 @@ def run_node(
     servers that call other servers or step a simulation).
     """
     logging.basicConfig(level=logging.INFO, format="[%(levelname)s] [%(name)s]: %(message)s")
-    rclpy.init(args=sys.argv if argv is None else argv)
+    signals = ShutdownSignals()
+    rclpy.init(
+        args=sys.argv if argv is None else argv, signal_handler_options=SignalHandlerOptions.NO
+    )
+    signals.install()
     node = None
     executor: Executor = (
         SubmitOnceExecutor(num_threads=4) if multi_threaded else SingleThreadedExecutor()
@@ -167,12 +207,13 @@ def run_node(
     try:
         node = make_node()
         executor.add_node(node)
-        spin_until_shutdown(executor)
+        spin_until_shutdown(executor, stop=lambda: bool(signals))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        signals.spinning = False
+        rclpy.try_shutdown()  # callbacks still waiting in the pool see the shutdown
         executor.shutdown(timeout_sec=1.0)
         if node is not None:
             node.destroy_node()
-        rclpy.try_shutdown()
     return 0
