@@ -349,6 +349,28 @@ def test_replay_refuses_a_bad_trial_id(trial_id, capsys):
     assert "bad trial id" in capsys.readouterr().err
 
 
+def test_replay_writes_records_that_replay_check_reproduces(tmp_path, capsys):
+    """Several ids give one JSON line each; --replay-check runs them again and finds the same
+    records, and names the trial and the field of a record that differs."""
+    ids = ["box/low/open-loop#0", "box/low/open-loop#1"]
+    assert main(["--replay", *ids, "--seed", "7", "--world", "realistic", "--workers", "1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    records = [json.loads(line) for line in lines]
+    assert [r["id"] for r in sorted(records, key=lambda r: r["trial"])] == ids
+    assert {(r["base_seed"], r["world"]) for r in records} == {(7, "realistic")}
+    assert all(r["commit"] for r in records)
+    path = tmp_path / "before.jsonl"
+    path.write_text("\n".join(lines) + "\n")
+    assert main(["--replay-check", str(path), "--workers", "1"]) == 0
+    assert "2/2 trials gave the same records" in capsys.readouterr().out
+    records[1]["n_actions"] += 1
+    path.write_text("".join(json.dumps(r) + "\n" for r in records))
+    assert main(["--replay-check", str(path), "--workers", "1"]) == 1
+    out = capsys.readouterr().out
+    assert f"DIFFERS {records[1]['id']}" in out and "n_actions: " in out
+    assert "1/2 trials gave the same records" in out
+
+
 def test_fig9_pairs_h2_with_h1_by_trial_with_a_bootstrap_interval():
     """Paired by trial index: H = 2 succeeds where H = 1 fails on 2 of 10 trials and takes
     one action fewer on each; the difference is +20 points and -1 action, its interval

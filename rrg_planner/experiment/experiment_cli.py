@@ -4,6 +4,8 @@
     rrg-experiment                     # the nominal world into results/paper/
     rrg-experiment --dev --quick --out /tmp/quick
     rrg-experiment --replay 'powerdrill/high/rrg-info#17' --seed 1234   # one trial, verbosely
+    rrg-experiment --replay 'box/low/open-loop#0' 'cup/high/rrg-goal#3' --seed 1234 > before.jsonl
+    rrg-experiment --replay-check before.jsonl   # the same records from this code?
 
 The base seed comes from the code version (its git commit), so a campaign runs on trials no
 earlier version was tuned on; --seed sets it, and --dev uses the development seed for probes
@@ -19,6 +21,7 @@ import json
 import logging
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 from rrg_estimator.config import LEVELS
@@ -30,9 +33,12 @@ from rrg_planner.experiment.trials import (
     CampaignMismatch,
     Cell,
     TrialSpec,
+    imap_trials,
     load_records,
+    prepare_models,
+    record_differences,
     run_campaign,
-    run_trial,
+    spec_of,
 )
 from rrg_planner.requests import STRATEGIES
 from rrg_sim.config import PROFILE_KNOBS, WORLD_PROFILES, world_spec
@@ -161,32 +167,30 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument(
         "--replay",
+        nargs="+",
         metavar="TRIAL_ID",
-        help="run one trial alone (id as in trials.jsonl: cell key#index)",
+        help="run these trials (ids as in trials.jsonl: cell key#index) at --seed and --world, "
+        "and write their records on standard output, a JSON line each (one trial: with its log)",
+    )
+    ap.add_argument(
+        "--replay-check",
+        type=Path,
+        metavar="RECORDS",
+        help="run every trial of a JSONL file of records (a campaign's or --replay's) again, at "
+        "its own base seed and world, and print those whose records differ beyond the timing "
+        "fields and the code version; status 1 if any does",
     )
     args = ap.parse_args(argv)
     logging.basicConfig(
-        level=logging.INFO if args.replay else logging.WARNING,
+        level=logging.INFO if args.replay and len(args.replay) == 1 else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",
     )
     version = code_version()
     seed, seed_source = base_seed(version, args.seed, args.dev)
+    if args.replay_check:
+        return replay_check(args.replay_check, version, args.workers)
     if args.replay:
-        cell_key, _, idx = args.replay.rpartition("#")
-        try:
-            cell = Cell.from_key(cell_key)
-            index = int(idx)
-        except ValueError as exc:
-            print(
-                f"bad trial id {args.replay!r} (e.g. 'box/high/rrg-info#3'): {exc}", file=sys.stderr
-            )
-            return 2
-        bad = unknown_names([cell.object], [cell.level], [cell.strategy])
-        if bad:
-            print(f"bad trial id {args.replay!r}: unknown {bad}", file=sys.stderr)
-            return 2
-        print(json.dumps(run_trial(TrialSpec(cell, index, seed, args.world)), indent=1))
-        return 0
+        return replay(args.replay, seed, args.world, version, args.workers)
 
     objects = QUICK["objects"] if args.quick else args.objects.split(",")
     levels = QUICK["levels"] if args.quick else args.levels.split(",")
@@ -217,6 +221,59 @@ def main(argv: list[str] | None = None) -> int:
         args.workers,
         args.ray,
     )
+
+
+def parse_trial_id(trial_id: str, seed: int, world: str) -> TrialSpec:
+    """The trial an id (cell key#index) names; ValueError for a malformed id or an unknown
+    object, level or strategy."""
+    cell_key, _, index = trial_id.rpartition("#")
+    try:
+        cell, i = Cell.from_key(cell_key), int(index)
+    except ValueError as exc:
+        raise ValueError(f"bad trial id {trial_id!r} (e.g. 'box/high/rrg-info#3'): {exc}") from exc
+    bad = unknown_names([cell.object], [cell.level], [cell.strategy])
+    if bad:
+        raise ValueError(f"bad trial id {trial_id!r}: unknown {bad}")
+    return TrialSpec(cell, i, seed, world)
+
+
+def run_records(specs: list[TrialSpec], version: str, workers: int) -> Iterator[dict]:
+    """Run the trials (tables built first, with progress bars); yields each record, stamped
+    with the code version, as it finishes."""
+    prepare_models(specs)
+    for record in imap_trials(specs, workers, desc="replay"):
+        yield dict(record, commit=version)
+
+
+def replay(ids: list[str], seed: int, world: str, version: str, workers: int) -> int:
+    """Run the trials ``ids`` and print their records as JSON lines (status 2 for a bad id)."""
+    try:
+        specs = [parse_trial_id(i, seed, world) for i in ids]
+    except ValueError as exc:
+        print(exc, file=sys.stderr)
+        return 2
+    for record in run_records(specs, version, workers if len(specs) > 1 else 1):
+        print(json.dumps(record), flush=True)
+    return 0
+
+
+def replay_check(path: Path, version: str, workers: int) -> int:
+    """Run the trials of the records in ``path`` again and print the ones whose records
+    differ; 0 when every one is the same, 1 otherwise, 2 when there is nothing to run."""
+    old = {r["id"]: r for r in load_records(path)}
+    if not old:
+        print(f"error: no trial records in {path}", file=sys.stderr)
+        return 2
+    specs = [spec_of(r) for r in old.values()]
+    differing = 0
+    for record in run_records(specs, version, workers):
+        changes = record_differences(old[record["id"]], record)
+        if changes:
+            differing += 1
+            print(f"DIFFERS {record['id']} ({record['world']}, base seed {record['base_seed']})")
+            print("\n".join(f"  {c}" for c in changes), flush=True)
+    print(f"{len(old) - differing}/{len(old)} trials gave the same records (code {version})")
+    return 1 if differing else 0
 
 
 def report_only(out: Path, objects: list[str], levels: list[str]) -> int:

@@ -299,6 +299,26 @@ def outcome(record: dict) -> dict:
     return {k: v for k, v in record.items() if k not in TIMING_FIELDS}
 
 
+def record_differences(old: dict, new: dict) -> list[str]:
+    """The fields in which two records of one trial differ, beyond timing and the code
+    version, as 'field: old -> new' lines (none: the same behaviour). Compared as JSON text,
+    so that NaN fields (the P(goal) of a failed run) are equal."""
+    a = {k: json.dumps(v, sort_keys=True) for k, v in outcome(old).items() if k != "commit"}
+    b = {k: json.dumps(v, sort_keys=True) for k, v in outcome(new).items() if k != "commit"}
+    return [
+        f"{k}: {old.get(k)!r} -> {new.get(k)!r}"
+        for k in sorted(a.keys() | b.keys())
+        if a.get(k) != b.get(k)
+    ]
+
+
+def spec_of(record: dict) -> TrialSpec:
+    """The spec a record was run from (its cell, index, base seed and world)."""
+    return TrialSpec(
+        Cell.from_key(record["cell"]), record["trial"], record["base_seed"], record["world"]
+    )
+
+
 def load_records(path: Path) -> list[dict]:
     """Records already in a JSONL file (a torn last line from a killed run is ignored)."""
     if not path.exists():
@@ -377,7 +397,7 @@ def run_campaign(
         flush=True,
     )
     with out.open("a") as f:
-        for rec in _imap(todo, workers, ray, desc=f"trials ({len(done)} done before)"):
+        for rec in imap_trials(todo, workers, ray, desc=f"trials ({len(done)} done before)"):
             f.write(json.dumps(dict(rec, commit=commit)) + "\n")
             f.flush()
     ids = {s.id for s in specs}
@@ -410,7 +430,11 @@ def schedule(todo: list[TrialSpec]) -> list[TrialSpec]:
     return sorted(todo, key=lambda s: (first[key(s)], cell_order(s.cell), s.index))
 
 
-def _imap(todo: list[TrialSpec], workers: int, ray: str | None, desc: str) -> Iterator[dict]:
+def imap_trials(
+    todo: list[TrialSpec], workers: int, ray: str | None = None, desc: str = "trials"
+) -> Iterator[dict]:
+    """Run the trials (in ``schedule`` order) on ``workers`` processes, or on Ray at address
+    ``ray``, with a progress bar; yields each record as it finishes."""
     bar = tqdm(total=len(todo), desc=desc, unit="trial", dynamic_ncols=True)
     todo = schedule(todo)
     if ray:
