@@ -17,13 +17,10 @@ from rrg_estimator.belief import Belief
 from rrg_estimator.config import LIKELIHOOD, TRANSITION, LikelihoodParams, TransitionParams
 from rrg_estimator.obs_model import ObsFeatures, TableLike
 from rrg_sim.observation import Observation
+from rrg_sim.poses import wrap_angle
 
 #: Per-axis bump factors below this are skipped (≈ 7σ out; far below float32 likelihoods).
 _NEGLIGIBLE = 1e-12
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 def _cell_mass(offset_cells: float, sigma_cells: float) -> float:
@@ -42,12 +39,12 @@ def table_index_reference(w, e, table) -> int:
     """Flat index of the table entry nearest to the offset of state w from estimate e (clamped)."""
     dx, dy = w[0] - e[0], w[1] - e[1]
     c, s = math.cos(e[2]), math.sin(e[2])
-    rel = (c * dx + s * dy, -s * dx + c * dy, _wrap(w[2] - e[2]))
+    rel = (c * dx + s * dy, -s * dx + c * dy, wrap_angle(w[2] - e[2]))
     idx = []
     for k in range(3):
         d = rel[k] - table.grid.center[k]
         if k == 2:
-            d = _wrap(d)
+            d = wrap_angle(d)
         n = table.grid.shape[k]
         i = round(d / table.grid.spacing[k] + (n - 1) / 2)
         idx.append(min(max(i, 0), n - 1))

@@ -15,7 +15,7 @@ from rrg_estimator.belief import Belief
 from rrg_estimator.config import TRANSITION
 from rrg_planner.config import SEARCH, SearchParams
 from rrg_planner.planning_model import PlanningModel
-from rrg_sim.poses import compose_planar, relative_planar
+from rrg_sim.poses import compose_planar, relative_planar, wrap_angle
 
 Points = list[tuple[float, float, float]]
 
@@ -85,10 +85,6 @@ def merge_branches(
     return [(k, p / z) for k, p in kept]
 
 
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
-
-
 class ReferenceSearch:
     """Forward search with explicit loops over states (slow; for checking and baselines)."""
 
@@ -100,12 +96,12 @@ class ReferenceSearch:
         grid = self.model.actions[0].tables[level].grid
         dx, dy = p[0] - e[0], p[1] - e[1]
         c, s = math.cos(e[2]), math.sin(e[2])
-        rel = (c * dx + s * dy, -s * dx + c * dy, _wrap(p[2] - e[2]))
+        rel = (c * dx + s * dy, -s * dx + c * dy, wrap_angle(p[2] - e[2]))
         flat = 0
         for k in range(3):
             n = grid.shape[k]
             i = (
-                round(_wrap(rel[k] - grid.center[k]) / grid.spacing[k] + (n - 1) / 2)
+                round(wrap_angle(rel[k] - grid.center[k]) / grid.spacing[k] + (n - 1) / 2)
                 if k == 2
                 else round((rel[k] - grid.center[k]) / grid.spacing[k] + (n - 1) / 2)
             )
@@ -130,7 +126,7 @@ class ReferenceSearch:
             aimed = (
                 w_star[0] - c * ax + s * ay,
                 w_star[1] - s * ax - c * ay,
-                _wrap(w_star[2] - at),
+                wrap_angle(w_star[2] - at),
             )
             for e in (w_star, aimed):  # w* and the estimate that puts w* at the aim
                 if self.model.feasible(g, np.asarray(e)):
@@ -144,7 +140,11 @@ class ReferenceSearch:
         for p, w in zip(points, post):
             if w > 0:
                 ent -= w * math.log(w)
-            d = [(p[0] - e[0]) / sigma[0], (p[1] - e[1]) / sigma[1], _wrap(p[2] - e[2]) / sigma[2]]
+            d = [
+                (p[0] - e[0]) / sigma[0],
+                (p[1] - e[1]) / sigma[1],
+                wrap_angle(p[2] - e[2]) / sigma[2],
+            ]
             for i in range(3):
                 mean[i] += w * d[i]
                 for k in range(3):
@@ -228,11 +228,11 @@ class ReferenceSearch:
                     turned = (
                         e[0] + c * dx - s * dy,
                         e[1] + s * dx + c * dy,
-                        _wrap(p[2] + angle * frac),
+                        wrap_angle(p[2] + angle * frac),
                     )
                     sigma = blur
                 for z, q in BLUR_NODES:  # the turn's spread in θ
-                    outs_p.append((turned[0], turned[1], _wrap(turned[2] + z * sigma)))
+                    outs_p.append((turned[0], turned[1], wrap_angle(turned[2] + z * sigma)))
                     outs_w.append(w * prob * q)
         return outs_p, outs_w
 

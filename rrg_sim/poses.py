@@ -5,6 +5,8 @@ Rotations go through scipy's ``Rotation``; everything is vectorized over leading
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -45,7 +47,10 @@ def invert(T: np.ndarray) -> np.ndarray:
 
 
 def wrap_angle(a):
-    """Wrap angles to [-π, π)."""
+    """Wrap angles to [-π, π) (a float stays a float: the same remainder, without NumPy's
+    overhead per call)."""
+    if isinstance(a, float):
+        return (a + math.pi) % (2 * math.pi) - math.pi
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
 
 

@@ -478,11 +478,6 @@ class EmulatedRobot:
             desired = g.q[lo] + (index - lo) * (g.q[hi] - g.q[lo])
             return GoalStatus(goal_id, g.state, index, desired, g.message)
 
-    @property
-    def active_goal(self) -> int | None:
-        goal = self._goal
-        return None if goal is None else goal.goal_id
-
     # ------------------------------------------------------------------ wam_node's arm interface
     # Barrett's ROS 2 wam_node on the same arm: the real-time joint position stream and its
     # timeout (wam_subscribers.h: rtJointPositionCb, updateRT), holdJointPosition and
@@ -674,10 +669,6 @@ class EmulatedRobot:
             self._hand_target[0] = self._hand_goal[0] = self.world.hand_angles()[0]
             self._hand_mode[0] = _HOLD
             self._brake(self._commandable(range(3)))
-
-    def hand_moving(self) -> bool:
-        """Whether a hand channel is still ramping to its position goal or in a velocity move."""
-        return bool(self._hand_mode.any())
 
     @property
     def braked(self) -> np.ndarray:

@@ -82,10 +82,10 @@ from rrg_sim.ros_common.diagnostics import WARN, Health, NodeDiagnostics
 from rrg_sim.ros_common.node_main import destroy_action_endpoints, keep_serving, run_node
 from rrg_sim.ros_common.qos import RESULT_TIMEOUT_S
 
-from ..fake_netft import FakeNetFtBox
 from ..rdt import Calibration
 from ..tactile import CELLS, pucks_from_pads
 from .emulated_robot import PREEMPTED_MESSAGE, EmulatedRobot, Event, GoalState
+from .fake_netft import FakeNetFtBox
 
 NODE_NAME = "fake_hw"
 #: Driver joint names (ros2_control / Barrett URDF; PLAN.md).

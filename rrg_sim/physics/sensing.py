@@ -19,7 +19,7 @@ from numba import njit
 
 from rrg_sim.executor.wrt_executor import Reading
 
-from ..config import N_SENSORS, NOMINAL, PHYSICS, SENSING, SENSOR_NAMES, WorldProfile
+from ..config import N_SENSORS, NOMINAL, PHYSICS, SENSING, WorldProfile
 from ..hand_sensing import fired_sensors, tip_contacts
 from .mjcf_robot import PAD_TOUCH, PALM_BODY, TIP_BODIES, TIP_FORCE, TIP_TORQUE
 
@@ -239,10 +239,3 @@ class HandSensors:
         tips[:, :3, :3] = R_palm.T @ d.xmat[self._tip_body].reshape(3, 3, 3)
         tips[:, :3, 3] = (d.xpos[self._tip_body] - p_palm) @ R_palm
         return Reading(fired, *tip_contacts(wrench, fired, tips))
-
-    def sensor_positions(self) -> np.ndarray:
-        """(10,3) world position of each sensor (pad site centres, Nano17 site origins)."""
-        m, d = self.model, self.data
-        sites = [m.site(f"bh/{name}_pad").id for name in SENSOR_NAMES[:7]]
-        sites += [m.site(f"{body}_ft").id for body in TIP_BODIES]
-        return d.site_xpos[sites]

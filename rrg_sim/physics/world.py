@@ -494,10 +494,6 @@ class PhysicsWorld:
         estimates, see sensing.HandSensors.arm_collision)."""
         return self.data.qfrc_constraint[self._arm_v].copy()
 
-    def open_hand(self, proximal: float = 0.0) -> None:
-        """Open the fingers to ``proximal`` [rad] (spread unchanged), holding the arm."""
-        self.move_hand(float(self.data.ctrl[7]), proximal)
-
     # ------------------------------------------------------------------ WRTs
     def execute_wrt(self, wrt: WRT, e) -> Observation:
         """Run τ(e) as guarded moves from the current (home) pose, close the fingers, and

@@ -18,8 +18,8 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import numpy as np
 
-from .config import RDT_RECORD_FORMAT
-from .rdt import (
+from ..config import RDT_RECORD_FORMAT
+from ..rdt import (
     CONFIG_PAGE,
     RATE_PAGE,
     RDT_CMD_RESET_THRESHOLD_LATCH,
