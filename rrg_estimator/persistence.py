@@ -5,16 +5,14 @@ The state is everything ``BeliefTracker`` carries between two events: the object
 estimate and whether it stopped early), plus the stamp of the last event the belief includes,
 so that a restarted estimator can tell an event it has already applied from one it has not.
 
-``save_state`` writes a temporary file beside the target, flushes it to the disk and renames it
-over the target, so the file on disk is always one whole state, the old or the new, whatever
-moment the process is killed at. A failed write (a full disk, a read-only folder) raises
-OSError and leaves the previous state in place.
+``save_state`` writes it atomically (``state_file.write_atomically``), so the file on disk is
+always one whole state, the old or the new, whatever moment the process is killed at. A failed
+write (a full disk, a read-only folder) raises OSError and leaves the previous state in place.
 """
 
 from __future__ import annotations
 
 import io
-import os
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,13 +23,10 @@ from rrg_estimator.belief import Belief
 from rrg_estimator.grid import Grid
 from rrg_estimator.tracker import BeliefTracker, WrtTables
 from rrg_sim.objects import get_object
+from rrg_sim.state_file import check_format, read_state, write_atomically
 
 #: Bumped when the stored fields change; a state of another format is refused.
 STATE_FORMAT = 2
-
-
-class StateError(ValueError):
-    """A stored state that cannot be restored (another format, a torn or foreign file)."""
 
 
 @dataclass(frozen=True)
@@ -100,54 +95,27 @@ def save_state(path: Path | str, state: EstimatorState) -> None:
     write_atomically(path, buffer.getvalue())
 
 
-def write_atomically(path: Path, data: bytes) -> None:
-    """Write ``data`` to a temporary file beside ``path``, flush it to the disk and rename it over
-    ``path``: the file is the old one or the new one, whenever the process dies. OSError (the
-    old file kept, no temporary left) when it cannot be written."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        with open(tmp, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except OSError:
-        tmp.unlink(missing_ok=True)
-        raise
-    dir_fd = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(dir_fd)
-    finally:
-        os.close(dir_fd)
-
-
 def load_state(path: Path | str) -> EstimatorState:
     """The state stored at ``path``. FileNotFoundError when there is none; StateError when the
     file is not a whole state of this format."""
-    try:
-        with np.load(Path(path), allow_pickle=False) as z:
-            fmt = int(z["format"])
-            if fmt != STATE_FORMAT:
-                raise StateError(f"{path}: state format {fmt}, this estimator reads {STATE_FORMAT}")
-            grid = Grid(
-                tuple(float(v) for v in z["grid_center"]),
-                tuple(float(v) for v in z["grid_spacing"]),
-                tuple(int(v) for v in z["grid_shape"]),
-            )
-            return EstimatorState(
-                str(z["object_name"]),
-                Belief(grid, z["weights"], str(z["posture_frame"])),
-                str(z["pending_wrt"]),
-                np.array(z["pending_estimate"], dtype=float),
-                bool(z["pending_contact"]),
-                int(z["last_event_ns"]),
-                int(z["map_load_ns"]),
-            )
-    except FileNotFoundError:
-        raise
-    except StateError:
-        raise
-    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise StateError(
-            f"{path}: not a whole estimator state ({type(exc).__name__}: {exc})"
-        ) from exc
+    errors = (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile)
+    return read_state(path, _parse_state, "estimator state", errors)
+
+
+def _parse_state(path: Path) -> EstimatorState:
+    with np.load(path, allow_pickle=False) as z:
+        check_format(path, "state", int(z["format"]), STATE_FORMAT, "estimator")
+        grid = Grid(
+            tuple(float(v) for v in z["grid_center"]),
+            tuple(float(v) for v in z["grid_spacing"]),
+            tuple(int(v) for v in z["grid_shape"]),
+        )
+        return EstimatorState(
+            str(z["object_name"]),
+            Belief(grid, z["weights"], str(z["posture_frame"])),
+            str(z["pending_wrt"]),
+            np.array(z["pending_estimate"], dtype=float),
+            bool(z["pending_contact"]),
+            int(z["last_event_ns"]),
+            int(z["map_load_ns"]),
+        )

@@ -4,7 +4,7 @@ The planner writes the grasp's request, the steps it has taken and the execution
 infeasible after each of them; a restarted planner reads them back into a ClosedLoop whose
 agent has spent and blocked the same (action, estimate) pairs. The belief is not here: the
 estimator owns it and restores its own. The file is JSON, written to a temporary file and
-renamed over the old one (persistence.write_atomically), so it is always one whole state.
+renamed over the old one (state_file.write_atomically), so it is always one whole state.
 """
 
 from __future__ import annotations
@@ -15,15 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from rrg_estimator.persistence import write_atomically
 from rrg_planner.closed_loop import ClosedLoop, Step
+from rrg_sim.state_file import check_format, read_state, write_atomically
 
 #: Bumped when the stored fields change; a state of another format is refused.
 STATE_FORMAT = 1
-
-
-class GraspStateError(ValueError):
-    """A stored grasp state that cannot be read (another format, a torn or foreign file)."""
 
 
 @dataclass
@@ -74,29 +70,21 @@ def save_grasp_state(path: Path | str, state: GraspState) -> None:
 
 
 def load_grasp_state(path: Path | str) -> GraspState:
-    """The state stored at ``path``; FileNotFoundError when there is none, GraspStateError when
-    it is not a whole state of this format."""
-    try:
-        data = json.loads(Path(path).read_text())
-        if data.get("format") != STATE_FORMAT:
-            raise GraspStateError(
-                f"{path}: grasp state format {data.get('format')}, this planner reads "
-                f"{STATE_FORMAT}"
-            )
-        steps = [Step(**{**s, "estimate": np.asarray(s["estimate"])}) for s in data["steps"]]
-        return GraspState(
-            dict(data["request"]),
-            steps,
-            [(int(a), list(e)) for a, e in data["blocked"]],
-            float(data["planning_time"]),
-            float(data["p_goal"]),
-            bool(data["active"]),
-        )
-    except FileNotFoundError:
-        raise
-    except GraspStateError:
-        raise
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
-        raise GraspStateError(
-            f"{path}: not a whole grasp state ({type(exc).__name__}: {exc})"
-        ) from exc
+    """The state stored at ``path``; FileNotFoundError when there is none, StateError when it
+    is not a whole state of this format."""
+    errors = (OSError, ValueError, KeyError, TypeError, AttributeError)
+    return read_state(path, _parse_grasp_state, "grasp state", errors)
+
+
+def _parse_grasp_state(path: Path) -> GraspState:
+    data = json.loads(path.read_text())
+    check_format(path, "grasp state", data.get("format"), STATE_FORMAT, "planner")
+    steps = [Step(**{**s, "estimate": np.asarray(s["estimate"])}) for s in data["steps"]]
+    return GraspState(
+        dict(data["request"]),
+        steps,
+        [(int(a), list(e)) for a, e in data["blocked"]],
+        float(data["planning_time"]),
+        float(data["p_goal"]),
+        bool(data["active"]),
+    )

@@ -9,15 +9,10 @@ import numpy as np
 import pytest
 
 from rrg_estimator.config import LOW, MID
-from rrg_estimator.persistence import (
-    STATE_FORMAT,
-    EstimatorState,
-    StateError,
-    load_state,
-    save_state,
-)
+from rrg_estimator.persistence import STATE_FORMAT, EstimatorState, load_state, save_state
 from rrg_estimator.tracker import BeliefTracker
 from rrg_sim.geometric_sim import GeometricSimulator
+from rrg_sim.state_file import StateError
 
 MEAN = np.array([0.62, 0.0, 0.0])
 
@@ -103,3 +98,32 @@ def test_torn_foreign_and_missing_files_are_refused_clearly(drill_after_a_goal_g
         load_state(path)
     with pytest.raises(FileNotFoundError):
         load_state(tmp_path / "none.npz")
+
+
+def test_a_grasp_state_reads_back_whole_or_is_refused(tmp_path):
+    """The planner's restart state goes through the same loader: the same state back, and a
+    torn file, a foreign file or another format refused with StateError."""
+    import json
+
+    from rrg_planner.closed_loop import Step
+    from rrg_planner.grasp_state import GraspState, load_grasp_state, save_grasp_state
+
+    step = Step("info1", "info", np.array([0.6, 0.01, 0.2]), True, ["tip1"], 0.3, 0.05)
+    state = GraspState({"object_name": "box"}, [step], [(2, [0.6, 0.0, 0.1])], 0.05, 0.3)
+    path = tmp_path / "grasp.json"
+    save_grasp_state(path, state)
+    back = load_grasp_state(path)
+    assert back.request == state.request and back.blocked == state.blocked
+    assert back.steps[0].wrt == "info1" and np.array_equal(back.steps[0].estimate, step.estimate)
+    whole = path.read_text()
+    path.write_text(whole[: len(whole) // 2])
+    with pytest.raises(StateError, match="not a whole grasp state"):
+        load_grasp_state(path)
+    path.write_text('["a list"]')
+    with pytest.raises(StateError, match="not a whole grasp state"):
+        load_grasp_state(path)
+    path.write_text(json.dumps({**json.loads(whole), "format": 99}))
+    with pytest.raises(StateError, match="grasp state format 99, this planner reads"):
+        load_grasp_state(path)
+    with pytest.raises(FileNotFoundError):
+        load_grasp_state(tmp_path / "none.json")

@@ -40,7 +40,7 @@ from rclpy.node import Node
 from visualization_msgs.msg import MarkerArray
 
 from rrg_estimator.config import LEVELS
-from rrg_estimator.persistence import EstimatorState, StateError, load_state, save_state
+from rrg_estimator.persistence import EstimatorState, load_state, save_state
 from rrg_estimator.ros.belief_msgs import belief_markers, belief_to_msg
 from rrg_estimator.ros.likelihood_param import declare_unsensed_sensors
 from rrg_estimator.tracker import BeliefTracker, CachedTables
@@ -63,6 +63,7 @@ from rrg_sim.ros_common.msg_conversions import (
 )
 from rrg_sim.ros_common.node_main import keep_serving, release_free_memory, run_node
 from rrg_sim.ros_common.qos import LATCHED, STREAM
+from rrg_sim.state_file import StateError
 
 NODE_NAME = "estimator"
 NAMESPACE = "rrg"

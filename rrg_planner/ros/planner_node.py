@@ -54,12 +54,7 @@ from rrg_msgs.srv import GetBelief, SelectAction
 from rrg_planner import requests
 from rrg_planner.agent import RobustGraspAgent
 from rrg_planner.closed_loop import ClosedLoop, Decision, GraspCanceled, decide
-from rrg_planner.grasp_state import (
-    GraspState,
-    GraspStateError,
-    load_grasp_state,
-    save_grasp_state,
-)
+from rrg_planner.grasp_state import GraspState, load_grasp_state, save_grasp_state
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.requests import InvalidRequest
 from rrg_planner.ros.graph_client import GraphClient, GraphError
@@ -78,6 +73,7 @@ from rrg_sim.ros_common.liveliness import announce
 from rrg_sim.ros_common.msg_conversions import planar_to_msg
 from rrg_sim.ros_common.node_main import destroy_action_endpoints, run_node
 from rrg_sim.ros_common.qos import RESULT_TIMEOUT_S
+from rrg_sim.state_file import StateError
 
 NODE_NAME = "planner"
 NAMESPACE = "rrg"
@@ -519,7 +515,7 @@ class PlannerNode(Node):
             state = load_grasp_state(self.state_file)
         except FileNotFoundError:
             state = None
-        except GraspStateError as exc:
+        except StateError as exc:
             self.get_logger().error(f"no grasp to resume: {exc}")
             return None
         if state is None or not state.active or state.request != request:
