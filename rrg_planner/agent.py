@@ -21,7 +21,7 @@ from rrg_estimator.belief import Belief
 from rrg_estimator.update import goal_probability
 from rrg_planner.config import SEARCH
 from rrg_planner.planning_model import PlanningModel
-from rrg_planner.requests import check_choice
+from rrg_planner.request_checks import check_choice
 from rrg_planner.search import ForwardSearch, SearchResult, SparseBelief
 from rrg_sim.observation import Observation, goal_grasp_mismatches
 

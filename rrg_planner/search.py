@@ -53,7 +53,7 @@ from rrg_estimator.transition import displace
 from rrg_planner import search_kernels as kernels
 from rrg_planner.config import SEARCH, SearchParams
 from rrg_planner.planning_model import PlanningModel
-from rrg_planner.requests import check_search
+from rrg_planner.request_checks import check_search
 from rrg_sim.poses import compose_planar, relative_planar
 from rrg_sim.wrt import ReorientOutcome
 

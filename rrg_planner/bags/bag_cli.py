@@ -100,7 +100,7 @@ def run_summary(args: argparse.Namespace) -> None:
 
 def replay_settings(args: argparse.Namespace) -> dict:
     """The planner settings asked for, checked (InvalidRequest otherwise)."""
-    from rrg_planner.requests import check_level, check_search, max_actions
+    from rrg_planner.request_checks import check_level, check_search, max_actions
 
     levels = None
     if args.levels is not None:
@@ -118,7 +118,7 @@ def replay_settings(args: argparse.Namespace) -> dict:
 
 def run_replay(args: argparse.Namespace) -> int:
     from rrg_planner.bags.bag_replay import UnusableBag, format_replay, replay_bag
-    from rrg_planner.requests import InvalidRequest
+    from rrg_planner.request_checks import InvalidRequest
 
     try:
         settings = replay_settings(args)

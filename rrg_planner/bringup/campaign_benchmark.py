@@ -95,7 +95,7 @@ def run(argv: list[str]) -> int:
 
     from rrg_planner.experiment.experiment_cli import campaign_specs
     from rrg_planner.experiment.trials import _env, _model, model_key, run_trial, schedule
-    from rrg_planner.requests import STRATEGIES
+    from rrg_planner.request_checks import STRATEGIES
     from rrg_sim.config import WORLD_PROFILES
     from rrg_sim.objects import PAPER_OBJECTS
 

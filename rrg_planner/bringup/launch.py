@@ -65,7 +65,7 @@ from rrg_planner.bringup.graph import (
     warm_tables,
 )
 from rrg_planner.config import SEARCH
-from rrg_planner.requests import STRATEGIES
+from rrg_planner.request_checks import STRATEGIES
 from rrg_sim.config import WORLD_PROFILES, world_spec
 from rrg_sim.objects import PAPER_OBJECTS, object_names
 

@@ -40,7 +40,7 @@ from rrg_planner.experiment.trials import (
     run_campaign,
     spec_of,
 )
-from rrg_planner.requests import STRATEGIES
+from rrg_planner.request_checks import STRATEGIES
 from rrg_sim.config import PROFILE_KNOBS, WORLD_PROFILES, world_spec
 from rrg_sim.objects import PAPER_OBJECTS, object_names
 

@@ -51,12 +51,12 @@ from rrg_estimator.ros.likelihood_param import declare_unsensed_sensors
 from rrg_msgs.action import RobustGrasp
 from rrg_msgs.msg import GraspStep
 from rrg_msgs.srv import GetBelief, SelectAction
-from rrg_planner import requests
+from rrg_planner import request_checks
 from rrg_planner.agent import RobustGraspAgent
 from rrg_planner.closed_loop import ClosedLoop, Decision, GraspCanceled, decide
 from rrg_planner.grasp_state import GraspState, load_grasp_state, save_grasp_state
 from rrg_planner.planning_model import PlanningModel
-from rrg_planner.requests import InvalidRequest
+from rrg_planner.request_checks import InvalidRequest
 from rrg_planner.ros.graph_client import GraphClient, GraphError
 from rrg_planner.ros.grasp_records import (
     decision_record,
@@ -319,8 +319,8 @@ class PlannerNode(Node):
         """Fill ``resp`` with the answer to ``req``."""
         try:
             try:
-                requests.check_choice(req.strategy, req.horizon, req.delta)
-                requests.check_object(req.object_name)
+                request_checks.check_choice(req.strategy, req.horizon, req.delta)
+                request_checks.check_object(req.object_name)
             except InvalidRequest as exc:
                 raise RequestError.of(exc, SA) from exc
             belief = self.request_belief(req)
@@ -365,18 +365,18 @@ class PlannerNode(Node):
     def validate_grasp(self, goal: RobustGrasp.Goal) -> tuple[np.ndarray, np.ndarray, int]:
         """(mean, sigma, max_actions) of a valid goal; RequestError otherwise."""
         try:
-            requests.check_choice(goal.strategy, goal.horizon, goal.delta)
-            requests.check_object(goal.object_name)
-            requests.check_level(goal.level, self.levels)
+            request_checks.check_choice(goal.strategy, goal.horizon, goal.delta)
+            request_checks.check_object(goal.object_name)
+            request_checks.check_level(goal.level, self.levels)
             mean = (
                 [goal.initial_mean.x, goal.initial_mean.y, goal.initial_mean.theta]
                 if goal.use_initial_mean
                 else WORLD.nominal_pose
             )
-            mean, sigma = requests.grasp_prior(
+            mean, sigma = request_checks.grasp_prior(
                 goal.level, [goal.sigma_x, goal.sigma_y, goal.sigma_theta], mean
             )
-            return mean, sigma, requests.max_actions(goal.max_actions)
+            return mean, sigma, request_checks.max_actions(goal.max_actions)
         except InvalidRequest as exc:
             raise RequestError.of(exc, RG) from exc
 
