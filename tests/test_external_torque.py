@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from rrg_hw_bridge.contact_guard import ContactGuard
 from rrg_hw_bridge.external_torque import ExternalTorqueObserver
 from rrg_hw_bridge.fake.emulated_robot import EmulatedRobot
-from rrg_hw_bridge.guard import ContactGuard
 from rrg_sim import wam
 from rrg_sim.config import PHYSICS, SENSING
 

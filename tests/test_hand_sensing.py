@@ -1,12 +1,12 @@
 """The hand's sensing logic shared by the simulator and the hardware bridge (rrg_sim.hand_sensing)
-and the bridge's hand state and trip logic (rrg_hw_bridge.guard)."""
+and the bridge's hand state and trip logic (rrg_hw_bridge.contact_guard)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from rrg_hw_bridge.guard import ContactGuard, HandState, derived_pads, path_index
+from rrg_hw_bridge.contact_guard import ContactGuard, HandState, derived_pads, path_index
 from rrg_sim.config import HAND, PHYSICS, SENSING
 from rrg_sim.hand_sensing import (
     CLOSE_START_TIME,
@@ -169,7 +169,7 @@ def test_path_index_projects_a_measured_configuration():
 
 
 def test_velocity_estimate_follows_a_ramp_and_settles_at_rest():
-    from rrg_hw_bridge.guard import VelocityEstimate
+    from rrg_hw_bridge.contact_guard import VelocityEstimate
 
     est = VelocityEstimate(2, tau_s=0.01)
     dt = 0.002  # a 500 Hz driver

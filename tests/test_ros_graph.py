@@ -281,7 +281,7 @@ def test_hw_options_are_checked(args, message):
 def test_the_launcher_tells_the_belief_which_pads_the_bridge_cannot_read(tmp_path):
     """The bridge's pad_source, from --hw-param or its parameters file, gives the pads the
     estimator and the planner leave out."""
-    from rrg_hw_bridge.guard import DERIVED_PADS_UNSENSED, UNSENSED_PADS
+    from rrg_hw_bridge.contact_guard import DERIVED_PADS_UNSENSED, UNSENSED_PADS
     from rrg_planner.bringup.graph import LaunchError, bridge_pad_source
 
     params = tmp_path / "bridge.yaml"

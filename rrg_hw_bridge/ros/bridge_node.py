@@ -75,8 +75,7 @@ from rrg_sim.ros_common.node_main import destroy_action_endpoints, keep_serving,
 
 from ..arm_limits import DEFAULT_ARM_LIMITS, load_arm_limits
 from ..config import BRIDGE
-from ..external_torque import ExternalTorqueObserver
-from ..guard import (
+from ..contact_guard import (
     DEFAULT_PAD_SOURCE,
     DERIVED_PADS_UNSENSED,
     PAD_SOURCES,
@@ -86,6 +85,7 @@ from ..guard import (
     VelocityEstimate,
     path_index,
 )
+from ..external_torque import ExternalTorqueObserver
 from ..rdt import (
     DEFAULT_COUNTS_PER_FORCE,
     DEFAULT_COUNTS_PER_TORQUE,

@@ -20,7 +20,7 @@ import numpy as np
 import yaml
 
 from rrg_estimator.config import LEVELS
-from rrg_hw_bridge.guard import DEFAULT_PAD_SOURCE, UNSENSED_PADS
+from rrg_hw_bridge.contact_guard import DEFAULT_PAD_SOURCE, UNSENSED_PADS
 from rrg_sim.config import WORLD
 from rrg_sim.poses import compose_planar
 
