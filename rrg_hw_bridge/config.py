@@ -12,7 +12,7 @@ class BridgeParams:
     """Defaults of the bridge node's safety layer and timing."""
 
     #: Age [s] of the newest joint state or fingertip wrench beyond which the arm holds and new
-    #: goals are refused (shared/notes/hardware-interfaces.md: "older than about 0.1 s").
+    #: goals are refused (docs/sources.md §6: "older than about 0.1 s").
     watchdog_timeout: float = 0.1
     #: Period [s] of the watchdog's check (chosen: a tenth of the timeout, so a silence is
     #: caught within 0.11 s; the issue asks for a hold within 0.15 s).

@@ -10,9 +10,9 @@ Units are SI (m, rad, N, kg, s) unless a name says otherwise. Frames:
   at spread 0.
 
 Sources are cited per block: the paper (Hsiao, Lozano-Pérez, Kaelbling,
-"Relatively Robust Grasping"), ``shared/notes/mujoco-world.md`` (published
-WAM and BarrettHand dimensions), docs/design.md, or "chosen" with the
-reason where neither gives a number.
+"Relatively Robust Grasping"), docs/sources.md (published WAM and BarrettHand dimensions,
+object sizes, the drivers' figures), docs/design.md, or "chosen" with the reason where
+neither gives a number.
 """
 
 from __future__ import annotations
@@ -30,7 +30,8 @@ are keyed by it and rebuilt when stale."""
 # --------------------------------------------------------------------------- WAM
 @dataclass(frozen=True)
 class WamParams:
-    """Barrett WAM 7-DOF. Source: Barrett's published DH table (shared/notes/mujoco-world.md)."""
+    """Barrett WAM 7-DOF. Source: Barrett's DH table (libbarrett config/wam7w.conf,
+    docs/sources.md §1)."""
 
     #: (alpha [rad], a [m], d [m]) per joint, standard (distal) DH convention.
     dh: tuple[tuple[float, float, float], ...] = (
@@ -64,7 +65,7 @@ WAM = WamParams()
 # ------------------------------------------------------------------ BarrettHand
 @dataclass(frozen=True)
 class HandParams:
-    """BarrettHand BH8-282 in the hand frame. Source: public URDFs (shared/notes/mujoco-world.md);
+    """BarrettHand BH8-282 in the hand frame. Source: public URDFs (docs/sources.md §2);
     link cross-sections chosen from the BH8-282 data sheet drawings (25 mm wide fingers)."""
 
     spread_axis_x: float = 0.025  # fingers 1 and 2 spread axes at (±0.025, 0, ·)
@@ -309,7 +310,7 @@ class PhysicsParams:
     transit_height: float = 0.40
     #: [m] how far the open hand backs out along its approach axis after a reorientation
     #: whose retrace is infeasible, before rising (chosen: the open fingers' reach past the
-    #: knuckles, proximal 0.07 m + distal 0.057 m + the fingertip, notes/mujoco-world.md)
+    #: knuckles, proximal 0.07 m + distal 0.057 m + the fingertip, docs/sources.md §2)
     back_out_distance: float = 0.15
     #: Joint speed limits of every move [rad/s] (chosen: about half the WAM's top speeds; its
     #: wrist joints, with lower transmission ratios, run about twice as fast as J1-J4).
@@ -445,8 +446,8 @@ REALISTIC = WorldProfile(
     joint_resolution=tuple(2 * math.pi / (WAM_ENCODER_COUNTS * n) for n in WAM_DRIVE_RATIOS),
     # libbarrett config/wam7w.conf: control_signal_limit of the joint position PID.
     arm_torque_limit=(25.0, 20.0, 15.0, 15.0, 5.0, 5.0, 5.0),
-    # Barrett's ROS 2 driver publishes the tactile states at 50 Hz (shared/notes/
-    # hardware-interfaces.md); Barrett recommends ≥ 50 Hz for the hand (wiki,
+    # Barrett's ROS 2 driver publishes the tactile states at 50 Hz (docs/sources.md
+    # §6); Barrett recommends ≥ 50 Hz for the hand (wiki,
     # Hand/282/ControlModes).
     pad_period=0.02,
     # No published miss or false-alarm rate for binary contact pads was found (nor BarrettHand

@@ -1,8 +1,8 @@
 """Barrett WAM 7-DOF kinematics: forward kinematics, analytic IK with redundancy resolution,
 and the feasibility F_τ(e) of hand paths (joint limits and table clearance, design §4).
 
-Model: Barrett's published DH table for the WAM (standard/distal DH, Barrett WAM manual
-"WAM kinematics", as transcribed in shared/notes/mujoco-world.md and ``config.WAM``),
+Model: Barrett's DH table for the WAM (standard/distal DH: libbarrett's config/wam7w.conf,
+docs/sources.md §1, as ``config.WAM``),
 T_i = Rz(θ_i) Tz(d_i) Tx(a_i) Rx(α_i). The chain is
 
     world ─ Tz(base_height) ─ frame 0 ─ J1 … J7 ─ frame 7 ─ TOOL_TRANSFORM ─ hand frame

@@ -11,7 +11,7 @@
 #     hardware bridge, tf2_msgs for the robot's frames, then rrg_msgs)
 #     configured, built and installed into the venv, each only when missing or stale;
 #   - Foxglove's bag readers (npm) in .cache/npm/node_modules, used by the bag tests.
-# Facts behind each step: shared/notes/ros2-on-pip.md.
+# Facts behind each step: docs/sources.md §5.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 VENV="$ROOT/.venv"

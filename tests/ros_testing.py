@@ -1,6 +1,6 @@
 """Helpers shared by the ROS tests: a DDS domain id no other test process on this machine holds,
 node processes in that domain, and a test-side rclpy node with one persistent executor (the
-rclpy 7.1.6 spin_until_future_complete bug: see shared/notes/ros2-on-pip.md)."""
+rclpy 7.1.6 spin_until_future_complete bug: see docs/sources.md §5)."""
 
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 persistent executor until shutdown, and exit cleanly on Ctrl-C or SIGINT/SIGTERM.
 
 ``spin_once`` in a ``while rclpy.ok()`` loop, not ``spin()``: a node blocked in ``spin()``
-sometimes missed the first SIGINT (shared/notes/ros2-on-pip.md).
+sometimes missed the first SIGINT (docs/sources.md §5).
 
 The first SIGINT or SIGTERM is latched, not raised: rclpy's own handlers chain to Python's,
 which raises KeyboardInterrupt at whatever bytecode the main thread is running. Landing inside
