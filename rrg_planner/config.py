@@ -64,7 +64,7 @@ SEARCH = SearchParams()
 
 # ------------------------------------------------------------------ bag replay
 #: Largest |Δp| of a replayed belief, and |Δe| [m, rad] of a replayed decision's estimate, that
-#: still count as reproducing the recording (rrg_planner.bags.bag_replay; chosen: the replay
+#: still count as reproducing the recording (rrg_bags.bag_replay; chosen: the replay
 #: runs the same float64 operations on the same inputs, so only the summation order of a
 #: different BLAS build or thread count can change the result, by a few ulp of 1).
 REPLAY_TOLERANCE = 1e-9

@@ -1,5 +1,5 @@
-"""colcon's ament_python build of rrg_planner (docs/colcon.md): the metadata is pyproject.toml's,
-read by scripts/ament_setup.py. A build script, not a module of the package."""
+"""colcon's ament_python build of rrg_planner (docs/colcon.md): the metadata is
+pyproject.toml's, read by scripts/ament_setup.py. A build script, not a module of the package."""
 
 import runpy
 from pathlib import Path

@@ -18,7 +18,7 @@ from collections import Counter
 
 import numpy as np
 
-from rrg_planner.experiment.report import judged_failures
+from rrg_experiments.report import judged_failures
 from rrg_sim.config import WORLD
 from rrg_sim.executor.trajectory import InfeasiblePath
 from rrg_sim.parallel import fork_map

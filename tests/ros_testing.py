@@ -237,7 +237,7 @@ class Launcher:
         self.log_dir = tmp_path / "logs"
         self.lines: list[str] = []
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "rrg_planner.bringup.launch", *args]
+            [sys.executable, "-m", "rrg_bringup.launch", *args]
             + ["--domain-id", str(domain_id), "--bags", str(tmp_path), "--bag-name", name]
             + ["--log-dir", str(self.log_dir)],
             env=ros_env(domain_id),

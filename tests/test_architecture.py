@@ -9,18 +9,41 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("rrg_sim", "rrg_estimator", "rrg_planner", "rrg_hw_bridge")
-#: The packages each package may import besides itself: rrg_planner → rrg_estimator → rrg_sim,
-#: and rrg_hw_bridge → rrg_sim (the bridge stands in for the simulator); rrg_planner, the top
-#: of the stack with the launcher and the benchmarks, may use the bridge's as well.
+PACKAGES = (
+    "rrg_sim",
+    "rrg_estimator",
+    "rrg_planner",
+    "rrg_hw_bridge",
+    "rrg_bags",
+    "rrg_experiments",
+    "rrg_onboarding",
+    "rrg_bringup",
+)
+#: The packages each package may import besides itself, from the bottom up: the simulator and
+#: the robot models; the belief over them; the search over the belief; the bridge, which stands
+#: in for the simulator; the tools on the planner (bags, experiments, onboarding); and bringup,
+#: the launcher and the benchmarks, on top of everything.
 ALLOWED = {
     "rrg_sim": set(),
     "rrg_estimator": {"rrg_sim"},
-    "rrg_planner": {"rrg_sim", "rrg_estimator", "rrg_hw_bridge"},
+    "rrg_planner": {"rrg_sim", "rrg_estimator"},
     "rrg_hw_bridge": {"rrg_sim"},
+    "rrg_bags": {"rrg_sim", "rrg_estimator", "rrg_planner"},
+    "rrg_experiments": {"rrg_sim", "rrg_estimator", "rrg_planner"},
+    "rrg_onboarding": {"rrg_sim", "rrg_estimator", "rrg_planner", "rrg_experiments"},
+    "rrg_bringup": {
+        "rrg_sim",
+        "rrg_estimator",
+        "rrg_planner",
+        "rrg_hw_bridge",
+        "rrg_bags",
+        "rrg_experiments",
+    },
 }
 #: Sub-packages and modules that may use rclpy (nodes, their clients and the shared plumbing).
-ROS_PARTS = ("ros", "ros_common", "bringup", "bags")
+ROS_PARTS = ("ros", "ros_common")
+#: Packages that are ROS tools throughout: the launcher and its benchmarks, and the bags.
+ROS_PACKAGES = ("rrg_bringup", "rrg_bags")
 ROS_MODULES = (
     "rrg_sim.executor.executor_node",
     "rrg_sim.executor.robot_client",
@@ -96,7 +119,8 @@ GRAPH = {name: _internal(_imports(name), name) for name in MODULES}
 def _is_ros(name: str) -> bool:
     parts = name.split(".")
     return (
-        any(p in ROS_PARTS for p in parts[1:])
+        parts[0] in ROS_PACKAGES
+        or any(p in ROS_PARTS for p in parts[1:])
         or name in ROS_MODULES
         or parts[-1].endswith("_node")
         or parts[-1].endswith("_cli")

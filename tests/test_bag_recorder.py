@@ -26,12 +26,12 @@ from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
+from rrg_bags.bag_cli import bag_info, format_info
+from rrg_bags.bag_cli import main as bag_cli_main
+from rrg_bags.bag_schema import SEPARATOR, full_definition
+from rrg_bags.bag_writer import Rosbag2McapWriter
+from rrg_bags.recorder_node import BagRecorder
 from rrg_msgs.msg import BeliefGrid, Observation
-from rrg_planner.bags.bag_cli import bag_info, format_info
-from rrg_planner.bags.bag_cli import main as bag_cli_main
-from rrg_planner.bags.bag_schema import SEPARATOR, full_definition
-from rrg_planner.bags.bag_writer import Rosbag2McapWriter
-from rrg_planner.bags.recorder_node import BagRecorder
 
 RECORDER = "rrg_bag_recorder"
 
@@ -72,7 +72,7 @@ def start_recorder(bag: Path, env: dict) -> subprocess.Popen:
         [
             sys.executable,
             "-m",
-            "rrg_planner.bags.recorder_node",
+            "rrg_bags.recorder_node",
             "--output",
             str(bag),
             "--ros-args",
@@ -318,7 +318,7 @@ def test_a_stopping_recorder_writes_the_messages_it_has_received(ros_node, tmp_p
 
 def test_recorder_refuses_an_existing_bag_folder(tmp_path, ros_env):
     out = subprocess.run(
-        [sys.executable, "-m", "rrg_planner.bags.recorder_node", "--output", str(tmp_path)],
+        [sys.executable, "-m", "rrg_bags.recorder_node", "--output", str(tmp_path)],
         env=ros_env,
         capture_output=True,
         text=True,

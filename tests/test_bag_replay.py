@@ -18,20 +18,20 @@ from mcap.writer import Writer
 from rclpy.serialization import deserialize_message, serialize_message
 from ros_testing import ROOT, ros_env
 
-from rrg_estimator.belief import Belief
-from rrg_estimator.config import LEVELS, LOW
-from rrg_estimator.ros.belief_msgs import belief_to_msg
-from rrg_msgs.msg import Observation as ObservationMsg
-from rrg_planner.bags.bag_cli import main as bag_cli
-from rrg_planner.bags.bag_replay import (
+from rrg_bags.bag_cli import main as bag_cli
+from rrg_bags.bag_replay import (
     BagReplay,
     BeliefStep,
     DecisionStep,
     UnusableBag,
     replay_bag,
 )
-from rrg_planner.bags.bag_schema import full_definition, layout, same_layout
-from rrg_planner.bags.bag_writer import Rosbag2McapWriter
+from rrg_bags.bag_schema import full_definition, layout, same_layout
+from rrg_bags.bag_writer import Rosbag2McapWriter
+from rrg_estimator.belief import Belief
+from rrg_estimator.config import LEVELS, LOW
+from rrg_estimator.ros.belief_msgs import belief_to_msg
+from rrg_msgs.msg import Observation as ObservationMsg
 
 #: A true pose 2.4 cm and 0.05 rad from the mean of the low level's belief: the first goal
 #: grasp stops early on the box, so the grasp takes an observation, a retreat and another
@@ -97,7 +97,7 @@ def synthetic_bag(tmp_path_factory) -> Path:
 def grasp_bag(tmp_path_factory, ros_domain) -> Path:
     """A robust grasp of the box at low uncertainty through the whole graph, recorded."""
     tmp = tmp_path_factory.mktemp("replay")
-    args = [sys.executable, "-m", "rrg_planner.bringup.launch", "--grasp", "box"]
+    args = [sys.executable, "-m", "rrg_bringup.launch", "--grasp", "box"]
     args += ["--level", "low", "--levels", "low", "--true-pose", *TRUE_POSE, "--seed", "0"]
     args += ["--domain-id", str(ros_domain), "--bags", str(tmp), "--bag-name", "grasp"]
     args += ["--log-dir", str(tmp / "logs"), "--json"]

@@ -31,11 +31,11 @@ from ros_testing import RosClient, foxglove_read, start_node, stop_process
 from rosbags.highlevel import AnyReader
 from std_msgs.msg import String
 
-from rrg_planner.bags.bag_finalize import CUT, FOOTER, SUMMARY, finalize_in_place
-from rrg_planner.bags.bag_info import bag_info, iso_time
-from rrg_planner.bags.bag_read import read_messages
-from rrg_planner.bags.bag_writer import RecordingStopped, Rosbag2McapWriter
-from rrg_planner.bringup import launch
+from rrg_bags.bag_finalize import CUT, FOOTER, SUMMARY, finalize_in_place
+from rrg_bags.bag_info import bag_info, iso_time
+from rrg_bags.bag_read import read_messages
+from rrg_bags.bag_writer import RecordingStopped, Rosbag2McapWriter
+from rrg_bringup import launch
 
 ROOT = Path(__file__).resolve().parents[1]
 S = 1_000_000_000  # ns
@@ -227,7 +227,7 @@ def test_rrg_launch_refuses_a_bags_folder_it_cannot_write_a_block_into(tmp_path)
         "import resource, runpy, sys; "
         "resource.setrlimit(resource.RLIMIT_FSIZE, (1000, resource.RLIM_INFINITY)); "
         f"sys.argv = ['rrg-launch', '--bags', {str(tmp_path / 'bags')!r}]; "
-        "runpy.run_module('rrg_planner.bringup.launch', run_name='__main__')"
+        "runpy.run_module('rrg_bringup.launch', run_name='__main__')"
     )
     out = subprocess.run(
         [sys.executable, "-c", run], capture_output=True, text=True, timeout=120, cwd=ROOT
@@ -254,10 +254,10 @@ def test_the_recorder_exits_with_one_line_when_it_cannot_create_its_bag(tmp_path
         "import resource, runpy, sys; "
         "resource.setrlimit(resource.RLIMIT_FSIZE, (10, resource.RLIM_INFINITY)); "
         f"sys.argv = ['recorder', '--output', {str(tmp_path / 'limited')!r}]; "
-        "runpy.run_module('rrg_planner.bags.recorder_node', run_name='__main__')"
+        "runpy.run_module('rrg_bags.recorder_node', run_name='__main__')"
     )
     cases = [
-        (["-m", "rrg_planner.bags.recorder_node", "--output", str(blocker / "bag")], blocker),
+        (["-m", "rrg_bags.recorder_node", "--output", str(blocker / "bag")], blocker),
         (["-c", run], tmp_path / "limited"),
     ]
     reasons = []
@@ -298,9 +298,7 @@ def test_a_recorder_whose_file_reaches_its_limit_stops_recording_and_keeps_runni
         "flush_period": 0.2,
         "exclude_topics": "['/rosout','/parameter_events','/diagnostics']",
     }
-    proc = start_node(
-        "rrg_planner.bags.recorder_node", ros_env, log_path, params, ["--output", str(bag)]
-    )
+    proc = start_node("rrg_bags.recorder_node", ros_env, log_path, params, ["--output", str(bag)])
     try:
         pub = node.create_publisher(String, TOPIC, 200)
         deadline = time.monotonic() + 20

@@ -11,9 +11,9 @@ import yaml
 from rclpy.serialization import serialize_message
 from std_msgs.msg import String
 
-from rrg_planner.bags.bag_info import bag_files, bag_info, format_info
-from rrg_planner.bags.bag_read import read_messages
-from rrg_planner.bags.bag_writer import Rosbag2McapWriter
+from rrg_bags.bag_info import bag_files, bag_info, format_info
+from rrg_bags.bag_read import read_messages
+from rrg_bags.bag_writer import Rosbag2McapWriter
 
 QOS = {
     "history": "keep_last",

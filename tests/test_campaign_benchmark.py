@@ -7,7 +7,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from rrg_planner.bringup.campaign_benchmark import OTHER, part_of, split_by_part
+from rrg_bringup.benchmarks.campaign_benchmark import OTHER, part_of, split_by_part
 
 SENSING = ("/x/rrg_sim/physics/sensing.py", 10, "fired_now")
 SEARCH = ("/x/rrg_planner/search.py", 20, "expand")

@@ -15,14 +15,27 @@ TEXT_SUFFIXES = {".py", ".md", ".msg", ".srv", ".action", ".sh", ".toml", ".txt"
 #: The trial-id format is the experiment runner's own interface: its usage text and its tests
 #: may show examples.
 TRIAL_ID_EXAMPLES = {
-    "rrg_planner/experiment/experiment_cli.py",
+    "rrg_experiments/experiment_cli.py",
     "tests/test_experiment.py",
     "tests/test_docs.py",
 }
 
 
 def _text_files() -> list[Path]:
-    roots = ["rrg_sim", "rrg_estimator", "rrg_planner", "rrg_msgs", "tests", "scripts", "docs"]
+    roots = [
+        "rrg_sim",
+        "rrg_estimator",
+        "rrg_planner",
+        "rrg_hw_bridge",
+        "rrg_bags",
+        "rrg_experiments",
+        "rrg_onboarding",
+        "rrg_bringup",
+        "rrg_msgs",
+        "tests",
+        "scripts",
+        "docs",
+    ]
     files = [p for r in roots for p in (ROOT / r).rglob("*") if p.suffix in TEXT_SUFFIXES]
     return files + [ROOT / "README.md", ROOT / "CONTRIBUTING.md", ROOT / "pyproject.toml"]
 

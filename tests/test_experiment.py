@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from rrg_estimator.config import LEVELS
-from rrg_planner.experiment.experiment_cli import QUICK, main
-from rrg_planner.experiment.provenance import DEV_SEED, campaign_seed, code_version
-from rrg_planner.experiment.report import (
+from rrg_experiments.experiment_cli import QUICK, main
+from rrg_experiments.provenance import DEV_SEED, campaign_seed, code_version
+from rrg_experiments.report import (
     fig9,
     fig9_frontier,
     fig9_paired,
@@ -21,7 +21,7 @@ from rrg_planner.experiment.report import (
     summarize,
     wilson,
 )
-from rrg_planner.experiment.trials import (
+from rrg_experiments.trials import (
     CampaignMismatch,
     Cell,
     TrialSpec,
@@ -125,7 +125,7 @@ def test_the_base_seed_comes_from_the_code_version():
     another seed; the development seed is reserved for probes."""
     import subprocess
 
-    from rrg_planner.experiment.provenance import CODE_PATHS, REPO_ROOT
+    from rrg_experiments.provenance import CODE_PATHS, REPO_ROOT
 
     version = code_version()
     assert len(version) >= 12 and campaign_seed(version) == campaign_seed(version)
@@ -173,7 +173,7 @@ def test_a_killed_campaign_runs_only_its_missing_trials(tmp_path):
     import time
 
     out = tmp_path / "c"
-    cmd = [sys.executable, "-m", "rrg_planner.experiment.experiment_cli", "--quick", "--dev"]
+    cmd = [sys.executable, "-m", "rrg_experiments.experiment_cli", "--quick", "--dev"]
     cmd += ["--workers", "1", "--out", str(out)]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     path = out / "trials.jsonl"
@@ -271,7 +271,7 @@ def test_fig9_frontier_is_each_curves_fewest_actions_at_90_percent():
 def test_a_cell_key_names_its_cell_and_nothing_else():
     """Cell.from_key inverts Cell.key for every campaign cell (so a trial replays from its id
     alone); malformed or non-canonical keys are refused."""
-    from rrg_planner.experiment.experiment_cli import campaign_specs
+    from rrg_experiments.experiment_cli import campaign_specs
 
     specs = campaign_specs(
         ["powerdrill", "cup"],
@@ -313,7 +313,7 @@ def test_schedule_keeps_each_model_and_cell_together_longest_first():
     the longest cells first (high before low, deeper searches first), and within a model its
     planning cells before open-loop; a cell's trials run together in index order; no trial is
     lost or repeated."""
-    from rrg_planner.experiment.experiment_cli import campaign_specs
+    from rrg_experiments.experiment_cli import campaign_specs
 
     specs = campaign_specs(
         ["powerdrill", "cup"], ["low", "high"], ["open-loop", "rrg-goal", "rrg-info"], 3, 2, 0
@@ -406,7 +406,7 @@ def test_calibration_counts_declared_grasps_bins_and_leaves_out_other_cells():
     """P(goal) against the verdicts of hand-made records: the declared share that succeeded,
     the Brier score, failures observed against predicted per bin; Fig. 9's and the ablation's
     cells are not main cells."""
-    from rrg_planner.experiment.calibration import calibration, main_rrg_info
+    from rrg_experiments.calibration import calibration, main_rrg_info
 
     def rec(obj, p, declared, success, **cell):
         base = dict(strategy="rrg-info", horizon=2, delta=0.1, without=[])
@@ -446,7 +446,7 @@ def test_the_ablation_pairs_each_switched_off_capability_with_every_capability_o
     """Hand-made records: without ``verify`` the box loses 2 of 10 trials and the cup none;
     the table gives the paired change per object and over both, and leaves out an object
     with no ablation cell; records with no ablation give no ablation."""
-    from rrg_planner.experiment.report import ablation, ablation_table
+    from rrg_experiments.report import ablation, ablation_table
 
     def rec(obj, i, success, without=()):
         return dict(
@@ -479,7 +479,7 @@ def test_the_ablation_pairs_each_switched_off_capability_with_every_capability_o
 def test_the_sensed_finger_judge_counts_what_the_robot_sensed_not_what_touched():
     """The judge before it counted true contacts: a grasp held in its region with three
     fingers touching but two sensed fails it (the box needs three), and passes the true one."""
-    from rrg_planner.experiment.report import sensed_judge_success, summarize
+    from rrg_experiments.report import sensed_judge_success, summarize
 
     judge = dict(held=True, in_region=True, required_ok=True, fingers=3, fingers_ok=True)
     missed_pad = dict(
@@ -505,7 +505,7 @@ def test_the_sensed_finger_judge_counts_what_the_robot_sensed_not_what_touched()
 def test_report_rewrites_the_outputs_of_recorded_trials_without_running_any(tmp_path, capsys):
     """--report reads trials.jsonl, keeps the records' own code version, seed and world, and
     runs nothing; with no records it exits with status 2."""
-    from rrg_planner.experiment.experiment_cli import main
+    from rrg_experiments.experiment_cli import main
 
     assert main(["--report", "--out", str(tmp_path)]) == 2
     rec = dict(
@@ -552,7 +552,7 @@ def test_a_worker_keeps_its_most_recent_models_only():
     on a miss only (a campaign of any length has bounded memory)."""
     from collections import OrderedDict
 
-    from rrg_planner.experiment.trials import _cached
+    from rrg_experiments.trials import _cached
 
     cache, built = OrderedDict(), []
 

@@ -381,7 +381,7 @@ def main_job_bag(tmp_path_factory, ros_domain) -> Path:
     from ros_testing import ros_env
 
     tmp = tmp_path_factory.mktemp("main_job")
-    args = [sys.executable, "-m", "rrg_planner.bringup.launch", "--mode", "sim"]
+    args = [sys.executable, "-m", "rrg_bringup.launch", "--mode", "sim"]
     args += ["--grasp", "powerdrill", "--level", "high", "--strategy", "rrg-info", "--seed", "0"]
     args += ["--domain-id", str(ros_domain), "--bags", str(tmp), "--bag-name", "main"]
     args += ["--log-dir", str(tmp / "logs"), "--json"]

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from rrg_planner.experiment.funnel import funnels, markdown, model_funnel, trial_funnel
+from rrg_experiments.funnel import funnels, markdown, model_funnel, trial_funnel
 
 
 def test_funnels_are_pairs_where_the_second_grasp_gains_more_after_the_first():

@@ -35,12 +35,12 @@ from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from rrg_bringup.graph import FAKE_NETFT_HTTP_PORT, rdt_addresses
 from rrg_hw_bridge.fake.fake_hw_node import FAULTS
 from rrg_hw_bridge.rdt import read_box_config, set_box_rdt_rate
 from rrg_hw_bridge.ros.bridge_node import ARM_ON_START_DELAY_S
 from rrg_msgs.action import GuardedMove
 from rrg_msgs.srv import HandCommand, ResetSim
-from rrg_planner.bringup.graph import FAKE_NETFT_HTTP_PORT, rdt_addresses
 from rrg_sim import wam
 from rrg_sim.config import HAND, SENSING
 from rrg_sim.ros_common.msg_conversions import (

@@ -12,7 +12,7 @@ import pytest
 from ros_testing import ROOT, exclusive_domain_id, network_namespace, ros_env
 from rosbags.highlevel import AnyReader
 
-from rrg_planner.bags.bag_cli import bag_info
+from rrg_bags.bag_cli import bag_info
 
 NODE_MODULES = ROOT / ".cache" / "npm" / "node_modules"
 #: The bridge's parameters file (a lab's would name its drivers and limits).

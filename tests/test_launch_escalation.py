@@ -24,16 +24,16 @@ from ros_testing import (
     ros_settings,
 )
 
-from rrg_msgs.msg import NodeEvent
-from rrg_planner.bags.bag_info import bag_info
-from rrg_planner.bags.bag_read import NODE_EVENTS_TOPIC, read_messages
-from rrg_planner.bringup.graph import (
+from rrg_bags.bag_info import bag_info
+from rrg_bags.bag_read import NODE_EVENTS_TOPIC, read_messages
+from rrg_bringup.graph import (
     Graph,
     LaunchError,
     exit_description,
     respawn_delay,
     ros_environment,
 )
+from rrg_msgs.msg import NodeEvent
 
 CHILD = str(Path(__file__).with_name("launch_children.py"))
 EVENTS_QOS = QoSProfile(
@@ -236,7 +236,7 @@ def test_a_killed_recorder_is_restarted_into_a_new_split_and_the_restart_is_in_t
 
     with AnyReader([bag]) as reader:
         assert sum(1 for _ in reader.messages()) == info.message_count
-    from rrg_planner.bags.bag_cli import main as bag_cli
+    from rrg_bags.bag_cli import main as bag_cli
 
     capsys.readouterr()
     assert bag_cli(["info", str(bag)]) == 0

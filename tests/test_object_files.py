@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from rrg_planner.onboarding import object_cli
+from rrg_onboarding import object_cli
 from rrg_planner.request_checks import InvalidRequest, check_object
 from rrg_sim.objects import (
     PAPER_OBJECTS,

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from rrg_planner.onboarding import object_cli
-from rrg_planner.onboarding.onboard import AddOptions, GoalSpec, OnboardError, add_object
+from rrg_onboarding import object_cli
+from rrg_onboarding.onboard import AddOptions, GoalSpec, OnboardError, add_object
 from rrg_sim.objects import object_names
 from rrg_sim.objects.catalogue import USER_DIR_ENV
 
@@ -99,7 +99,7 @@ def test_the_goal_candidates_of_a_mug_are_distinct_pinches_of_its_rim_and_handle
     the candidates are reachable, and those of one preshape at least 2 cm apart."""
     from generated_meshes import mug
 
-    from rrg_planner.onboarding.onboard import CANDIDATE_SPACING_M, goal_candidates
+    from rrg_onboarding.onboard import CANDIDATE_SPACING_M, goal_candidates
 
     goals = goal_candidates(_parts(mug()), tol=(0.012, 0.015, np.inf))
     assert all(g.tol == (0.012, 0.015, np.inf) for g in goals)
@@ -120,7 +120,7 @@ def test_a_plate_too_wide_to_pinch_well_gets_side_envelopes_facing_the_reachable
     top, fingers 1 and 2 round its 4 cm."""
     from generated_meshes import l_bracket
 
-    from rrg_planner.onboarding import onboard
+    from rrg_onboarding import onboard
 
     goals = onboard.goal_candidates(_parts(l_bracket()))
     sides = [g for g in goals if g.approach == "side"]
@@ -138,7 +138,7 @@ def test_a_plate_too_wide_to_pinch_well_gets_side_envelopes_facing_the_reachable
 
 
 def test_the_paper_column_is_empty_for_an_object_not_in_the_paper():
-    from rrg_planner.experiment.report import paper_rrg_info
+    from rrg_experiments.report import paper_rrg_info
 
     assert paper_rrg_info("mug", "high") == "–" and paper_rrg_info("cup", "high") == "<95%"
 
@@ -165,7 +165,7 @@ def test_a_mesh_is_onboarded_end_to_end_and_removed(user_dir, tmp_path, capsys):
     """rrg-object add on a box mesh: every stage runs (goal proposed and ranked in physics,
     studies, tables, picture), the object loads by name with its region centred on the
     measured settling, a grasp trial runs on it, and remove leaves nothing."""
-    from rrg_planner.onboarding.object_cli import cached_tables
+    from rrg_onboarding.object_cli import cached_tables
     from rrg_sim.objects import get_object
 
     mesh = write(trimesh.creation.box(extents=(0.05, 0.07, 0.09)), tmp_path / "tin.stl")

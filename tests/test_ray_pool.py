@@ -12,7 +12,7 @@ import time
 import pytest
 import ray
 
-from rrg_planner.experiment.ray_pool import INSTALL_HINT, RayItemError, ray_available, ray_imap
+from rrg_experiments.ray_pool import INSTALL_HINT, RayItemError, ray_available, ray_imap
 
 #: The item square_or_fail refuses.
 CURSED = 13

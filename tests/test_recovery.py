@@ -15,9 +15,9 @@ import time
 import pytest
 from ros_testing import ArmWatch, Launcher, RosClient, ros_env
 
+from rrg_bags.bag_info import bag_info
+from rrg_bags.bag_read import read_messages
 from rrg_msgs.action import RobustGrasp
-from rrg_planner.bags.bag_info import bag_info
-from rrg_planner.bags.bag_read import read_messages
 
 #: How long the stall test stops the planner [s]: three liveliness leases
 #: (rrg_sim.ros_common.liveliness.ALIVE_LEASE_S), so its peers see it go away.

@@ -9,17 +9,17 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped
 from rclpy.serialization import serialize_message
 
+from rrg_bags.bag_cli import main as bag_cli
+from rrg_bags.bag_plot import belief_frames, plot_bag
+from rrg_bags.bag_read import read_messages
+from rrg_bags.bag_summary import format_summary, summarize
+from rrg_bags.bag_writer import Rosbag2McapWriter
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import HIGH, LOW
 from rrg_estimator.grid import Grid
 from rrg_estimator.ros.belief_msgs import belief_to_msg
 from rrg_msgs.action import RobustGrasp
 from rrg_msgs.msg import GraspOutcome
-from rrg_planner.bags.bag_cli import main as bag_cli
-from rrg_planner.bags.bag_plot import belief_frames, plot_bag
-from rrg_planner.bags.bag_read import read_messages
-from rrg_planner.bags.bag_summary import format_summary, summarize
-from rrg_planner.bags.bag_writer import Rosbag2McapWriter
 from rrg_planner.closed_loop import Decision
 from rrg_planner.ros.grasp_records import decision_record, done_record
 from rrg_sim.observation import Observation

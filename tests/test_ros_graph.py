@@ -17,13 +17,13 @@ from bag_frames import check_frames
 from ros_testing import ROOT, ArmWatch, RosClient, ros_env
 from rosbags.highlevel import AnyReader
 
-from rrg_planner.bags.bag_cli import bag_info
-from rrg_planner.bags.bag_cli import main as bag_cli
+from rrg_bags.bag_cli import bag_info
+from rrg_bags.bag_cli import main as bag_cli
 from rrg_sim import wam
 from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES
 
 NODE_MODULES = ROOT / ".cache" / "npm" / "node_modules"
-LAUNCH = [sys.executable, "-m", "rrg_planner.bringup.launch"]
+LAUNCH = [sys.executable, "-m", "rrg_bringup.launch"]
 JOINTS = "/rrg/joint_states"
 #: Every topic the graph publishes during a grasp (the recorder must have them all).
 GRAPH_TOPICS = {
@@ -281,8 +281,8 @@ def test_hw_options_are_checked(args, message):
 def test_the_launcher_tells_the_belief_which_pads_the_bridge_cannot_read(tmp_path):
     """The bridge's pad_source, from --hw-param or its parameters file, gives the pads the
     estimator and the planner leave out."""
+    from rrg_bringup.graph import LaunchError, bridge_pad_source
     from rrg_hw_bridge.contact_guard import DERIVED_PADS_UNSENSED, UNSENSED_PADS
-    from rrg_planner.bringup.graph import LaunchError, bridge_pad_source
 
     params = tmp_path / "bridge.yaml"
     params.write_text("/**:\n  ros__parameters:\n    pad_source: derived\n")
@@ -348,9 +348,9 @@ def test_without_sensor_noise_the_graph_takes_the_in_process_agents_actions(tmp_
     alike, so a noiseless grasp of several actions, retreats and a settling takes the same
     actions to the same P(goal)."""
 
+    from rrg_experiments.physics_env import PhysicsEnvironment
     from rrg_planner.agent import RobustGraspAgent
     from rrg_planner.closed_loop import run_in_process
-    from rrg_planner.physics_env import PhysicsEnvironment
     from rrg_planner.planning_model import PlanningModel
     from rrg_sim.config import WORLD
     from rrg_sim.physics.world import PhysicsWorld

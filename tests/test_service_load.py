@@ -8,7 +8,7 @@ import json
 
 import pytest
 
-from rrg_planner.bringup.service_benchmark import bench_service
+from rrg_bringup.benchmarks.service_benchmark import bench_service
 
 pytestmark = pytest.mark.slow  # node and client processes
 

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 from ros_testing import ROOT, ros_env
 
-from rrg_planner.bringup.launch import main as launch
-from rrg_planner.bringup.soak import (
+from rrg_bringup.launch import main as launch
+from rrg_bringup.soak import (
     FDS_TOLERANCE,
     THREADS_TOLERANCE,
     header_stamp_ns,
@@ -26,7 +26,7 @@ from rrg_planner.bringup.soak import (
     soak_draws,
 )
 
-LAUNCH = [sys.executable, "-m", "rrg_planner.bringup.launch"]
+LAUNCH = [sys.executable, "-m", "rrg_bringup.launch"]
 GRASPS = 10
 NODES = {"recorder", "sim", "executor", "estimator", "planner"}
 #: Every field of the report, of a grasp's record, of a node's figures and of a topic's counts.

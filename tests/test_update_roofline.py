@@ -5,16 +5,16 @@ import numpy as np
 import pytest
 from test_update import synthetic_table
 
-from rrg_estimator.config import HIGH
-from rrg_estimator.grid import Grid
-from rrg_estimator.obs_model import features_from_table_rows
-from rrg_planner.update_roofline import (
+from rrg_bringup.benchmarks.update_roofline import (
     _read_all,
     likelihood_columns_bytes,
     likelihood_flops,
     read_bandwidth,
     roofline,
 )
+from rrg_estimator.config import HIGH
+from rrg_estimator.grid import Grid
+from rrg_estimator.obs_model import features_from_table_rows
 
 
 @pytest.fixture(scope="module")
