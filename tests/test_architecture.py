@@ -7,18 +7,9 @@ import ast
 from pathlib import Path
 
 import pytest
+from repo_layout import PACKAGES
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = (
-    "rrg_sim",
-    "rrg_estimator",
-    "rrg_planner",
-    "rrg_hw_bridge",
-    "rrg_bags",
-    "rrg_experiments",
-    "rrg_onboarding",
-    "rrg_bringup",
-)
 #: The packages each package may import besides itself, from the bottom up: the simulator and
 #: the robot models; the belief over them; the search over the belief; the bridge, which stands
 #: in for the simulator; the tools on the planner (bags, experiments, onboarding); and bringup,

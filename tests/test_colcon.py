@@ -14,23 +14,13 @@ import runpy
 import shutil
 import subprocess
 import sys
-import tomllib
 from pathlib import Path
 
 import pytest
 from catkin_pkg.package import parse_package
+from repo_layout import PACKAGES, PYPROJECT
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = (
-    "rrg_sim",
-    "rrg_estimator",
-    "rrg_planner",
-    "rrg_hw_bridge",
-    "rrg_bags",
-    "rrg_experiments",
-    "rrg_onboarding",
-    "rrg_bringup",
-)
 #: The vendored interface subsets (scripts/setup_ros.sh builds them into the venv).
 VENDORED = (
     "rrg_hw_bridge/interfaces/control_msgs",
@@ -53,7 +43,6 @@ NODE_MODULES = (
 GENERATED = (".*", "*.egg-info", "build", "install", "log", "bags", "results", "__pycache__")
 #: The ROS packages of the pip-installed ROS 2 (the venv is its ament prefix).
 ROS_INDEX = Path(sys.prefix) / "share" / "ament_index" / "resource_index" / "packages"
-PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
 AMENT_SETUP = runpy.run_path(str(ROOT / "scripts" / "ament_setup.py"))
 
 

@@ -8,6 +8,7 @@ import re
 from pathlib import Path
 
 import pytest
+from repo_layout import PACKAGES
 
 ROOT = Path(__file__).resolve().parents[1]
 README_MAX_BYTES = 12 * 1024
@@ -22,20 +23,7 @@ TRIAL_ID_EXAMPLES = {
 
 
 def _text_files() -> list[Path]:
-    roots = [
-        "rrg_sim",
-        "rrg_estimator",
-        "rrg_planner",
-        "rrg_hw_bridge",
-        "rrg_bags",
-        "rrg_experiments",
-        "rrg_onboarding",
-        "rrg_bringup",
-        "rrg_msgs",
-        "tests",
-        "scripts",
-        "docs",
-    ]
+    roots = [*PACKAGES, "rrg_msgs", "tests", "scripts", "docs"]
     files = [p for r in roots for p in (ROOT / r).rglob("*") if p.suffix in TEXT_SUFFIXES]
     return files + [ROOT / "README.md", ROOT / "CONTRIBUTING.md", ROOT / "pyproject.toml"]
 
