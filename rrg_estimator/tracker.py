@@ -26,8 +26,9 @@ import numpy as np
 from rrg_estimator.config import LEVELS, LIKELIHOOD, LikelihoodParams, UncertaintyLevel
 from rrg_estimator.grid import Grid
 from rrg_sim.config import REORIENT_MIN_FINGERS
+from rrg_sim.goal import holds_object
 from rrg_sim.objects import ObjectModel, get_object
-from rrg_sim.observation import Observation, holds_object
+from rrg_sim.observation import Observation
 from rrg_sim.posture_calibration import PostureCalibration
 from rrg_sim.wrt import WRT
 
@@ -69,7 +70,7 @@ def wrt_posterior(
     """The belief after executing ``wrt`` at estimate e and observing ``obs``: the Bayes update
     with the WRT's table (``params``: the robot's likelihood parameters, adjusted per WRT by
     likelihood_params), then the reorientation's rotation about e for a reorient WRT whose
-    grasp held the object (observation.holds_object; otherwise nothing was turned)."""
+    grasp held the object (goal.holds_object; otherwise nothing was turned)."""
     post = update(belief, table, e, obs, params=likelihood_params(wrt, params))
     if wrt.kind == "reorient" and holds_object(obs.contact, obs.sensors, REORIENT_MIN_FINGERS):
         e = np.asarray(e, dtype=float)

@@ -14,11 +14,6 @@ from dataclasses import dataclass
 #: fraction of the best (rrg_planner.planning_model.goal_aim; chosen: the flat top of the measured
 #: map, not one noisy peak).
 GOAL_AIM_FRACTION = 0.98
-#: P(G | Δ) below this counts as 0 (rrg_planner.planning_model.goal_weights; chosen: the
-#: Gaussian tails of a grid cell's spread are never exactly 0, and keeping them makes the search
-#: evaluate the goal over 4-8× as many table entries at high uncertainty, for nothing a δ of 0.1
-#: can see).
-GOAL_MIN_PROBABILITY = 1e-4
 
 
 # ------------------------------------------------------------------ search

@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from rrg_planner.planning_model import goal_holds
 from rrg_sim.config import N_SENSORS, REORIENT_MIN_FINGERS, SENSING, SensingParams
 from rrg_sim.geometric_sim import GeometricSimulator
+from rrg_sim.goal import goal_holds, holds_object
 from rrg_sim.objects import ObjectModel
-from rrg_sim.observation import Observation, holds_object
+from rrg_sim.observation import Observation
 from rrg_sim.poses import relative_planar
 from rrg_sim.wrt import WRT
 
@@ -72,5 +72,5 @@ class GeometricEnvironment:
         obs = self._sim(wrt).simulate(self.true_pose, e)
         delta = relative_planar(e, self.true_pose)
         return bool(
-            goal_holds(self.obj, delta[None], np.array([obs.contact]), obs.sensors[None])[0]
+            goal_holds(self.obj.goal, delta[None], np.array([obs.contact]), obs.sensors[None])[0]
         )

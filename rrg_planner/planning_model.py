@@ -17,87 +17,16 @@ from rrg_estimator.grid import Grid
 from rrg_estimator.obs_model import likelihood_params
 from rrg_estimator.obs_tables import ObservationTable, load_or_build
 from rrg_planner.clustering import ObservationClusters, cluster_table
-from rrg_planner.config import GOAL_AIM_FRACTION, GOAL_MIN_PROBABILITY
+from rrg_planner.config import GOAL_AIM_FRACTION
 from rrg_sim.config import NOMINAL, REORIENT_MIN_FINGERS, WorldProfile, world_profile
 from rrg_sim.executor.wrt_executor import executed_poses
+from rrg_sim.goal import Settling, goal_weights, holds_object
 from rrg_sim.objects import ObjectModel, get_object
-from rrg_sim.objects.object_model import Settling
-from rrg_sim.observation import holds_object
 from rrg_sim.posture_calibration import PostureCalibration
 from rrg_sim.wam_feasibility import FeasibilityMap
 from rrg_sim.wrt import WRT
 
 log = logging.getLogger(__name__)
-
-
-def _grasp_made(obj: ObjectModel, contact: np.ndarray, sensors: np.ndarray) -> np.ndarray:
-    """(N,) bool: the hand reached the grasp pose without an early contact (contact (N,)) and
-    closed with at least the goal's fingers on the object (sensors (N,10))."""
-    return holds_object(contact, sensors, obj.goal.min_fingers)
-
-
-def goal_holds(
-    obj: ObjectModel, delta: np.ndarray, contact: np.ndarray, sensors: np.ndarray
-) -> np.ndarray:
-    """G for a goal grasp executed relative to an estimate, with the object really at offset
-    delta (N,3) and nothing moving it: delta inside the goal region and the grasp made
-    (no early contact, the required contacts)."""
-    return obj.goal.contains(delta) & _grasp_made(obj, contact, sensors)
-
-
-def goal_weights(
-    obj: ObjectModel,
-    delta: np.ndarray,
-    contact: np.ndarray,
-    sensors: np.ndarray,
-    cell: tuple[float, float, float] | np.ndarray | None = None,
-    start_sigma: np.ndarray | None = None,
-    settling: Settling | None = None,
-) -> np.ndarray:
-    """P(G | Δ) (N,) for a goal grasp executed relative to an estimate, the object really at
-    offset delta (N,3): the grasp made (as in goal_holds), the object, moved by the
-    closing as the settling study measured it (Settling.outcome: Δ_closed ~ N(μ(Δ),
-    σ(Δ)²) inside the study's box), inside the goal region, and the grasp making its
-    required contacts and holding through the lift (Settling.hold_probability, measured by
-    the judge's own test). Outside the box, or for an object without a study, the object is
-    taken not to move and to hold (goal_holds).
-
-    cell: (3,) [m, m, rad] grid spacing when delta are grid points that each stand for their
-    cell (a belief grid's weight is the mass of the cell around its point): the region is
-    then met on average over a uniform offset within the cell, taken as a Gaussian of
-    variance g²/12 per axis added to the closing's spread. Without it, Δ is exact. On the
-    high-uncertainty grid (1 cm, 0.1 rad against a 1 cm, 0.14 rad region) point values
-    claim a grasp holds for the whole cell where only its centre does.
-
-    start_sigma: (3,) σ [m, m, rad] of an unknown offset of the grasp's start, added to the
-    spread in the same way: the calibration error between the frame the belief is held in and
-    the goal grasp's posture (rrg_sim.posture_calibration; world axes, taken as the
-    estimate's, whose θ is near 0 at the nominal pose).
-
-    settling: the settling study to use (default: the object's, measured in the nominal world;
-    ObjectModel.settling_in gives another world's)."""
-    delta = np.asarray(delta, dtype=float)
-    made = _grasp_made(obj, contact, sensors)
-    spread2 = np.zeros(3)
-    if cell is not None:
-        spread2 = spread2 + np.asarray(cell, dtype=float) ** 2 / 12.0
-    if start_sigma is not None:
-        spread2 = spread2 + np.asarray(start_sigma, dtype=float) ** 2
-    if not spread2.any():
-        p = (obj.goal.contains(delta) & made).astype(np.float64)
-    else:
-        p = made * obj.goal.probability(delta, np.sqrt(spread2))
-    settling = obj.grasp_settling if settling is None else settling
-    if settling is not None:
-        near = np.flatnonzero(settling.inside(delta))
-        mean, sigma = settling.outcome(delta[near], "closed")
-        # a uniform offset u in the cell moves the closed Δ by A u: variance Σ_j A_kj² g_j²/12
-        sigma = np.sqrt(sigma**2 + (settling.closed.A**2) @ spread2)
-        p[near] = (
-            made[near] * obj.goal.probability(mean, sigma) * settling.hold_probability(delta[near])
-        )
-    p[p < GOAL_MIN_PROBABILITY] = 0.0
-    return p
 
 
 def goal_indicator(
@@ -111,13 +40,13 @@ def goal_indicator(
     The table's outermost entries stand for every offset beyond them (indices are clamped), so
     they get 0, except along a θ the goal ignores."""
     p = goal_weights(
-        obj,
+        obj.goal,
         table.grid.points(),
         table.contact,
         table.sensors,
         cell=table.grid.spacing,
         start_sigma=start_sigma,
-        settling=settling,
+        settling=obj.grasp_settling if settling is None else settling,
     )
     shape = table.grid.shape
     edge = np.zeros(shape, dtype=bool)
@@ -159,7 +88,7 @@ class ActionModel:
     #: where the table index of every offset from it is a tie)
     aim: dict[str, np.ndarray] = field(default_factory=dict)
     #: per level, (C,) whether each observation cluster's grasp holds the object, so that
-    #: the reorientation turns it (reorient WRTs only; observation.holds_object)
+    #: the reorientation turns it (reorient WRTs only; goal.holds_object)
     turns: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property

@@ -3,14 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .config import FINGER_SENSORS, GEOMSIM, N_SENSORS
-
-if TYPE_CHECKING:
-    from .objects.object_model import GoalRegion
 
 
 def finger_contacts(sensors: np.ndarray) -> np.ndarray:
@@ -29,36 +25,6 @@ def grasp_arrived(kind: str, remaining_m: float) -> bool:
 def fingers_in_contact(sensors: np.ndarray) -> np.ndarray:
     """(…,10) sensor flags → (…,) number of fingers with any link's sensor fired."""
     return finger_contacts(sensors).sum(axis=-1)
-
-
-def holds_object(contact, sensors: np.ndarray, min_fingers: int) -> np.ndarray:
-    """(…) whether a grasp holds the object: it arrived (no early contact, ``contact`` (…))
-    and at least ``min_fingers`` fingers touch it (sensors (…,10)). Only then does a
-    reorientation lift and turn the object (in execution, the geometric world and the belief
-    alike)."""
-    return ~np.asarray(contact, dtype=bool) & (fingers_in_contact(sensors) >= min_fingers)
-
-
-def goal_grasp_mismatches(contact: bool, sensors: np.ndarray, goal: GoalRegion) -> list[str]:
-    """What the robot's own sensors say is wrong with a goal grasp that just closed (empty:
-    nothing they can see): it stopped early (``contact``: short of its end by more than the
-    arrival tolerance, so it closed on whatever it met), fewer fingers sensed on the object
-    than ``goal.min_fingers``, or fewer of a required contact's fingers sensed than it needs
-    (the sensors cannot tell which part a finger touches, so this is necessary, not
-    sufficient). Any of these makes the grasp a failure in the judge's test whenever the
-    sensors are right; a missed pad can make a good grasp look bad, never the reverse."""
-    out = []
-    if contact:
-        out.append("stopped early")
-    touched = finger_contacts(sensors)
-    if touched.sum() < goal.min_fingers:
-        out.append(f"{int(touched.sum())} of {goal.min_fingers} fingers sensed")
-    for rc in goal.required_contacts:
-        on = sum(bool(touched[f - 1]) for f in rc.fingers)
-        if on < rc.min_fingers:
-            fingers = " or ".join(str(f) for f in rc.fingers)
-            out.append(f"{rc.name}: no sensor of finger {fingers} fired")
-    return out
 
 
 @dataclass

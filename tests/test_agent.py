@@ -221,8 +221,8 @@ def test_a_goal_grasp_whose_own_sensors_show_too_few_fingers_is_never_declared(m
 
 
 def test_goal_grasp_mismatches_name_what_the_sensors_miss():
+    from rrg_sim.goal import goal_grasp_mismatches
     from rrg_sim.objects import get_object
-    from rrg_sim.observation import goal_grasp_mismatches
 
     drill = get_object("powerdrill").goal
     sensors = np.zeros(10, bool)

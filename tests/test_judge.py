@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from rrg_sim.config import PHYSICS, WORLD
-from rrg_sim.objects.object_model import RequiredContact
+from rrg_sim.goal import RequiredContact
 from rrg_sim.physics import judge
 from rrg_sim.physics.judge import judge_grasp
 from rrg_sim.physics.world import PhysicsWorld

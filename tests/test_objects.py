@@ -11,10 +11,10 @@ from scipy.spatial.transform import Rotation
 from rrg_sim import hand, wam
 from rrg_sim.config import WORLD
 from rrg_sim.geometric_sim import GeometricSimulator
+from rrg_sim.goal import RequiredContact
 from rrg_sim.objects import PAPER_OBJECTS, GoalRegion, Primitive, get_object, signed_distance
 from rrg_sim.objects.clearance import hand_points, scene, transform_points
 from rrg_sim.objects.composites import box, cylinder, turn_about_z
-from rrg_sim.objects.object_model import RequiredContact
 from rrg_sim.objects.primitives import box_distance, surface_samples
 from rrg_sim.objects.wrt_generation import (
     APPROACH_CLEARANCE,

@@ -51,7 +51,7 @@ def test_reorientation_turns_the_object_and_retreats_home():
 def test_a_reorientation_that_stopped_early_turns_neither_the_object_nor_the_belief(monkeypatch):
     """The giant teacup 3.6 cm off its reorientation's rim pinch: a finger meets the rim early. The
     executor does not lift and turn what it does not hold, and the belief does not turn either
-    (observation.holds_object); the same grasp that holds the cup turns both."""
+    (goal.holds_object); the same grasp that holds the cup turns both."""
     from rrg_estimator import tracker
     from rrg_estimator.belief import Belief
     from rrg_estimator.config import LOW

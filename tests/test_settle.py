@@ -12,8 +12,9 @@ from rrg_estimator.belief import Belief
 from rrg_estimator.config import LOW
 from rrg_estimator.grid import Grid
 from rrg_estimator.tracker import settle_after_grasp
+from rrg_sim.goal import load_settling
 from rrg_sim.objects import PAPER_OBJECTS, get_object
-from rrg_sim.objects.object_model import SETTLING_FILE, load_settling
+from rrg_sim.objects.object_model import SETTLING_FILE
 from rrg_sim.physics.settle import fit_affine
 from rrg_sim.poses import relative_planar
 
@@ -126,7 +127,7 @@ def test_the_outcome_corrects_the_affine_map_where_the_samples_say_so():
     """A closing that turns the object by +0.1 rad for Δθ < 0 and not at all otherwise: the
     affine fit averages the two; the kernel-corrected outcome follows each side, and is the
     affine map where there are no samples."""
-    from rrg_sim.objects.object_model import AffineSettle, Settling
+    from rrg_sim.goal import AffineSettle, Settling
 
     rng = np.random.default_rng(3)
     start = rng.uniform(-1, 1, (600, 3)) * (0.02, 0.02, 0.25)
@@ -158,25 +159,27 @@ def test_the_goal_weights_follow_the_drill_grasps_measured_turn_and_hold():
     turned -0.1 rad, though both start inside its ±10° region; the weights also carry the
     measured chance that the grasp presses the trigger and holds; beyond the studied box
     nothing moves."""
-    from rrg_planner.planning_model import goal_holds, goal_weights
+    from rrg_sim.goal import goal_holds, goal_weights
 
     obj = get_object("powerdrill")
     delta = np.array([[0.0, 0.0, 0.1], [0.0, 0.0, -0.1], [0.0, 0.0, 0.0], [0.03, 0.0, 0.0]])
     contact = np.zeros(4, dtype=bool)
     sensors = np.zeros((4, 10), dtype=bool)
     sensors[:, 4:7] = True  # the three fingertips
-    p = goal_weights(obj, delta, contact, sensors)
+    p = goal_weights(obj.goal, delta, contact, sensors, settling=obj.grasp_settling)
     hold = obj.settling.hold_probability(delta[:3])
-    assert goal_holds(obj, delta[:2], contact[:2], sensors[:2]).all()
+    assert goal_holds(obj.goal, delta[:2], contact[:2], sensors[:2]).all()
     assert p[0] > p[1] + 0.05 and p[2] > 0.9 and p[3] == 0.0
     assert np.all(p[:3] <= hold + 1e-12) and np.all((hold > 0.5) & (hold < 1.0))
-    assert goal_weights(obj, delta, ~contact, sensors).max() == 0.0  # an early contact never grasps
+    assert (
+        goal_weights(obj.goal, delta, ~contact, sensors, settling=obj.grasp_settling).max() == 0.0
+    )  # an early contact never grasps
 
 
 def test_the_hold_probability_is_the_local_share_of_study_grasps_that_held():
     """Settling.hold_probability: where every nearby sample held it is near 1, where none
     did near 0, and half-way between in between."""
-    from rrg_sim.objects.object_model import Settling
+    from rrg_sim.goal import Settling
 
     fit = load_settling(get_object("powerdrill").folder / SETTLING_FILE).closed
     start = np.array([[x, 0.0, 0.0] for x in np.linspace(-0.02, 0.02, 41)])
@@ -198,16 +201,20 @@ def test_a_coarse_grid_points_goal_weight_is_the_regions_average_over_its_cell()
     """On the high-uncertainty grid a point stands for its cell: the teacup's point -0.1 rad
     off the estimate (where its closing leaves it best placed, but the cell reaches 0.15 rad
     off, outside the 8° region) and the centre count less, and no cell reaches 0.9."""
-    from rrg_planner.planning_model import goal_weights
+    from rrg_sim.goal import goal_weights
 
     obj = get_object("giant_teacup")
     delta = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, -0.1], [0.02, 0.0, 0.0]])
     contact = np.zeros(3, dtype=bool)
     sensors = np.zeros((3, 10), dtype=bool)
     sensors[:, 4:7] = True  # the three fingertips
-    point = goal_weights(obj, delta, contact, sensors)
-    cell = goal_weights(obj, delta, contact, sensors, cell=(0.01, 0.01, 0.1))
-    fine = goal_weights(obj, delta, contact, sensors, cell=(0.002, 0.002, 0.013))
+    point = goal_weights(obj.goal, delta, contact, sensors, settling=obj.grasp_settling)
+    cell = goal_weights(
+        obj.goal, delta, contact, sensors, cell=(0.01, 0.01, 0.1), settling=obj.grasp_settling
+    )
+    fine = goal_weights(
+        obj.goal, delta, contact, sensors, cell=(0.002, 0.002, 0.013), settling=obj.grasp_settling
+    )
     assert point[1] > 0.7 and cell[0] < point[0] and cell[1] < point[1] and cell.max() < 0.9
     assert np.allclose(fine, point, atol=0.05)  # the low grid's cells are small
     assert cell[2] < 0.05 and point[2] < 0.05  # 2 cm off: out, cell or not

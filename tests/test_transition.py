@@ -9,7 +9,7 @@ from rrg_estimator.belief import Belief
 from rrg_estimator.config import HIGH, LOW, TRANSITION
 from rrg_estimator.grid import Grid
 from rrg_estimator.transition import bump, displacement_kernel, reorient, settle, splat
-from rrg_sim.objects.object_model import AffineSettle, Settling
+from rrg_sim.goal import AffineSettle, Settling
 from rrg_sim.poses import relative_planar
 
 EXACT_TURNS = dataclasses.replace(TRANSITION, reorient_sigma_theta=0.0)

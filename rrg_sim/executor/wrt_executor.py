@@ -34,8 +34,9 @@ from rrg_sim.executor.trajectory import (
     sample_times,
     solve_path,
 )
+from rrg_sim.goal import holds_object
 from rrg_sim.hand import fingertip_lowest_z, hand_geoms_world, sensor_id
-from rrg_sim.observation import Observation, grasp_arrived, holds_object
+from rrg_sim.observation import Observation, grasp_arrived
 from rrg_sim.poses import planar_pose, raised
 from rrg_sim.wrt import WRT
 

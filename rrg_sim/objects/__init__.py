@@ -1,7 +1,8 @@
 """The objects: folders of data (object.toml, measured studies) read into ObjectModels, the
 paper's ten built in and the user's own (rrg_sim.objects.catalogue)."""
 
-from rrg_sim.objects.object_model import GoalRegion, ObjectModel
+from rrg_sim.goal import GoalRegion
+from rrg_sim.objects.object_model import ObjectModel
 
 from .catalogue import (
     PAPER_OBJECTS,

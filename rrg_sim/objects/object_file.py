@@ -25,7 +25,8 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from .object_model import GoalRegion, ObjectModel, RequiredContact
+from ..goal import GoalRegion, RequiredContact
+from .object_model import ObjectModel
 from .primitives import SIZE_LENGTHS, Primitive
 from .surface_pairs import Pinch
 from .wrt_generation import (

@@ -18,7 +18,7 @@ After a goal WRT has closed the hand, the grasp succeeds iff
 
 The judge judges the truth only. What the robot's own sensors said of the grasp (the
 observation's fingers, ``info["sensed_fingers"]``) is the robot's business: its verification
-(rrg_sim.observation.goal_grasp_mismatches) may reject a grasp before it is ever judged.
+(rrg_sim.goal.goal_grasp_mismatches) may reject a grasp before it is ever judged.
 
 The strict test (``info["strict_success"]``) also asks the offset where a finger first
 touched the object, before the closing pulled it into the hand, to lie in the goal region's

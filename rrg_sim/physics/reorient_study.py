@@ -7,7 +7,7 @@ e' = (e_x, e_y, e_θ + angle). It does not quite (MuJoCo): the closing fingers p
 into the palm and the object slides as it is put down; the giant teacup ends some 0.05 rad
 short of the turn. ``measure`` runs each of an object's reorientation WRTs from seeded starts
 Δ ~ N(0, diag START_SIGMA²) and records, for every run whose grasp held the object
-(observation.holds_object: the belief turns only then), Δ and the offset Δ' from e' after the
+(goal.holds_object: the belief turns only then), Δ and the offset Δ' from e' after the
 retreat. ``fit`` keeps the full turns (Δ'_θ within FULL_TURN_FRACTION of the angle of Δ_θ
 or of 0; partial and failed turns are the transition's mixture) and gives the mean and σ of
 Δ' - Δ, valid in a box of BOX_SIGMAS × START_SIGMA: the WRT's ``ReorientOutcome``. (An
@@ -31,8 +31,8 @@ from rrg_sim.config import REORIENT_MIN_FINGERS, WORLD
 from rrg_sim.executor.trajectory import InfeasiblePath
 from rrg_sim.objects.object_model import REORIENTATION_FILE
 
+from ..goal import holds_object
 from ..objects import PAPER_OBJECTS, get_object
-from ..observation import holds_object
 from ..poses import compose_planar, relative_planar, wrap_angle
 from .settle import run_study, study_args
 from .world import PhysicsWorld
