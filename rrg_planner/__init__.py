@@ -1,1 +1,2 @@
-"""rrg_planner."""
+"""The planner: the forward search over beliefs, the planning model, the robust-grasp loop,
+the planner node and its client."""

@@ -199,3 +199,17 @@ def test_module_names_are_unique():
             clashes.append((seen[path.name], name))
         seen[path.name] = name
     assert clashes == []
+
+
+def test_the_architecture_docs_layers_are_the_codes():
+    """docs/architecture.md's table of layers is what scripts/architecture_picture.py computes
+    from the imports now (run the script after a change that moves an import across
+    packages)."""
+    import runpy
+
+    script = runpy.run_path(str(ROOT / "scripts" / "architecture_picture.py"))
+    assert script["main"](["--check"]) == 0
+    edges, _ = script["package_graph"]()
+    floors = script["floors"](edges)
+    assert floors["rrg_sim"] == 1 and floors["rrg_bringup"] == max(floors.values())
+    assert set(edges) == set(PACKAGES)
