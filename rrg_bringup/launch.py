@@ -414,7 +414,9 @@ def main(argv: list[str] | None = None) -> int:
         graph.stop()
         shutil.rmtree(state_dir, ignore_errors=True)
         signal.signal(signal.SIGINT, signal.default_int_handler)
-    if bag_dir is not None:
+    if bag_dir is not None and not Path(bag_dir).exists():
+        print(f"[rrg-launch] no bag: stopped before the recorder started ({bag_dir})", flush=True)
+    elif bag_dir is not None:
         from rrg_bags.bag_info import bag_info
 
         info = bag_info(bag_dir)
