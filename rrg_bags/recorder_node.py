@@ -31,7 +31,6 @@ from pathlib import Path
 
 import rclpy
 import rclpy.logging
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor, TimeoutException
 from rclpy.node import Node
@@ -44,6 +43,7 @@ from rclpy.utilities import remove_ros_args
 from rrg_bags.bag_schema import UnknownMessageType, message_class
 from rrg_bags.bag_writer import RecordingStopped, Rosbag2McapWriter
 from rrg_sim.ros_common.diagnostics import ERROR, Health, NodeDiagnostics
+from rrg_sim.ros_common.parameters import Param, declare
 
 NODE_NAME = "rrg_bag_recorder"
 #: Longest time [s] spent writing the already received messages after a stop signal (below the
@@ -89,45 +89,42 @@ def subscription_qos(publishers: list[TopicEndpointInfo], depth: int) -> QoSProf
     )
 
 
+#: The node's parameters (rrg_sim.ros_common.parameters).
+PARAMETERS: tuple[Param, ...] = (
+    Param("discovery_period", 0.2, "Period [s] of the poll for new topics", low=0.05, high=10.0),
+    Param(
+        "qos_depth",
+        1000,
+        "History depth of each subscription (messages queued per topic)",
+        low=1,
+        high=10000,
+    ),
+    Param(
+        "flush_period",
+        1.0,
+        (
+            "Period [s] of writing the received messages to the file as a "
+            "complete chunk (at most this much is lost when the recorder is killed)"
+        ),
+        read_only=True,
+        low=0.1,
+        high=60.0,
+    ),
+    Param(
+        "exclude_topics",
+        [""],
+        "Topics not to record (e.g. a driver's 500 Hz joint states)",
+        read_only=True,
+    ),
+)
+
+
 class BagRecorder(Node):
     """Subscribes to every (non-hidden) topic as it appears and writes all messages to a bag."""
 
     def __init__(self, writer: Rosbag2McapWriter, context: rclpy.Context | None = None) -> None:
         super().__init__(NODE_NAME, context=context)
-        self.declare_parameter(
-            "discovery_period",
-            0.2,
-            ParameterDescriptor(
-                description="Period [s] of the poll for new topics",
-                floating_point_range=[FloatingPointRange(from_value=0.05, to_value=10.0)],
-            ),
-        )
-        self.declare_parameter(
-            "qos_depth",
-            1000,
-            ParameterDescriptor(
-                description="History depth of each subscription (messages queued per topic)",
-                integer_range=[IntegerRange(from_value=1, to_value=10000)],
-            ),
-        )
-        self.declare_parameter(
-            "flush_period",
-            1.0,
-            ParameterDescriptor(
-                description="Period [s] of writing the received messages to the file as a "
-                "complete chunk (at most this much is lost when the recorder is killed)",
-                floating_point_range=[FloatingPointRange(from_value=0.1, to_value=60.0)],
-                read_only=True,
-            ),
-        )
-        self.declare_parameter(
-            "exclude_topics",
-            [""],
-            ParameterDescriptor(
-                description="Topics not to record (e.g. a driver's 500 Hz joint states)",
-                read_only=True,
-            ),
-        )
+        declare(self, PARAMETERS)
         self._excluded = {t for t in self.get_parameter("exclude_topics").value if t}
         self._depth = self.get_parameter("qos_depth").value
         self.writer = writer

@@ -35,7 +35,6 @@ from pathlib import Path
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 from visualization_msgs.msg import MarkerArray
 
@@ -62,6 +61,7 @@ from rrg_sim.ros_common.msg_conversions import (
     stamp_to_ns,
 )
 from rrg_sim.ros_common.node_main import keep_serving, release_free_memory, run_node
+from rrg_sim.ros_common.parameters import Param, declare
 from rrg_sim.ros_common.qos import LATCHED, STREAM
 from rrg_sim.state_file import StateError
 
@@ -69,60 +69,58 @@ NODE_NAME = "estimator"
 NAMESPACE = "rrg"
 
 
+#: The node's parameters (rrg_sim.ros_common.parameters).
+PARAMETERS: tuple[Param, ...] = (
+    Param(
+        "frame_id", WORLD_FRAME, "Frame of the belief's poses (the WAM base frame)", read_only=True
+    ),
+    Param(
+        "marker_count",
+        300,
+        "Number of heaviest grid points drawn in /rrg/belief_markers",
+        low=1,
+        high=10000,
+    ),
+    Param(
+        "marker_diameter",
+        0.02,
+        "Diameter [m] of the sphere of the heaviest grid point",
+        low=0.001,
+        high=0.2,
+    ),
+    Param(
+        "variable_resolution",
+        True,
+        "Re-grid the belief at the low level's spacing once it has concentrated",
+    ),
+    Param(
+        "world_profile",
+        "nominal",
+        (
+            "World profile the belief assumes the robot acts in "
+            f"(rrg_sim.config.world_profile: {', '.join(WORLD_PROFILES)}, …): its calibration "
+            "error puts readings in posture frames (rrg_sim.posture_calibration)"
+        ),
+        read_only=True,
+    ),
+    Param(
+        "state_file",
+        "",
+        (
+            "File the estimator writes its state to after every event and "
+            "restores it from when it starts ('' = no persistence)"
+        ),
+        read_only=True,
+    ),
+)
+
+
 class EstimatorNode(Node):
     """Belief filter over one object's pose, driven by observation messages."""
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME, namespace=NAMESPACE)
-        self.declare_parameter(
-            "frame_id",
-            WORLD_FRAME,
-            ParameterDescriptor(
-                description="Frame of the belief's poses (the WAM base frame)", read_only=True
-            ),
-        )
-        self.declare_parameter(
-            "marker_count",
-            300,
-            ParameterDescriptor(
-                description="Number of heaviest grid points drawn in /rrg/belief_markers",
-                integer_range=[IntegerRange(from_value=1, to_value=10000, step=1)],
-            ),
-        )
-        self.declare_parameter(
-            "marker_diameter",
-            0.02,
-            ParameterDescriptor(
-                description="Diameter [m] of the sphere of the heaviest grid point",
-                floating_point_range=[FloatingPointRange(from_value=0.001, to_value=0.2)],
-            ),
-        )
-        self.declare_parameter(
-            "variable_resolution",
-            True,
-            ParameterDescriptor(
-                description="Re-grid the belief at the low level's spacing once it has concentrated"
-            ),
-        )
-        self.declare_parameter(
-            "world_profile",
-            "nominal",
-            ParameterDescriptor(
-                description="World profile the belief assumes the robot acts in "
-                f"(rrg_sim.config.world_profile: {', '.join(WORLD_PROFILES)}, …): its calibration "
-                "error puts readings in posture frames (rrg_sim.posture_calibration)",
-                read_only=True,
-            ),
-        )
-        self.declare_parameter(
-            "state_file",
-            "",
-            ParameterDescriptor(
-                description="File the estimator writes its state to after every event and "
-                "restores it from when it starts ('' = no persistence)",
-                read_only=True,
-            ),
-        )
+        declare(self, PARAMETERS)
         self.likelihood = declare_unsensed_sensors(self)
         self.frame_id = self.get_parameter("frame_id").value
         self.world_profile = world_profile(self.get_parameter("world_profile").value)

@@ -56,9 +56,6 @@ from bhand_srvs.srv import FingerPosition, FingerVelocity, GraspPosition, Spread
 from control_msgs.action import FollowJointTrajectory
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
     SetParametersResult,
 )
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
@@ -80,6 +77,7 @@ from rrg_sim.ros.eval_services import EvalNames, EvalServices
 from rrg_sim.ros_common.arm_hand_interface import START_TOLERANCE
 from rrg_sim.ros_common.diagnostics import WARN, Health, NodeDiagnostics
 from rrg_sim.ros_common.node_main import destroy_action_endpoints, keep_serving, run_node
+from rrg_sim.ros_common.parameters import Param, declare
 from rrg_sim.ros_common.qos import RESULT_TIMEOUT_S
 
 from ..rdt import Calibration
@@ -194,12 +192,131 @@ def validate_trajectory(goal, q_now: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return q, t
 
 
+#: The node's parameters (rrg_sim.ros_common.parameters): fixed at start, and the faults
+#: (FAULTS), which may change at run time.
+PARAMETERS: tuple[Param, ...] = (
+    Param(
+        "object_name",
+        "powerdrill",
+        "Installed object at start (rrg-object list); reset_sim may change it",
+        read_only=True,
+    ),
+    Param("seed", 0, "Seed of the sensor noise", read_only=True, low=0, high=2**31 - 1),
+    Param(
+        "sensor_noise",
+        1.0,
+        "Scale of every sensor's noise sigma (1: config values, 0: noiseless)",
+        read_only=True,
+        low=0.0,
+        high=10.0,
+    ),
+    Param(
+        "joint_state_rate",
+        500.0,
+        "Rate [Hz] of /joint_states (wam_node: 500)",
+        read_only=True,
+        low=1.0,
+        high=1000.0,
+    ),
+    Param(
+        "pad_rate",
+        50.0,
+        "Rate [Hz] of the pads (BarrettHand feedback: 50)",
+        read_only=True,
+        low=1.0,
+        high=500.0,
+    ),
+    Param(
+        "rdt_rate",
+        1000.0,
+        "Rate [Hz] of each Net F/T box's RDT stream",
+        read_only=True,
+        low=1.0,
+        high=7000.0,
+    ),
+    Param(
+        "counts_per_force",
+        1e6,
+        "Net F/T calibration [counts/N]",
+        read_only=True,
+        low=1.0,
+        high=1e9,
+    ),
+    Param(
+        "counts_per_torque",
+        1e6,
+        "Net F/T calibration [counts/(N m)]",
+        read_only=True,
+        low=1.0,
+        high=1e9,
+    ),
+    Param(
+        "rdt_hosts",
+        ["127.0.0.2", "127.0.0.3", "127.0.0.4"],
+        "Addresses of the Net F/T boxes, fingers 1-3",
+        read_only=True,
+    ),
+    Param(
+        "box_calibration_factors",
+        [1.0, 1.0, 1.0],
+        "Per box, a factor on counts_per_force and counts_per_torque: "
+        "boxes calibrated differently, as three real ones are",
+        read_only=True,
+    ),
+    Param(
+        "netft_http_port",
+        0,
+        "TCP port each box serves its /netftapi2.xml on (0: none; a real box: 80)",
+        read_only=True,
+        low=0,
+        high=65535,
+    ),
+    Param(
+        "rdt_port",
+        49152,
+        "UDP port of every Net F/T box (RDT: 49152)",
+        read_only=True,
+        low=1,
+        high=65535,
+    ),
+    Param(
+        "unmeasured_interfaces",
+        [""],
+        "Interfaces the trajectory controller's joint states publish as NaN, "
+        "as joint_state_broadcaster does for a joint without them: arm_effort, "
+        "hand_velocity",
+        read_only=True,
+    ),
+    Param(
+        "tip_zero_offset",
+        [0.0] * 6,
+        "Every Net F/T box's unloaded reading [N, N m] (Fx Fy Fz Tx Ty Tz) "
+        "until bridge/bias removes it",
+        read_only=True,
+    ),
+    Param(
+        "controller_name",
+        "arm_controller",
+        "Name of the emulated trajectory controller",
+        read_only=True,
+    ),
+    Param(
+        "arm_interface",
+        "both",
+        "The arm's driver interface: the trajectory controller, Barrett's "
+        f"wam_node, or both (one of {', '.join(ARM_INTERFACES)})",
+        read_only=True,
+    ),
+    *(Param(name, f.default, f.description, low=f.lo, high=f.hi) for name, f in FAULTS.items()),
+)
+
+
 class FakeHwNode(Node):
     """The emulated drivers (see the module doc)."""
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
-        self._declare_parameters()
+        declare(self, PARAMETERS)
         p = lambda name: self.get_parameter(name).value
         self.robot = EmulatedRobot(p("object_name"), p("seed"), p("sensor_noise"))
         group = ReentrantCallbackGroup()
@@ -304,127 +421,6 @@ class FakeHwNode(Node):
             f"{arm.get(self.arm_interface, f'{action} and /wam/*')}, /bhand/*, "
             f"Net F/T boxes at {', '.join(b.host for b in self.boxes)}:{p('rdt_port')}"
         )
-
-    def _declare_parameters(self) -> None:
-        ro = dict(read_only=True)
-        d = self.declare_parameter
-        d(
-            "object_name",
-            "powerdrill",
-            ParameterDescriptor(
-                description="Installed object at start (rrg-object list); reset_sim may change it",
-                **ro,
-            ),
-        )
-        d(
-            "seed",
-            0,
-            ParameterDescriptor(
-                description="Seed of the sensor noise",
-                integer_range=[IntegerRange(from_value=0, to_value=2**31 - 1, step=1)],
-                **ro,
-            ),
-        )
-        d(
-            "sensor_noise",
-            1.0,
-            ParameterDescriptor(
-                description="Scale of every sensor's noise sigma (1: config values, 0: noiseless)",
-                floating_point_range=[FloatingPointRange(from_value=0.0, to_value=10.0)],
-                **ro,
-            ),
-        )
-        for name, default, lo, hi, text in (
-            ("joint_state_rate", 500.0, 1.0, 1000.0, "Rate [Hz] of /joint_states (wam_node: 500)"),
-            ("pad_rate", 50.0, 1.0, 500.0, "Rate [Hz] of the pads (BarrettHand feedback: 50)"),
-            ("rdt_rate", 1000.0, 1.0, 7000.0, "Rate [Hz] of each Net F/T box's RDT stream"),
-            ("counts_per_force", 1e6, 1.0, 1e9, "Net F/T calibration [counts/N]"),
-            ("counts_per_torque", 1e6, 1.0, 1e9, "Net F/T calibration [counts/(N m)]"),
-        ):
-            d(
-                name,
-                default,
-                ParameterDescriptor(
-                    description=text,
-                    floating_point_range=[FloatingPointRange(from_value=lo, to_value=hi)],
-                    **ro,
-                ),
-            )
-        d(
-            "rdt_hosts",
-            ["127.0.0.2", "127.0.0.3", "127.0.0.4"],
-            ParameterDescriptor(description="Addresses of the Net F/T boxes, fingers 1-3", **ro),
-        )
-        d(
-            "box_calibration_factors",
-            [1.0, 1.0, 1.0],
-            ParameterDescriptor(
-                description="Per box, a factor on counts_per_force and counts_per_torque: "
-                "boxes calibrated differently, as three real ones are",
-                **ro,
-            ),
-        )
-        d(
-            "netft_http_port",
-            0,
-            ParameterDescriptor(
-                description="TCP port each box serves its /netftapi2.xml on (0: none; a real "
-                "box: 80)",
-                integer_range=[IntegerRange(from_value=0, to_value=65535, step=1)],
-                **ro,
-            ),
-        )
-        d(
-            "rdt_port",
-            49152,
-            ParameterDescriptor(
-                description="UDP port of every Net F/T box (RDT: 49152)",
-                integer_range=[IntegerRange(from_value=1, to_value=65535, step=1)],
-                **ro,
-            ),
-        )
-        d(
-            "unmeasured_interfaces",
-            [""],
-            ParameterDescriptor(
-                description="Interfaces the trajectory controller's joint states publish as NaN, "
-                "as joint_state_broadcaster does for a joint without them: arm_effort, "
-                "hand_velocity",
-                **ro,
-            ),
-        )
-        d(
-            "tip_zero_offset",
-            [0.0] * 6,
-            ParameterDescriptor(
-                description="Every Net F/T box's unloaded reading [N, N m] (Fx Fy Fz Tx Ty Tz) "
-                "until bridge/bias removes it",
-                **ro,
-            ),
-        )
-        d(
-            "controller_name",
-            "arm_controller",
-            ParameterDescriptor(description="Name of the emulated trajectory controller", **ro),
-        )
-        d(
-            "arm_interface",
-            "both",
-            ParameterDescriptor(
-                description="The arm's driver interface: the trajectory controller, Barrett's "
-                f"wam_node, or both (one of {', '.join(ARM_INTERFACES)})",
-                **ro,
-            ),
-        )
-        for name, f in FAULTS.items():
-            desc = ParameterDescriptor(description=f.description)
-            if isinstance(f.default, bool):
-                pass
-            elif isinstance(f.default, int):
-                desc.integer_range = [IntegerRange(from_value=f.lo, to_value=f.hi, step=1)]
-            else:
-                desc.floating_point_range = [FloatingPointRange(from_value=f.lo, to_value=f.hi)]
-            d(name, f.default, desc)
 
     # ------------------------------------------------------------------ faults
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:

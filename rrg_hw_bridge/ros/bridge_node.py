@@ -33,9 +33,6 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import WrenchStamped
 from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
     SetParametersResult,
 )
 from rclpy.action import GoalResponse
@@ -72,6 +69,7 @@ from rrg_sim.ros_common.msg_conversions import (
     vector_to_msg,
 )
 from rrg_sim.ros_common.node_main import destroy_action_endpoints, keep_serving, run_node
+from rrg_sim.ros_common.parameters import Param, declare
 
 from ..arm_limits import DEFAULT_ARM_LIMITS, load_arm_limits
 from ..config import BRIDGE
@@ -234,18 +232,285 @@ class ActiveMove:
     recovery_excess: float | None = None
 
 
-def _float_param(
-    node: Node, name: str, value: float, text: str, lo: float, hi: float, read_only: bool = True
-) -> None:
-    node.declare_parameter(
-        name,
-        value,
-        ParameterDescriptor(
-            description=text,
-            read_only=read_only,
-            floating_point_range=[FloatingPointRange(from_value=lo, to_value=hi)],
+#: The node's parameters (rrg_sim.ros_common.parameters).
+PARAMETERS: tuple[Param, ...] = (
+    Param(
+        "arm_backend",
+        ARM_BACKENDS[0],
+        (
+            "The arm's driver: a ros2_control FollowJointTrajectory controller (arm_action) or "
+            "Barrett's wam_node (wam_rt_joint_topic, wam_hold_service)"
         ),
-    )
+        read_only=True,
+        choices=tuple(ARM_BACKENDS),
+    ),
+    Param(
+        "arm_action",
+        "/arm_controller/follow_joint_trajectory",
+        "FollowJointTrajectory action of the arm's controller",
+        read_only=True,
+    ),
+    Param(
+        "wam_rt_joint_topic",
+        "/wam/RTJointPositionCMD",
+        "wam_node's real-time joint position topic (wam_msgs/RTJointPositions)",
+        read_only=True,
+    ),
+    Param(
+        "wam_hold_service",
+        "/wam/holdJointPosition",
+        "wam_node's joint position hold service (std_srvs/SetBool)",
+        read_only=True,
+    ),
+    Param(
+        "driver_joint_states",
+        "/joint_states",
+        "The drivers' sensor_msgs/JointState topic",
+        read_only=True,
+    ),
+    Param(
+        "effort_kind",
+        EFFORT_KINDS[0],
+        (
+            "What the arm's joint efforts are: the motors' joint torques, gravity and motion "
+            "included (ros2_control's effort interface, wam_node's torques; the bridge "
+            "subtracts the WAM model's with a momentum observer), or external torques a "
+            "driver already estimated"
+        ),
+        read_only=True,
+        choices=tuple(EFFORT_KINDS),
+    ),
+    Param(
+        "arm_joint_names",
+        DEFAULT_ARM_DRIVER_JOINTS,
+        "The driver's 7 arm joint names, J1-J7 (arm_backend wam_node: q1-q7 unless set)",
+        read_only=True,
+    ),
+    Param(
+        "hand_joint_names",
+        DEFAULT_HAND_DRIVER_JOINTS,
+        "The driver's hand joint names: spread f1, spread f2, proximal f1-f3, distal f1-f3",
+        read_only=True,
+    ),
+    Param(
+        "hand_service_prefix",
+        "/bhand",
+        "Namespace of Barrett's BarrettHand services",
+        read_only=True,
+    ),
+    Param(
+        "wrench_source",
+        "rdt",
+        "Where the fingertip wrenches come from",
+        read_only=True,
+        choices=("rdt", "topics"),
+    ),
+    Param(
+        "rdt_hosts",
+        ["127.0.0.2", "127.0.0.3", "127.0.0.4"],
+        "Net F/T box addresses of fingers 1-3 (RDT over UDP)",
+        read_only=True,
+    ),
+    Param("rdt_port", 49152, "RDT UDP port", read_only=True),
+    Param(
+        "netft_http_port",
+        80,
+        (
+            "HTTP port of the Net F/T boxes' netftapi2.xml, read for each box's "
+            "counts per force and torque and its RDT rate (0: not read; counts_per_force "
+            "and counts_per_torque then hold for every box)"
+        ),
+        read_only=True,
+    ),
+    Param(
+        "rdt_rate",
+        0.0,
+        (
+            "RDT output rate [Hz] each Net F/T box is set to (comm.cgi) before its records are "
+            "used; needs netft_http_port (0: the boxes' own setting)"
+        ),
+        read_only=True,
+        low=0.0,
+        high=RDT_RATE_RANGE_HZ[1],
+    ),
+    Param(
+        "counts_per_force",
+        DEFAULT_COUNTS_PER_FORCE,
+        "Net F/T counts per N of every box when netft_http_port is 0",
+        read_only=True,
+        low=1.0,
+        high=1e9,
+    ),
+    Param(
+        "counts_per_torque",
+        DEFAULT_COUNTS_PER_TORQUE,
+        "Net F/T counts per N m of every box when netft_http_port is 0",
+        read_only=True,
+        low=1.0,
+        high=1e9,
+    ),
+    Param(
+        "wrench_topics",
+        ["/fingertip1/netft/wrench", "/fingertip2/netft/wrench", "/fingertip3/netft/wrench"],
+        "geometry_msgs/WrenchStamped topics of fingers 1-3 (wrench_source 'topics')",
+        read_only=True,
+    ),
+    Param(
+        "pad_source",
+        DEFAULT_PAD_SOURCE,
+        (
+            "Where the pad forces come from: Barrett's tactile pucks (wam_msgs/"
+            "TactilePressureArray), an rrg_msgs/ContactPads topic (an adapter of the lab's), or "
+            "derived from the fingertip sensors"
+        ),
+        read_only=True,
+        choices=tuple(PAD_SOURCES),
+    ),
+    Param(
+        "tactile_topic",
+        "/bhand/tactile_states",
+        "wam_msgs/TactilePressureArray topic of Barrett's BarrettHand node",
+        read_only=True,
+    ),
+    Param(
+        "pads_topic",
+        "/bhand/contact_pads",
+        "rrg_msgs/ContactPads topic (pad_source topic)",
+        read_only=True,
+    ),
+    Param(
+        "estop_topic", "/rrg/estop", "Latched E-stop (std_msgs/Bool, true = stop)", read_only=True
+    ),
+    Param(
+        "estop_latch_file",
+        "~/.ros/rrg_hw_bridge_estop.latched",
+        "File that carries a latched E-stop over a restart of the bridge (empty: none)",
+        read_only=True,
+    ),
+    Param(
+        "estop_heartbeat_timeout",
+        0.0,
+        "Silence [s] of the E-stop topic that latches the E-stop (a deadman; 0: off)",
+        read_only=True,
+        low=0.0,
+        high=60.0,
+    ),
+    Param(
+        "arm_on_start",
+        False,
+        (
+            "Arm at start, unless the latch file holds an E-stop (the emulated "
+            "drivers; on a real arm, arm with bridge/reset_estop)"
+        ),
+        read_only=True,
+    ),
+    Param(
+        "limits_file",
+        "",
+        "Per-arm limits YAML (empty: Barrett's published WAM limits)",
+        read_only=True,
+    ),
+    Param(
+        "publish_frames",
+        True,
+        (
+            "Publish RRG's WAM and BarrettHand model on /robot_description, "
+            "/tf_static and /tf from the measured joint states (false where the lab's own "
+            "robot_state_publisher already publishes the robot's frames)"
+        ),
+        read_only=True,
+    ),
+    Param(
+        "confirm_stops",
+        True,
+        (
+            "A lone pad stops a guarded move only when the next pad sample "
+            "agrees (a Nano17 or a joint effort stops it at once)"
+        ),
+        read_only=True,
+    ),
+    Param("dry_run", False, "Validate and publish every plan, command nothing", read_only=True),
+    Param(
+        "speed_scale",
+        1.0,
+        (
+            "Speed-scaling cap: every trajectory runs at this fraction of its speed; may be "
+            "lowered at run time, never raised above its start value"
+        ),
+        read_only=False,
+        low=0.01,
+        high=1.0,
+    ),
+    Param(
+        "spread_sign",
+        1,
+        (
+            "Sign of the driver's bhand_j11 (finger 1 spread) reading: 1, or -1 "
+            "where it is flipped (the hand run without the WAM)"
+        ),
+        read_only=True,
+        low=-1,
+        high=1,
+        step=2,
+    ),
+    Param(
+        "retime",
+        True,
+        (
+            "Slow a trajectory over the velocity or acceleration limits down "
+            "uniformly (up to max_slowdown) instead of refusing it"
+        ),
+        read_only=True,
+    ),
+    Param(
+        "max_slowdown",
+        BRIDGE.max_slowdown,
+        "Largest time stretch retiming may apply before the trajectory is refused",
+        read_only=True,
+        low=1.0,
+        high=100.0,
+    ),
+    Param(
+        "watchdog_timeout",
+        BRIDGE.watchdog_timeout,
+        "Oldest joint state or wrench [s] before the arm holds",
+        read_only=True,
+        low=0.01,
+        high=1.0,
+    ),
+    Param(
+        "force_ceiling",
+        BRIDGE.force_ceiling,
+        "Fingertip force [N] that aborts any move",
+        read_only=True,
+        low=0.1,
+        high=1000.0,
+    ),
+    Param(
+        "torque_ceiling",
+        BRIDGE.torque_ceiling,
+        "Fingertip torque [N m] that aborts any move",
+        read_only=True,
+        low=0.001,
+        high=100.0,
+    ),
+    Param(
+        "effort_threshold",
+        SENSING.arm_torque_threshold,
+        "Change of an arm joint's effort [N m] that stops a guarded move (0: off)",
+        read_only=True,
+        low=0.0,
+        high=100.0,
+    ),
+    Param(
+        "state_rate",
+        BRIDGE.state_rate,
+        "Rate [Hz] of the upward joint states, wrenches and pads",
+        read_only=True,
+        low=1.0,
+        high=1000.0,
+    ),
+)
 
 
 class BridgeNode(Node):
@@ -253,7 +518,7 @@ class BridgeNode(Node):
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME, namespace=NAMESPACE)
-        self._declare_parameters()
+        declare(self, PARAMETERS)
         p = lambda name: self.get_parameter(name).value
         self.limits = load_arm_limits(p("limits_file") or DEFAULT_ARM_LIMITS)
         self.arm_driver_joints = tuple(p("arm_joint_names"))
@@ -409,250 +674,6 @@ class BridgeNode(Node):
                 if self._arm_at is not None and self.estop.reason == EStop.NOT_ARMED
                 else ""
             )
-        )
-
-    def _declare_parameters(self) -> None:
-        def text(name, value, description, choices=None):
-            extra = f" (one of {', '.join(choices)})" if choices else ""
-            self.declare_parameter(
-                name, value, ParameterDescriptor(description=description + extra, read_only=True)
-            )
-            given = self.get_parameter(name).value
-            if choices and given not in choices:
-                raise ValueError(f"{name} must be one of {tuple(choices)}, got {given!r}")
-
-        text(
-            "arm_backend",
-            ARM_BACKENDS[0],
-            "The arm's driver: a ros2_control FollowJointTrajectory controller (arm_action) or "
-            "Barrett's wam_node (wam_rt_joint_topic, wam_hold_service)",
-            ARM_BACKENDS,
-        )
-        text(
-            "arm_action",
-            "/arm_controller/follow_joint_trajectory",
-            "FollowJointTrajectory action of the arm's controller",
-        )
-        text(
-            "wam_rt_joint_topic",
-            "/wam/RTJointPositionCMD",
-            "wam_node's real-time joint position topic (wam_msgs/RTJointPositions)",
-        )
-        text(
-            "wam_hold_service",
-            "/wam/holdJointPosition",
-            "wam_node's joint position hold service (std_srvs/SetBool)",
-        )
-        text("driver_joint_states", "/joint_states", "The drivers' sensor_msgs/JointState topic")
-        text(
-            "effort_kind",
-            EFFORT_KINDS[0],
-            "What the arm's joint efforts are: the motors' joint torques, gravity and motion "
-            "included (ros2_control's effort interface, wam_node's torques; the bridge "
-            "subtracts the WAM model's with a momentum observer), or external torques a "
-            "driver already estimated",
-            EFFORT_KINDS,
-        )
-        text(
-            "arm_joint_names",
-            DEFAULT_ARM_DRIVER_JOINTS,
-            "The driver's 7 arm joint names, J1-J7 (arm_backend wam_node: q1-q7 unless set)",
-        )
-        text(
-            "hand_joint_names",
-            DEFAULT_HAND_DRIVER_JOINTS,
-            "The driver's hand joint names: spread f1, spread f2, proximal f1-f3, distal f1-f3",
-        )
-        text("hand_service_prefix", "/bhand", "Namespace of Barrett's BarrettHand services")
-        text("wrench_source", "rdt", "Where the fingertip wrenches come from", ("rdt", "topics"))
-        text(
-            "rdt_hosts",
-            ["127.0.0.2", "127.0.0.3", "127.0.0.4"],
-            "Net F/T box addresses of fingers 1-3 (RDT over UDP)",
-        )
-        self.declare_parameter(
-            "rdt_port", 49152, ParameterDescriptor(description="RDT UDP port", read_only=True)
-        )
-        self.declare_parameter(
-            "netft_http_port",
-            80,
-            ParameterDescriptor(
-                description="HTTP port of the Net F/T boxes' netftapi2.xml, read for each box's "
-                "counts per force and torque and its RDT rate (0: not read; counts_per_force "
-                "and counts_per_torque then hold for every box)",
-                read_only=True,
-            ),
-        )
-        _float_param(
-            self,
-            "rdt_rate",
-            0.0,
-            "RDT output rate [Hz] each Net F/T box is set to (comm.cgi) before its records are "
-            "used; needs netft_http_port (0: the boxes' own setting)",
-            0.0,
-            RDT_RATE_RANGE_HZ[1],
-        )
-        _float_param(
-            self,
-            "counts_per_force",
-            DEFAULT_COUNTS_PER_FORCE,
-            "Net F/T counts per N of every box when netft_http_port is 0",
-            1.0,
-            1e9,
-        )
-        _float_param(
-            self,
-            "counts_per_torque",
-            DEFAULT_COUNTS_PER_TORQUE,
-            "Net F/T counts per N m of every box when netft_http_port is 0",
-            1.0,
-            1e9,
-        )
-        text(
-            "wrench_topics",
-            ["/fingertip1/netft/wrench", "/fingertip2/netft/wrench", "/fingertip3/netft/wrench"],
-            "geometry_msgs/WrenchStamped topics of fingers 1-3 (wrench_source 'topics')",
-        )
-        text(
-            "pad_source",
-            DEFAULT_PAD_SOURCE,
-            "Where the pad forces come from: Barrett's tactile pucks (wam_msgs/"
-            "TactilePressureArray), an rrg_msgs/ContactPads topic (an adapter of the lab's), or "
-            "derived from the fingertip sensors",
-            PAD_SOURCES,
-        )
-        text(
-            "tactile_topic",
-            "/bhand/tactile_states",
-            "wam_msgs/TactilePressureArray topic of Barrett's BarrettHand node",
-        )
-        text("pads_topic", "/bhand/contact_pads", "rrg_msgs/ContactPads topic (pad_source topic)")
-        text("estop_topic", "/rrg/estop", "Latched E-stop (std_msgs/Bool, true = stop)")
-        text(
-            "estop_latch_file",
-            "~/.ros/rrg_hw_bridge_estop.latched",
-            "File that carries a latched E-stop over a restart of the bridge (empty: none)",
-        )
-        _float_param(
-            self,
-            "estop_heartbeat_timeout",
-            0.0,
-            "Silence [s] of the E-stop topic that latches the E-stop (a deadman; 0: off)",
-            0.0,
-            60.0,
-        )
-        self.declare_parameter(
-            "arm_on_start",
-            False,
-            ParameterDescriptor(
-                description="Arm at start, unless the latch file holds an E-stop (the emulated "
-                "drivers; on a real arm, arm with bridge/reset_estop)",
-                read_only=True,
-            ),
-        )
-        text("limits_file", "", "Per-arm limits YAML (empty: Barrett's published WAM limits)")
-        self.declare_parameter(
-            "publish_frames",
-            True,
-            ParameterDescriptor(
-                description="Publish RRG's WAM and BarrettHand model on /robot_description, "
-                "/tf_static and /tf from the measured joint states (false where the lab's own "
-                "robot_state_publisher already publishes the robot's frames)",
-                read_only=True,
-            ),
-        )
-        self.declare_parameter(
-            "confirm_stops",
-            True,
-            ParameterDescriptor(
-                description="A lone pad stops a guarded move only when the next pad sample "
-                "agrees (a Nano17 or a joint effort stops it at once)",
-                read_only=True,
-            ),
-        )
-        self.declare_parameter(
-            "dry_run",
-            False,
-            ParameterDescriptor(
-                description="Validate and publish every plan, command nothing", read_only=True
-            ),
-        )
-        _float_param(
-            self,
-            "speed_scale",
-            1.0,
-            "Speed-scaling cap: every trajectory runs at this fraction of its speed; may be "
-            "lowered at run time, never raised above its start value",
-            0.01,
-            1.0,
-            read_only=False,
-        )
-        self.declare_parameter(
-            "spread_sign",
-            1,
-            ParameterDescriptor(
-                description="Sign of the driver's bhand_j11 (finger 1 spread) reading: 1, or -1 "
-                "where it is flipped (the hand run without the WAM)",
-                read_only=True,
-                integer_range=[IntegerRange(from_value=-1, to_value=1, step=2)],
-            ),
-        )
-        self.declare_parameter(
-            "retime",
-            True,
-            ParameterDescriptor(
-                description="Slow a trajectory over the velocity or acceleration limits down "
-                "uniformly (up to max_slowdown) instead of refusing it",
-                read_only=True,
-            ),
-        )
-        _float_param(
-            self,
-            "max_slowdown",
-            BRIDGE.max_slowdown,
-            "Largest time stretch retiming may apply before the trajectory is refused",
-            1.0,
-            100.0,
-        )
-        _float_param(
-            self,
-            "watchdog_timeout",
-            BRIDGE.watchdog_timeout,
-            "Oldest joint state or wrench [s] before the arm holds",
-            0.01,
-            1.0,
-        )
-        _float_param(
-            self,
-            "force_ceiling",
-            BRIDGE.force_ceiling,
-            "Fingertip force [N] that aborts any move",
-            0.1,
-            1000.0,
-        )
-        _float_param(
-            self,
-            "torque_ceiling",
-            BRIDGE.torque_ceiling,
-            "Fingertip torque [N m] that aborts any move",
-            0.001,
-            100.0,
-        )
-        _float_param(
-            self,
-            "effort_threshold",
-            SENSING.arm_torque_threshold,
-            "Change of an arm joint's effort [N m] that stops a guarded move (0: off)",
-            0.0,
-            100.0,
-        )
-        _float_param(
-            self,
-            "state_rate",
-            BRIDGE.state_rate,
-            "Rate [Hz] of the upward joint states, wrenches and pads",
-            1.0,
-            1000.0,
         )
 
     def on_set_parameters(self, params) -> SetParametersResult:

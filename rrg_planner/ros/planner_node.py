@@ -37,7 +37,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.action.server import ServerGoalHandle
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -72,6 +71,7 @@ from rrg_sim.ros_common.futures import WaitInterrupted, wait_for
 from rrg_sim.ros_common.liveliness import announce
 from rrg_sim.ros_common.msg_conversions import planar_to_msg
 from rrg_sim.ros_common.node_main import destroy_action_endpoints, run_node
+from rrg_sim.ros_common.parameters import Param, declare
 from rrg_sim.ros_common.qos import RESULT_TIMEOUT_S
 from rrg_sim.state_file import StateError
 
@@ -95,83 +95,82 @@ class RequestError(Exception):
         return cls(getattr(codes, exc.code), str(exc))
 
 
+#: The node's parameters (rrg_sim.ros_common.parameters).
+PARAMETERS: tuple[Param, ...] = (
+    Param(
+        "levels",
+        list(LEVELS),
+        ("Uncertainty levels whose tables are loaded (beliefs must use one of their grids)"),
+        read_only=True,
+    ),
+    Param(
+        "preload",
+        Parameter.Type.STRING_ARRAY,
+        (
+            "Objects whose planning models are loaded before the services start "
+            "(a first build takes ~1 min per object)"
+        ),
+        read_only=True,
+    ),
+    Param(
+        "reset_timeout",
+        300.0,
+        ("Longest wait [s] for the estimator's reset (it may load or build tables)"),
+        low=1.0,
+        high=3600.0,
+    ),
+    Param(
+        "execute_timeout",
+        300.0,
+        "Longest wait [s] for one WRT execution or retreat",
+        low=1.0,
+        high=3600.0,
+    ),
+    Param(
+        "belief_timeout",
+        120.0,
+        ("Longest wait [s] for the estimator's belief after an observation or a retreat"),
+        low=0.1,
+        high=3600.0,
+    ),
+    Param(
+        "restart_timeout",
+        60.0,
+        (
+            "Longest wait [s] for a node that died (the executor or the "
+            "estimator) to be back before the grasp fails"
+        ),
+        low=1.0,
+        high=3600.0,
+    ),
+    Param(
+        "world_profile",
+        "nominal",
+        (
+            "World profile the planner assumes the robot acts in "
+            f"(rrg_sim.config.world_profile: {', '.join(WORLD_PROFILES)}, …): its calibration "
+            "error values a goal grasp from a belief in another posture's frame"
+        ),
+        read_only=True,
+    ),
+    Param(
+        "state_file",
+        "",
+        (
+            "File the running grasp's progress is written to after every step, "
+            "for a restarted planner to resume it ('' = none)"
+        ),
+        read_only=True,
+    ),
+)
+
+
 class PlannerNode(Node):
     """Select-action service and robust-grasp action over the planning core."""
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME, namespace=NAMESPACE)
-        self.declare_parameter(
-            "levels",
-            list(LEVELS),
-            ParameterDescriptor(
-                description="Uncertainty levels whose tables are loaded "
-                "(beliefs must use one of their grids)",
-                read_only=True,
-            ),
-        )
-        self.declare_parameter(
-            "preload",
-            Parameter.Type.STRING_ARRAY,
-            ParameterDescriptor(
-                read_only=True,
-                description="Objects whose planning models are loaded before the services start "
-                "(a first build takes ~1 min per object)",
-            ),
-        )
-        self.declare_parameter(
-            "reset_timeout",
-            300.0,
-            ParameterDescriptor(
-                description="Longest wait [s] for the estimator's reset "
-                "(it may load or build tables)",
-                floating_point_range=[FloatingPointRange(from_value=1.0, to_value=3600.0)],
-            ),
-        )
-        self.declare_parameter(
-            "execute_timeout",
-            300.0,
-            ParameterDescriptor(
-                description="Longest wait [s] for one WRT execution or retreat",
-                floating_point_range=[FloatingPointRange(from_value=1.0, to_value=3600.0)],
-            ),
-        )
-        self.declare_parameter(
-            "belief_timeout",
-            120.0,
-            ParameterDescriptor(
-                description="Longest wait [s] for the estimator's belief "
-                "after an observation or a retreat",
-                floating_point_range=[FloatingPointRange(from_value=0.1, to_value=3600.0)],
-            ),
-        )
-        self.declare_parameter(
-            "restart_timeout",
-            60.0,
-            ParameterDescriptor(
-                description="Longest wait [s] for a node that died (the executor or the "
-                "estimator) to be back before the grasp fails",
-                floating_point_range=[FloatingPointRange(from_value=1.0, to_value=3600.0)],
-            ),
-        )
-        self.declare_parameter(
-            "world_profile",
-            "nominal",
-            ParameterDescriptor(
-                description="World profile the planner assumes the robot acts in "
-                f"(rrg_sim.config.world_profile: {', '.join(WORLD_PROFILES)}, …): its calibration "
-                "error values a goal grasp from a belief in another posture's frame",
-                read_only=True,
-            ),
-        )
-        self.declare_parameter(
-            "state_file",
-            "",
-            ParameterDescriptor(
-                description="File the running grasp's progress is written to after every step, "
-                "for a restarted planner to resume it ('' = none)",
-                read_only=True,
-            ),
-        )
+        declare(self, PARAMETERS)
         self.likelihood = declare_unsensed_sensors(self)
         state_file = self.get_parameter("state_file").value
         self.state_file = Path(state_file) if state_file else None

@@ -26,7 +26,6 @@ import threading
 import time
 
 import numpy as np
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.action.server import ServerGoalHandle
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -46,6 +45,7 @@ from rrg_sim.ros_common.diagnostics import ERROR, WARN, Health, NodeDiagnostics
 from rrg_sim.ros_common.liveliness import announce
 from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, observation_to_msg, planar_from_msg
 from rrg_sim.ros_common.node_main import destroy_action_endpoints, keep_serving, run_node
+from rrg_sim.ros_common.parameters import Param, declare
 from rrg_sim.ros_common.qos import RESULT_TIMEOUT_S, STREAM
 
 NODE_NAME = "executor"
@@ -53,39 +53,43 @@ NAMESPACE = "rrg"
 R = ExecuteWrt.Result
 
 
+#: The node's parameters (rrg_sim.ros_common.parameters).
+PARAMETERS: tuple[Param, ...] = (
+    Param(
+        "motion_timeout",
+        300.0,
+        "Longest wait [s] for one guarded move or hand command",
+        read_only=True,
+        low=1.0,
+        high=3600.0,
+    ),
+    Param(
+        "ready_timeout",
+        30.0,
+        "Longest wait [s] for the arm/hand interface when a goal arrives",
+        low=0.1,
+        high=600.0,
+    ),
+    Param(
+        "world_profile",
+        "nominal",
+        (
+            "World profile the robot is taken to be in "
+            f"(rrg_sim.config.world_profile: {', '.join(WORLD_PROFILES)}, …): where its "
+            "calibration or the table's height is uncertain, a goal grasp and its probe "
+            "begin with the object's table touch (rrg_sim.table_touch)"
+        ),
+        read_only=True,
+    ),
+)
+
+
 class ExecutorNode(Node):
     """ExecuteWrt and retreat over the arm/hand interface."""
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME, namespace=NAMESPACE)
-        self.declare_parameter(
-            "motion_timeout",
-            300.0,
-            ParameterDescriptor(
-                description="Longest wait [s] for one guarded move or hand command",
-                read_only=True,
-                floating_point_range=[FloatingPointRange(from_value=1.0, to_value=3600.0)],
-            ),
-        )
-        self.declare_parameter(
-            "ready_timeout",
-            30.0,
-            ParameterDescriptor(
-                description="Longest wait [s] for the arm/hand interface when a goal arrives",
-                floating_point_range=[FloatingPointRange(from_value=0.1, to_value=600.0)],
-            ),
-        )
-        self.declare_parameter(
-            "world_profile",
-            "nominal",
-            ParameterDescriptor(
-                description="World profile the robot is taken to be in "
-                f"(rrg_sim.config.world_profile: {', '.join(WORLD_PROFILES)}, …): where its "
-                "calibration or the table's height is uncertain, a goal grasp and its probe "
-                "begin with the object's table touch (rrg_sim.table_touch)",
-                read_only=True,
-            ),
-        )
+        declare(self, PARAMETERS)
         self.touch_table = world_profile(self.get_parameter("world_profile").value).uncertain_height
         group = ReentrantCallbackGroup()
         self.robot = RosRobot(self, group, self.get_parameter("motion_timeout").value)

@@ -34,7 +34,6 @@ from collections.abc import Callable
 
 import numpy as np
 from geometry_msgs.msg import WrenchStamped
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.action import GoalResponse
 from rclpy.action.server import ServerGoalHandle
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -58,6 +57,7 @@ from rrg_sim.ros_common.msg_conversions import (
     vector_to_msg,
 )
 from rrg_sim.ros_common.node_main import destroy_action_endpoints, keep_serving, run_node
+from rrg_sim.ros_common.parameters import Param, declare
 
 from .. import wam
 from ..config import SENSING, WORLD_PROFILES, world_profile
@@ -75,64 +75,54 @@ SPREAD_TOLERANCE = 0.01
 CHECK_EVERY = 10
 
 
+#: The node's parameters (rrg_sim.ros_common.parameters).
+PARAMETERS: tuple[Param, ...] = (
+    Param(
+        "object_name",
+        "powerdrill",
+        ("Installed object in the scene at start (rrg-object list); reset_sim may change it"),
+    ),
+    Param("seed", 0, "Seed of the sensor noise", read_only=True, low=0, high=2**31 - 1),
+    Param(
+        "sensor_noise",
+        1.0,
+        "Scale of every sensor's noise sigma (1: config values, 0: noiseless)",
+        read_only=True,
+        low=0.0,
+        high=10.0,
+    ),
+    Param(
+        "world_profile",
+        "nominal",
+        (
+            "World profile (rrg_sim.config.WORLD_PROFILES: "
+            f"{', '.join(WORLD_PROFILES)}); its per-trial draws come from the seed"
+        ),
+        read_only=True,
+    ),
+    Param(
+        "state_rate",
+        50.0,
+        ("Rate [Hz, wall time] of joint states, wrenches, pads and the true pose"),
+        low=1.0,
+        high=500.0,
+    ),
+    Param(
+        "real_time_factor",
+        0.0,
+        ("Simulated seconds per wall second (1: real time); 0: as fast as it steps"),
+        low=0.0,
+        high=100.0,
+    ),
+)
+
+
 class SimNode(Node):
     """One PhysicsWorld behind the arm/hand interface."""
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME, namespace=NAMESPACE)
-        self.declare_parameter(
-            "object_name",
-            "powerdrill",
-            ParameterDescriptor(
-                description="Installed object in the scene at start (rrg-object list); "
-                "reset_sim may change it"
-            ),
-        )
-        self.declare_parameter(
-            "seed",
-            0,
-            ParameterDescriptor(
-                description="Seed of the sensor noise",
-                read_only=True,
-                integer_range=[IntegerRange(from_value=0, to_value=2**31 - 1, step=1)],
-            ),
-        )
-        self.declare_parameter(
-            "sensor_noise",
-            1.0,
-            ParameterDescriptor(
-                description="Scale of every sensor's noise sigma (1: config values, 0: noiseless)",
-                read_only=True,
-                floating_point_range=[FloatingPointRange(from_value=0.0, to_value=10.0)],
-            ),
-        )
-        self.declare_parameter(
-            "world_profile",
-            "nominal",
-            ParameterDescriptor(
-                description="World profile (rrg_sim.config.WORLD_PROFILES: "
-                f"{', '.join(WORLD_PROFILES)}); its per-trial draws come from the seed",
-                read_only=True,
-            ),
-        )
-        self.declare_parameter(
-            "state_rate",
-            50.0,
-            ParameterDescriptor(
-                description="Rate [Hz, wall time] of joint states, wrenches, pads "
-                "and the true pose",
-                floating_point_range=[FloatingPointRange(from_value=1.0, to_value=500.0)],
-            ),
-        )
-        self.declare_parameter(
-            "real_time_factor",
-            0.0,
-            ParameterDescriptor(
-                description="Simulated seconds per wall second (1: real time); "
-                "0: as fast as it steps",
-                floating_point_range=[FloatingPointRange(from_value=0.0, to_value=100.0)],
-            ),
-        )
+        declare(self, PARAMETERS)
         self._lock = threading.Lock()
         self._move_active = False
         profile = self.get_parameter("world_profile").value
