@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 from catkin_pkg.package import parse_package
-from repo_layout import PACKAGES, PYPROJECT
+from repo_layout import NODE_MODULES, PACKAGES, PYPROJECT
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The vendored interface subsets (scripts/setup_ros.sh builds them into the venv).
@@ -28,16 +28,6 @@ VENDORED = (
     "rrg_hw_bridge/interfaces/wam_srvs",
     "rrg_hw_bridge/interfaces/bhand_srvs",
     "rrg_sim/interfaces/tf2_msgs",
-)
-#: The node modules: the launcher's (rrg_bringup.graph.NODES) and the bag recorder.
-NODE_MODULES = (
-    "rrg_sim.ros.sim_node",
-    "rrg_sim.executor.executor_node",
-    "rrg_estimator.ros.estimator_node",
-    "rrg_planner.ros.planner_node",
-    "rrg_bags.recorder_node",
-    "rrg_hw_bridge.ros.bridge_node",
-    "rrg_hw_bridge.fake.fake_hw_node",
 )
 #: What a copy of the repository leaves out without git (hidden, generated or outside git).
 GENERATED = (".*", "*.egg-info", "build", "install", "log", "bags", "results", "__pycache__")

@@ -9,18 +9,9 @@ import importlib
 import pytest
 import rclpy
 from rclpy.parameter import Parameter
+from repo_layout import NODE_MODULES
 
 from rrg_sim.ros_common.parameters import Param, declare
-
-NODE_MODULES = (
-    "rrg_sim.ros.sim_node",
-    "rrg_sim.executor.executor_node",
-    "rrg_estimator.ros.estimator_node",
-    "rrg_planner.ros.planner_node",
-    "rrg_bags.recorder_node",
-    "rrg_hw_bridge.ros.bridge_node",
-    "rrg_hw_bridge.fake.fake_hw_node",
-)
 
 TABLE = (
     Param("timeout", 30.0, "Longest wait [s]", low=0.1, high=600.0),
