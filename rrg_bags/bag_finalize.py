@@ -1,4 +1,5 @@
-"""Close an MCAP file whose writer could not finish it (a write failed: the disk filled), design §8.
+"""Close an MCAP file whose writer could not finish it (a write failed: the disk
+filled), operations §8.
 
 The file is cut after its last complete record (what the writer last wrote in full: a chunk and
 its message indexes), then closed as far as the space allows: with the summary that makes it a

@@ -1,4 +1,4 @@
-"""A rosbag2-layout MCAP bag writer that needs no rosbag2 (design §8).
+"""A rosbag2-layout MCAP bag writer that needs no rosbag2 (operations §8).
 
 Layout: ``<bag>/<name>_0.mcap`` plus ``<bag>/metadata.yaml`` (rosbag2 metadata version 9),
 where ``<name>`` is the bag folder's name; a restarted recorder appends the splits

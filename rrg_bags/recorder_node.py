@@ -1,4 +1,4 @@
-"""Record every topic of a running ROS 2 graph into a rosbag2-layout MCAP bag (design §8).
+"""Record every topic of a running ROS 2 graph into a rosbag2-layout MCAP bag (operations §8).
 
 Run as a process, e.g. as the launcher's child::
 
@@ -14,7 +14,7 @@ received (``BagRecorder.drain``, at most DRAIN_S; a second signal cuts that shor
 finalizes the bag, which it always does. Every ``flush_period`` it writes what it has received
 to the file as a complete chunk, so a SIGKILL loses at most that much. With ``--append`` (the
 launcher restarting a recorder that died) it writes the next split of an existing bag folder
-(design §8). When a write fails (the disk is full) it logs one error, stops recording (the bag
+(operations §8). When a write fails (the disk is full) it logs one error, stops recording (the bag
 written so far is closed and stays readable; later messages are dropped and counted) and keeps
 running, so the launcher does not restart it. A bag it cannot create ends it with one line and
 exit status 1. Its health (the bag, messages written and dropped) goes on ``/diagnostics`` once

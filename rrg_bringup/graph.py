@@ -1,6 +1,6 @@
-"""The graph ``rrg-launch`` runs (design §8): its child processes, their respawn, the launcher's
-own node, and one robust grasp on it. ``rrg_bringup.launch`` is the command line around
-it; the soak (``--grasps``) and the benchmarks drive the same ``Graph``.
+"""The graph ``rrg-launch`` runs (operations §8): its child processes, their respawn, the
+launcher's own node, and one robust grasp on it. ``rrg_bringup.launch`` is the command line
+around it; the soak (``--grasps``) and the benchmarks drive the same ``Graph``.
 """
 
 from __future__ import annotations

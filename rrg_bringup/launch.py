@@ -1,5 +1,5 @@
 """``rrg-launch``: start RRG's ROS 2 graph as child processes, record every topic, and optionally
-run one robust grasp, or many back to back (design §8).
+run one robust grasp, or many back to back (operations §8).
 
     rrg-launch                                      # the simulated graph, until Ctrl-C
     rrg-launch --grasp powerdrill --level high --strategy rrg-info

@@ -1,5 +1,5 @@
 """Long runs: ``rrg-launch --grasps N`` runs N robust grasps back to back in one graph and
-reports what they did to it (design §8).
+reports what they did to it (operations §8).
 
 Each grasp's object and true pose come from ``--seed``: the objects (``--objects``, default all
 ten) in shuffled rounds, each once per round, so that every object has been grasped by grasp

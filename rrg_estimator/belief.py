@@ -1,4 +1,4 @@
-"""The belief: weights over a regular (x, y, θ) grid of object poses in ``world`` (design §3).
+"""The belief: weights over a regular (x, y, θ) grid of object poses in ``world`` (algorithm §3).
 
 Weights are proportional to the probability density at the grid points (paper, "The state
 space and belief space") and always sum to 1. A Belief is immutable: its weight array is

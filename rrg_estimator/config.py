@@ -2,8 +2,8 @@
 grid, the observation likelihood and the transition model, each with its source.
 
 Units are SI (m, rad) unless a name says otherwise. Sources: the paper (Hsiao, Lozano-Pérez,
-Kaelbling, "Relatively Robust Grasping"), docs/design.md, MuJoCo measurements (docs/world.md),
-or "chosen" with the reason where none gives a number.
+Kaelbling, "Relatively Robust Grasping"), docs/algorithm.md, MuJoCo measurements
+(docs/world.md), or "chosen" with the reason where none gives a number.
 """
 
 from __future__ import annotations
@@ -32,9 +32,9 @@ class UncertaintyLevel:
 #: trials, 12 of them failures); 33 span ±1.6 rad = ±3σ. x and y span ±20 cm = ±4σ (41
 #: points; the paper's 31 span ±3σ): with ±3σ, 0.54 % of drawn poses lie off the grid in x or
 #: y, and 5 of the 6 such poses in 1,000 high-uncertainty RRG-Info trials failed; ±4σ leaves
-#: 0.013 % (docs/design.md §3).
+#: 0.013 % (docs/algorithm.md §3).
 HIGH = UncertaintyLevel("high", (0.05, 0.05, math.radians(30.0)), (0.01, 0.01, 0.1), (41, 41, 33))
-#: Paper: σ = 1 cm, 1 cm, 3°; design §3: about 2 mm and 0.013 rad.
+#: Paper: σ = 1 cm, 1 cm, 3°; algorithm §3: about 2 mm and 0.013 rad.
 LOW = UncertaintyLevel("low", (0.01, 0.01, math.radians(3.0)), (0.002, 0.002, 0.013))
 #: Chosen: the variable-resolution grid's middle step, ±3σ like LOW (±7.5 cm, ±0.6 rad at
 #: 5 mm and 0.05 rad). With HIGH and LOW alone a belief stays on HIGH's 0.1 rad until 99 %
@@ -42,11 +42,11 @@ LOW = UncertaintyLevel("low", (0.01, 0.01, math.radians(3.0)), (0.002, 0.002, 0.
 #: resolve (the teacup's ±0.14 rad). Measured in MuJoCo with HIGH and LOW alone: 41 of 100
 #: pitcher and half the teacup trials at high uncertainty used all 10 actions, and in one
 #: pitcher trial HIGH's belief settled 0.15 rad off the truth, then refined to a LOW grid the
-#: truth lay 0.065 rad beyond (docs/design.md §3).
+#: truth lay 0.065 rad beyond (docs/algorithm.md §3).
 MID = UncertaintyLevel("mid", (0.025, 0.025, 0.2), (0.005, 0.005, 0.05))
 LEVELS = {"high": HIGH, "mid": MID, "low": LOW}
 
-#: Variable-resolution grid (design §3): re-grid to the finest of the finer levels (MID, LOW)
+#: Variable-resolution grid (algorithm §3): re-grid to the finest of the finer levels (MID, LOW)
 #: whose box holds at least 1 - VARRES_EPS of the mass.
 VARRES_EPS = 0.01
 #: A fine belief is re-centred on its mean once the mean is off the grid centre by more
@@ -59,7 +59,7 @@ VARRES_RECENTER = 0.25
 # ------------------------------------------------------------- observation model
 @dataclass(frozen=True)
 class LikelihoodParams:
-    """P(o | w, τ(e)) (design §5). Chosen to cover the physics simulator's spread of
+    """P(o | w, τ(e)) (algorithm §5). Chosen to cover the physics simulator's spread of
     outcomes around the geometric prediction (measured by tests/test_physics_vs_geometric)."""
 
     p_contact_mismatch: float = 0.05  # P(early contact differs from prediction)
@@ -102,7 +102,7 @@ def likelihood_without(
 
 @dataclass(frozen=True)
 class TransitionParams:
-    """Transition model (design §3; paper: a mixture 'stays' / 'bumped')."""
+    """Transition model (algorithm §3; paper: a mixture 'stays' / 'bumped')."""
 
     p_stay: float = 0.7  # P(object does not move | contact)
     bump_mean: float = 0.01  # m, mean displacement along the hand's motion at contact

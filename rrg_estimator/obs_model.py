@@ -1,4 +1,4 @@
-"""The observation model P(o | w, τ(e)) (design §5) on top of the offline observation tables.
+"""The observation model P(o | w, τ(e)) (algorithm §5) on top of the offline observation tables.
 
 An observation made by τ(e) with the object at w depends only on the relative offset
 Δ = e⁻¹ ⊕ w (paper, Fig. 3), so the likelihood of every belief state is read from the

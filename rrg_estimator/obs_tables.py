@@ -1,4 +1,5 @@
-"""Offline observation tables Ω_τ(Δ) (design §5; the paper's "Computing the observation matrix").
+"""Offline observation tables Ω_τ(Δ) (algorithm §5; the paper's "Computing the observation
+matrix").
 
 Thanks to the relative-transform insight, one geometric simulation per grid offset Δ gives
 the predicted observation of a WRT for every (w, e) pair with e⁻¹ ⊕ w = Δ: the WRT runs

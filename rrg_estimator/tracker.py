@@ -1,5 +1,5 @@
 """The estimator as a ROS-free core: one object's belief, reset to a Gaussian, updated with each
-WRT's observation and carried through each retreat (design §3). The estimator node and the
+WRT's observation and carried through each retreat (algorithm §3). The estimator node and the
 in-process closed loop (rrg_planner.closed_loop) both keep their belief here, so the sequence of
 updates exists once.
 

@@ -1,4 +1,4 @@
-"""Transition models (paper, "Computing the transition model"; design §3).
+"""Transition models (paper, "Computing the transition model"; algorithm §3).
 
 * No contact: the object does not move (identity; the caller skips the transition).
 * Contact (``bump``): a mixture of two outcomes: the object stays (p_stay), or it is

@@ -1,4 +1,5 @@
-"""The belief update SE(b, τ(e), o) (design §3): transition, then likelihood, then normalization."""
+"""The belief update SE(b, τ(e), o) (algorithm §3): transition, then likelihood, then
+normalization."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Variable-resolution grid (design §3; beyond the paper, which names it as the fix for its
+"""Variable-resolution grid (algorithm §3; beyond the paper, which names it as the fix for its
 cup and teabox failures at high uncertainty): once a coarse belief has concentrated, re-grid
 it at a finer level's spacing over a box the size of that level's grid (HIGH → MID → LOW,
 straight to LOW when it already fits).

@@ -1,4 +1,4 @@
-"""The RRG agent: chooses the next WRT for a belief with a strategy (design §6); the closed loop
+"""The RRG agent: chooses the next WRT for a belief with a strategy (algorithm §6); the closed loop
 that runs its choices is rrg_planner.closed_loop.
 
 Strategies (paper, "Experiments"):

@@ -1,4 +1,4 @@
-"""The closed loop of one robust grasp (design §6): decide → execute → update, written once.
+"""The closed loop of one robust grasp (algorithm §6): decide → execute → update, written once.
 
 The in-process agent, the planner node's robust-grasp action and the experiment runner all run
 ``ClosedLoop``. What differs between them sits behind two small interfaces, as in pomdp_py's

@@ -2,7 +2,7 @@
 strategies, each with its source.
 
 Sources: the paper (Hsiao, Lozano-Pérez, Kaelbling, "Relatively Robust Grasping"),
-docs/design.md, MuJoCo measurements (docs/results.md), or "chosen" with the reason.
+docs/algorithm.md, MuJoCo measurements (docs/results.md), or "chosen" with the reason.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ class SearchParams:
     #: for actions. Chosen: 0.5, the only value measured; against a fixed cost of 0.01 per
     #: action it lets H = 2 stop in fewer actions (MuJoCo, drill at high uncertainty: 5.08
     #: actions for 93 % at δ 0.3, against 5.50 for 98 %; the measurements are in
-    #: docs/design.md, "Measurements behind chosen search parameters").
+    #: docs/results.md, "Measurements behind chosen parameters").
     cost_per_delta: float = 0.5
     max_actions: int = 10
     offline_prune: float = 0.01

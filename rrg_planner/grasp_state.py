@@ -1,4 +1,5 @@
-"""A robust grasp's progress on disk, so that a restarted planner can go on with it (design §8).
+"""A robust grasp's progress on disk, so that a restarted planner can go on with it
+(operations §8).
 
 The planner writes the grasp's request, the steps it has taken and the executions it found
 infeasible after each of them; a restarted planner reads them back into a ClosedLoop whose

@@ -1,4 +1,4 @@
-"""Receding-horizon POMDP forward search over WRTs (paper: "POMDP forward search"; design §6).
+"""Receding-horizon POMDP forward search over WRTs (paper: "POMDP forward search"; algorithm §6).
 
 V_0(b) = v(b) − c, the static evaluation: the best probability, over feasible goal WRTs g,
 that executing g relative to w*(b) achieves the goal (or relative to w*(b) moved to g's

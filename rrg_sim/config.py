@@ -11,7 +11,7 @@ Units are SI (m, rad, N, kg, s) unless a name says otherwise. Frames:
 
 Sources are cited per block: the paper (Hsiao, Lozano-Pérez, Kaelbling,
 "Relatively Robust Grasping"), docs/sources.md (published WAM and BarrettHand dimensions,
-object sizes, the drivers' figures), docs/design.md, or "chosen" with the reason where
+object sizes, the drivers' figures), docs/algorithm.md, or "chosen" with the reason where
 neither gives a number.
 """
 
@@ -285,7 +285,7 @@ WAM_ARMATURE: tuple[float, ...] = (
 
 @dataclass(frozen=True)
 class PhysicsParams:
-    """The MuJoCo world (design §2): control, motion and judging parameters."""
+    """The MuJoCo world (algorithm §2): control, motion and judging parameters."""
 
     #: Integration step = the WAM's 500 Hz control period [s] (notes: 2 ms steps).
     timestep: float = 0.002

@@ -1,4 +1,4 @@
-"""The geometric simulator: predicted observations of a WRT, kinematically (design §2, §5).
+"""The geometric simulator: predicted observations of a WRT, kinematically (algorithm §2, §5).
 
 The hand sweeps along the WRT's path until it first touches the object or the table, then
 each finger closes until it touches something or reaches its limit. Only positions are

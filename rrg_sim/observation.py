@@ -29,7 +29,7 @@ def fingers_in_contact(sensors: np.ndarray) -> np.ndarray:
 
 @dataclass
 class Observation:
-    """What the robot senses when one WRT ends (design §5).
+    """What the robot senses when one WRT ends (algorithm §5).
 
     contact: True if a guarded move stopped early on a sensed contact.
     progress: path length [m] the palm travelled from the WRT's first pose when it stopped

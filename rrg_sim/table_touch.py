@@ -1,5 +1,5 @@
 """Touching the table in the goal grasp's calibration: the height that a planar belief cannot
-hold, measured where its error cancels (docs/design.md §4, "The table touch").
+hold, measured where its error cancels (docs/algorithm.md §4, "The table touch").
 
 The WAM's joint zero offsets (WorldProfile.joint_offset_sigma) move a goal grasp's hand up or
 down by σ 5.6-6.6 mm at 10 mrad, and the table's height draw adds 2.3 mm. The vertical error at

@@ -1,5 +1,5 @@
 """Barrett WAM 7-DOF kinematics: forward kinematics, analytic IK with redundancy resolution,
-and the feasibility F_τ(e) of hand paths (joint limits and table clearance, design §4).
+and the feasibility F_τ(e) of hand paths (joint limits and table clearance, algorithm §4).
 
 Model: Barrett's DH table for the WAM (standard/distal DH: libbarrett's config/wam7w.conf,
 docs/sources.md §1, as ``config.WAM``),
@@ -393,7 +393,7 @@ def feasible_paths(Ts) -> np.ndarray:
 
 
 def feasible_path(Ts) -> bool:
-    """F_τ(e) for one hand path τ(e) (K,4,4) in world (design §4)."""
+    """F_τ(e) for one hand path τ(e) (K,4,4) in world (algorithm §4)."""
     return bool(feasible_paths(Ts))
 
 

@@ -1,4 +1,5 @@
-"""Feasibility maps: F_τ(e) of one WRT precomputed over object poses e = (x, y, θ) (design §4).
+"""Feasibility maps: F_τ(e) of one WRT precomputed over object poses e = (x, y, θ)
+(algorithm §4).
 
 The WAM is symmetric about J1's (vertical) axis: turning the object about the base by φ turns
 every hand pose by φ, adds φ to J1 and turns the elbow and wrist about the base, and changes

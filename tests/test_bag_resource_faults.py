@@ -1,4 +1,4 @@
-"""Resource faults while recording (design §8): a bags folder that cannot be written stops
+"""Resource faults while recording (operations §8): a bags folder that cannot be written stops
 ``rrg-launch`` before any node starts, a recorder that cannot create its bag exits with one line,
 and a write that fails (a full disk, a file size limit) stops the recording while the recorder
 keeps running: the bag up to the last complete chunk stays readable by ``rrg-bag``, rosbags and

@@ -1,4 +1,4 @@
-"""Bags of several files: a recorder restarted after it was killed (design §8) writes the next
+"""Bags of several files: a recorder restarted after it was killed (operations §8) writes the next
 split ``<name>_<k>.mcap`` into the same folder, metadata.yaml names every split as rosbag2 does,
 and the bag tools read them all. ROS-free: synthetic messages, a truncated file for the kill."""
 

@@ -1,6 +1,7 @@
 """The repository's documents: the README is a user's manual of at most about 12 KB with the two
-commands, every "design §N" the code cites is a section of docs/design.md, and the history of
-how the code was made (sessions, campaign hashes, trial ids) stays in CHANGELOG.md."""
+commands, every "design §N", "algorithm §N" and "operations §N" the code cites is a section of
+docs/design.md, docs/algorithm.md or docs/operations.md, and the history of how the code was
+made (sessions, campaign hashes, trial ids) stays in CHANGELOG.md."""
 
 from __future__ import annotations
 
@@ -35,29 +36,61 @@ HISTORY = {
     "a campaign hash": re.compile(r"\bcampaigns? (at )?[0-9a-f]{7}\b"),
 }
 TRIAL_ID = re.compile(r"\b[a-z_]+/(high|mid|low)/(rrg-info|rrg-goal|open-loop)\S*#\d+")
-DESIGN_REF = re.compile(r"design (?:§|sections? )(\d+)(?:\s*[-–,]\s*(?:and )?(\d+))?")
+#: The manual's pages and the sections each holds; the code cites them as "design §7",
+#: "algorithm §3" or "operations §8" (also "docs/algorithm.md §3", "[algorithm.md](...) §3").
+MANUAL = {"design": {1, 7, 9}, "algorithm": {2, 3, 4, 5, 6}, "operations": {8}}
+SECTION_REF = re.compile(
+    r"\b(design|algorithm|operations)(?:\.md(?:\]\([\w./]*\))?)? (?:§|sections? )(\d+)"
+    r"(?:\s*[-–,]\s*(?:and )?§?(\d+))?"
+)
 
 
 def test_the_readme_is_a_short_manual_with_the_two_commands():
     text = (ROOT / "README.md").read_text()
     assert len(text.encode()) <= README_MAX_BYTES
     assert "./scripts/run.sh" in text and "./scripts/test.sh" in text
-    assert "docs/design.md" in text and "CHANGELOG.md" in text
+    assert all(f"docs/{page}.md" in text for page in MANUAL) and "CHANGELOG.md" in text
 
 
-def test_every_design_reference_names_a_section_of_the_design():
-    sections = {
-        int(n) for n in re.findall(r"^## (\d+)\. ", (ROOT / "docs/design.md").read_text(), re.M)
-    }
-    assert sections == set(range(1, 10))
+def _sections(page: str) -> set[int]:
+    text = (ROOT / "docs" / f"{page}.md").read_text()
+    return {int(n) for n in re.findall(r"^## (\d+)\. ", text, re.M)}
+
+
+def test_the_manual_keeps_its_section_numbers():
+    assert {page: _sections(page) for page in MANUAL} == MANUAL
+
+
+def test_every_section_reference_names_a_section_of_its_page():
     cited = {}
     for path in FILES:
-        for m in DESIGN_REF.finditer(path.read_text(errors="replace")):
-            for n in m.groups():
+        for m in SECTION_REF.finditer(path.read_text(errors="replace")):
+            page, *numbers = m.groups()
+            for n in numbers:
                 if n is not None:
-                    cited.setdefault(int(n), path.relative_to(ROOT).as_posix())
-    assert len(cited) >= 5  # the code does cite it
-    assert {n: f for n, f in cited.items() if n not in sections} == {}
+                    cited.setdefault((page, int(n)), path.relative_to(ROOT).as_posix())
+    for page in MANUAL:  # the code does cite each page
+        assert len([n for p, n in cited if p == page]) >= len(MANUAL[page]) // 2 + 1, page
+    assert {ref: f for ref, f in cited.items() if ref[1] not in MANUAL[ref[0]]} == {}
+
+
+def test_the_section_pattern_finds_citations():
+    """Every form the code, the docs and the interfaces use (the section sign and word are
+    spliced in, so that this file cites nothing)."""
+    s, w = "§", "sections"
+    text = (
+        f"(design {s}7) docs/algorithm.md {s}3, [operations.md](operations.md) {s}8;"
+        f" (algorithm {s}2, {s}4) design {w} 6-7 (algorithm {s}6, design {s}7)"
+    )
+    assert [m.groups() for m in SECTION_REF.finditer(text)] == [
+        ("design", "7", None),
+        ("algorithm", "3", None),
+        ("operations", "8", None),
+        ("algorithm", "2", "4"),
+        ("design", "6", "7"),
+        ("algorithm", "6", None),
+        ("design", "7", None),
+    ]
 
 
 @pytest.mark.parametrize("path", FILES, ids=lambda p: p.relative_to(ROOT).as_posix())

@@ -1,4 +1,4 @@
-"""``rrg-launch``'s supervision of its children (design §8): stopping escalates from SIGINT to
+"""``rrg-launch``'s supervision of its children (operations §8): stopping escalates from SIGINT to
 SIGTERM to SIGKILL, and a child that dies while the graph runs is reported, published as a
 NodeEvent and restarted after a growing delay, until its restarts are used up and the launcher
 gives up. Small stand-in children (tests/launch_children.py) keep these fast and deterministic;

@@ -1,5 +1,5 @@
-"""Crashed nodes in the middle of a robust grasp (design §8): the launcher respawns a node killed
-with SIGKILL, and the grasp goes on. A restarted estimator restores its belief, a lost
+"""Crashed nodes in the middle of a robust grasp (operations §8): the launcher respawns a node
+killed with SIGKILL, and the grasp goes on. A restarted estimator restores its belief, a lost
 execution is brought home and chosen again, a restarted planner resumes the grasp; the grasp
 completes and the simulator judges it, the bag records the restart, and no log holds a
 traceback. A dead simulator is a robot fault: the grasp aborts with ROBOT_FAULT and the bag is

@@ -1,5 +1,5 @@
-"""Long runs (design §8): ``rrg-launch --grasps N`` runs N robust grasps in one graph and reports
-each grasp, each node's memory, threads and file descriptors, and the event messages the bag
+"""Long runs (operations §8): ``rrg-launch --grasps N`` runs N robust grasps in one graph and
+reports each grasp, each node's memory, threads and file descriptors, and the event messages the bag
 lost. A 10-grasp soak of the box (high uncertainty: several actions per grasp, so retreats
 between them) judges every grasp, hangs on none, loses no observation or belief, and ends with
 the thread and file-descriptor counts it had after its first grasp."""

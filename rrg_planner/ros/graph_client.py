@@ -1,4 +1,5 @@
-"""The executor and estimator nodes as the closed loop's World and Estimator (design §6–7).
+"""The executor and estimator nodes as the closed loop's World and Estimator
+(algorithm §6, design §7).
 
 ``GraphClient`` is what the planner node's robust-grasp action hands to
 ``rrg_planner.closed_loop.ClosedLoop``: ``execute`` runs ``/rrg/execute_wrt`` (the executor
@@ -10,7 +11,7 @@ the retreat. The planner never computes a belief itself: the estimator node owns
 Every wait polls ``interrupted`` (a cancel request or shutdown) and has a timeout; failures
 raise GraphError with the robust-grasp result code that names them.
 
-Restarted nodes (design §8): the executor and the estimator announce themselves
+Restarted nodes (operations §8): the executor and the estimator announce themselves
 (rrg_sim.ros_common.liveliness), so a wait on one that dies ends at once. A lost execution is
 recovered: once the executor is back, the hand is retreated home (a restarted executor that
 has no path to retrace backs out and rises) and ``execute`` raises ExecutionLost, so the agent

@@ -21,7 +21,7 @@ Services and actions:
 The decisions are the core's (rrg_planner.agent.RobustGraspAgent) and the belief is the estimator
 node's: this node only moves messages.
 
-Recovery (design §8): with ``state_file`` set, the node writes a running grasp's progress
+Recovery (operations §8): with ``state_file`` set, the node writes a running grasp's progress
 (rrg_planner.grasp_state) after every step. A restarted planner that receives the same robust
 grasp again with ``resume`` set goes on with it: it brings the hand home through the executor,
 then decides on the estimator's current belief with the steps it had taken. Lost executions

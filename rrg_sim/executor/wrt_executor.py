@@ -1,5 +1,5 @@
-"""Executing a world-relative trajectory on a robot (design §4): the one sequence that the physics
-world runs in-process and the executor node runs over ROS against the arm/hand interface.
+"""Executing a world-relative trajectory on a robot (algorithm §4): the one sequence that the
+physics world runs in-process and the executor node runs over ROS against the arm/hand interface.
 
 τ(e) → straight Cartesian segments, densified and solved to one continuous IK chain
 (physics.trajectory.plan_path) → joint via-points timed per segment → a guarded move that

@@ -1,4 +1,4 @@
-"""WRT construction from an object's primitives (design §4; paper, "Generating WRTs").
+"""WRT construction from an object's primitives (algorithm §4; paper, "Generating WRTs").
 
 * Goal WRTs are hand-designed by a hand orientation and a line the hand's approach axis
   follows through the object (``line_grasp_wrt``); the final pose is where the hand first

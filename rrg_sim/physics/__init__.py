@@ -1,4 +1,4 @@
-"""The MuJoCo physics world RRG's trials run in and are judged by (design §2; ROS-free).
+"""The MuJoCo physics world RRG's trials run in and are judged by (algorithm §2; ROS-free).
 
 ``world.PhysicsWorld`` is the simulated robot: WAM + BarrettHand + Nano17s on a table with
 one catalogue object. ``runner.run_wrt`` executes a WRT τ(e) end to end; ``judge`` lifts and

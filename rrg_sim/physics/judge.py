@@ -1,4 +1,4 @@
-"""Judging a grasp in physics (design §6 "Success in simulation").
+"""Judging a grasp in physics (algorithm §2, "Judging").
 
 After a goal WRT has closed the hand, the grasp succeeds iff
 

@@ -1,4 +1,5 @@
-"""Execute one WRT τ(e) end to end in physics, through the core's IK (design §4, §8).
+"""Execute one WRT τ(e) end to end in physics, through the core's IK
+(algorithm §4, operations §8).
 
 ``run_wrt(world, wrt, e)`` checks F_τ(e) as the planner does (``wam.feasible_path``), runs
 the guarded moves and the closing, optionally judges the grasp (lift and hold), and

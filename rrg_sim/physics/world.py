@@ -1,4 +1,4 @@
-"""PhysicsWorld: the MuJoCo stand-in for the real robot (design §2, §4).
+"""PhysicsWorld: the MuJoCo stand-in for the real robot (algorithm §2, §4).
 
 One scene (WAM + BarrettHand + table + one catalogue object as a free body). The API mirrors
 what the robot offers the executor: place the object (simulation only), run a WRT τ(e) as
