@@ -8,9 +8,9 @@ The first SIGINT or SIGTERM is latched, not raised: rclpy's own handlers chain t
 which raises KeyboardInterrupt at whatever bytecode the main thread is running. Landing inside
 rclpy's ``Task.__init__`` it left a half-built task, whose ``__del__`` printed a traceback
 ("'Task' object has no attribute '_exception'"); in a single-threaded node it cut the callback
-in hand short. The spin loop shuts the context down at the latch, once the callback in hand
-has returned. A second signal while the node spins (the launcher's escalation) raises
-KeyboardInterrupt, for a callback that does not return.
+in hand short. The spin loop ends at the latch, once the callback in hand has returned, and
+``run_node`` shuts the context down. A second signal while the node spins (the launcher's
+escalation) raises KeyboardInterrupt, for a callback that does not return.
 """
 
 from __future__ import annotations
@@ -138,15 +138,12 @@ def release_free_memory() -> None:
 
 
 def spin_until_shutdown(executor: Executor, stop: Callable[[], bool] = lambda: False) -> None:
-    """Spin ``executor`` until its context shuts down, or until ``stop()`` turns true, which
-    shuts the context down. A shutdown (a signal's handler) that lands while it waits makes
-    rclpy raise RCLError ("the given context is not valid") from the wait; that ends the spin
-    like any other shutdown."""
+    """Spin ``executor`` until its context shuts down, or until ``stop()`` turns true (the
+    caller then shuts the context down). A shutdown (a signal's handler) that lands while it
+    waits makes rclpy raise RCLError ("the given context is not valid") from the wait; that
+    ends the spin like any other shutdown."""
     context = executor.context
-    while context.ok():
-        if stop():
-            context.try_shutdown()
-            return
+    while context.ok() and not stop():
         try:
             executor.spin_once(timeout_sec=0.1)
         except RCLError:
