@@ -260,14 +260,15 @@ def replay(ids: list[str], seed: int, world: str, version: str, workers: int) ->
 def replay_check(path: Path, version: str, workers: int) -> int:
     """Run the trials of the records in ``path`` again and print the ones whose records
     differ; 0 when every one is the same, 1 otherwise, 2 when there is nothing to run."""
-    old = {r["id"]: r for r in load_records(path)}
+    key = lambda r: (r["id"], r["world"], r["base_seed"])  # one id runs in several worlds
+    old = {key(r): r for r in load_records(path)}
     if not old:
         print(f"error: no trial records in {path}", file=sys.stderr)
         return 2
     specs = [spec_of(r) for r in old.values()]
     differing = 0
     for record in run_records(specs, version, workers):
-        changes = record_differences(old[record["id"]], record)
+        changes = record_differences(old[key(record)], record)
         if changes:
             differing += 1
             print(f"DIFFERS {record['id']} ({record['world']}, base seed {record['base_seed']})")

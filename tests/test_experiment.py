@@ -359,10 +359,12 @@ def test_replay_writes_records_that_replay_check_reproduces(tmp_path, capsys):
     assert [r["id"] for r in sorted(records, key=lambda r: r["trial"])] == ids
     assert {(r["base_seed"], r["world"]) for r in records} == {(7, "realistic")}
     assert all(r["commit"] for r in records)
+    assert main(["--replay", ids[0], "--seed", "7", "--world", "nominal", "--workers", "1"]) == 0
+    lines += capsys.readouterr().out.splitlines()  # the same id in another world
     path = tmp_path / "before.jsonl"
     path.write_text("\n".join(lines) + "\n")
     assert main(["--replay-check", str(path), "--workers", "1"]) == 0
-    assert "2/2 trials gave the same records" in capsys.readouterr().out
+    assert "3/3 trials gave the same records" in capsys.readouterr().out
     records[1]["n_actions"] += 1
     path.write_text("".join(json.dumps(r) + "\n" for r in records))
     assert main(["--replay-check", str(path), "--workers", "1"]) == 1
