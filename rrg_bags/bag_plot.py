@@ -26,7 +26,7 @@ from rrg_bags.bag_read import (
 )
 from rrg_estimator.belief import Belief
 from rrg_estimator.ros.belief_msgs import belief_from_msg
-from rrg_sim.poses import wrap_angle
+from rrg_models.poses import wrap_angle
 
 
 @dataclass

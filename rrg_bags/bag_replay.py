@@ -35,16 +35,16 @@ from rrg_bags.bag_read import (
     read_messages,
 )
 from rrg_bags.bag_schema import same_layout
+from rrg_common.ros.msg_conversions import observation_from_msg, planar_from_msg, stamp_to_ns
 from rrg_estimator.config import LEVELS
 from rrg_estimator.grid import Grid
 from rrg_estimator.ros.belief_msgs import belief_from_msg
 from rrg_estimator.tracker import BeliefTracker, CachedTables
+from rrg_models.objects import ObjectModel, get_object
 from rrg_planner.agent import RobustGraspAgent
 from rrg_planner.closed_loop import decide
 from rrg_planner.config import REPLAY_TOLERANCE, SEARCH
 from rrg_planner.planning_model import PlanningModel
-from rrg_sim.objects import ObjectModel, get_object
-from rrg_sim.ros_common.msg_conversions import observation_from_msg, planar_from_msg, stamp_to_ns
 
 RETREATED_TOPIC = "/rrg/retreated"
 PARAMETER_EVENTS_TOPIC = "/parameter_events"

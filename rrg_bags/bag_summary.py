@@ -21,7 +21,7 @@ from rrg_bags.bag_read import (
     OBSERVATION_TOPIC,
     read_messages,
 )
-from rrg_sim.config import SENSOR_NAMES
+from rrg_models.config import SENSOR_NAMES
 
 
 @dataclass

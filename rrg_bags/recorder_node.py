@@ -42,8 +42,8 @@ from rclpy.utilities import remove_ros_args
 
 from rrg_bags.bag_schema import UnknownMessageType, message_class
 from rrg_bags.bag_writer import RecordingStopped, Rosbag2McapWriter
-from rrg_sim.ros_common.diagnostics import ERROR, Health, NodeDiagnostics
-from rrg_sim.ros_common.parameters import Param, declare
+from rrg_common.ros.diagnostics import ERROR, Health, NodeDiagnostics
+from rrg_common.ros.parameters import Param, declare
 
 NODE_NAME = "rrg_bag_recorder"
 #: Longest time [s] spent writing the already received messages after a stop signal (below the
@@ -89,7 +89,7 @@ def subscription_qos(publishers: list[TopicEndpointInfo], depth: int) -> QoSProf
     )
 
 
-#: The node's parameters (rrg_sim.ros_common.parameters).
+#: The node's parameters (rrg_common.ros.parameters).
 PARAMETERS: tuple[Param, ...] = (
     Param("discovery_period", 0.2, "Period [s] of the poll for new topics", low=0.05, high=10.0),
     Param(

@@ -21,8 +21,8 @@ import yaml
 
 from rrg_estimator.config import LEVELS
 from rrg_hw_bridge.contact_guard import DEFAULT_PAD_SOURCE, UNSENSED_PADS
-from rrg_sim.config import WORLD
-from rrg_sim.poses import compose_planar
+from rrg_models.config import WORLD
+from rrg_models.poses import compose_planar
 
 ROOT = Path(__file__).resolve().parents[1]
 RECORDER = "rrg_bag_recorder"
@@ -61,7 +61,7 @@ GRASP_TIMEOUT_S = 600.0
 #: Module of each node process, in start order (the recorder is started first, stopped last).
 NODES = {
     "sim": "rrg_sim.ros.sim_node",
-    "fake_hw": "rrg_hw_bridge.fake.fake_hw_node",
+    "fake_hw": "rrg_fake_hw.fake_hw_node",
     "hw_bridge": "rrg_hw_bridge.ros.bridge_node",
     "executor": "rrg_sim.executor.executor_node",
     "estimator": "rrg_estimator.ros.estimator_node",
@@ -460,9 +460,9 @@ class Graph:
         from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
         from rclpy.signals import SignalHandlerOptions
 
+        from rrg_common.ros.liveliness import PeerWatch
         from rrg_msgs.msg import NodeEvent
         from rrg_planner.client import RRGClient
-        from rrg_sim.ros_common.liveliness import PeerWatch
 
         os.environ.update(
             {
@@ -620,10 +620,10 @@ class Graph:
         ``verbose``: print a line per step."""
         from std_srvs.srv import Trigger
 
+        from rrg_common.ros.msg_conversions import planar_to_msg
         from rrg_msgs.action import RobustGrasp
         from rrg_msgs.srv import ResetSim
         from rrg_planner.client import GraspFeedback, RRGError
-        from rrg_sim.ros_common.msg_conversions import planar_to_msg
 
         if self.simulated:
             reset = self.result(
@@ -776,7 +776,7 @@ def warm_tables(object_name: str, levels: list[str]) -> None:
     given levels, before any node starts: the nodes then only read the cache (they must not
     fork build workers while running DDS threads)."""
     from rrg_estimator.obs_tables import load_or_build
-    from rrg_sim.objects import get_object
+    from rrg_models.objects import get_object
 
     obj = get_object(object_name)
     for level in levels:

@@ -64,10 +64,10 @@ from rrg_bringup.graph import (
     warm_tables,
 )
 from rrg_estimator.config import LEVELS
+from rrg_models.objects import PAPER_OBJECTS, object_names
 from rrg_planner.config import SEARCH
 from rrg_planner.request_checks import STRATEGIES
 from rrg_sim.config import WORLD_PROFILES, world_spec
-from rrg_sim.objects import PAPER_OBJECTS, object_names
 
 
 def hw_param(text: str) -> tuple[str, str]:

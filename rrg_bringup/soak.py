@@ -52,7 +52,7 @@ from rrg_bringup.graph import (
     LaunchTimeout,
     draw_pose,
 )
-from rrg_sim.objects import object_names
+from rrg_models.objects import object_names
 
 #: The grasp whose sample is the baseline of the memory growth in a long run.
 BASELINE_GRASP = 20

@@ -14,7 +14,7 @@ import numpy as np
 
 from rrg_estimator.config import UncertaintyLevel
 from rrg_estimator.grid import Grid
-from rrg_sim.poses import wrap_angle
+from rrg_models.poses import wrap_angle
 
 
 @dataclass(frozen=True, eq=False)

@@ -12,7 +12,7 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
 
-from rrg_sim.config import SENSOR_NAMES
+from rrg_models.config import SENSOR_NAMES
 
 
 # ------------------------------------------------------------------- belief grid
@@ -78,7 +78,7 @@ class LikelihoodParams:
     outlier_closure: float = 0.05
     outlier_tip: float = 0.05
     floor: float = 1e-3  # ε: no single observation rules a state out
-    #: Sensors (rrg_sim.config.SENSOR_NAMES indices) the robot has no reading of, e.g. the
+    #: Sensors (rrg_models.config.SENSOR_NAMES indices) the robot has no reading of, e.g. the
     #: proximal pads of a real BarrettHand, whose tactile pucks sit on the fingertips and the
     #: palm only: their terms are left out of the likelihood (marginalized), so a silence they
     #: cannot break is not taken for a missed contact. Empty: every sensor reads.
@@ -91,7 +91,7 @@ LIKELIHOOD = LikelihoodParams()
 def likelihood_without(
     sensor_names: Iterable[str], params: LikelihoodParams = LIKELIHOOD
 ) -> LikelihoodParams:
-    """``params`` with the named sensors (rrg_sim.config.SENSOR_NAMES) unsensed; ValueError
+    """``params`` with the named sensors (rrg_models.config.SENSOR_NAMES) unsensed; ValueError
     for a name that is not a sensor."""
     names = [n for n in sensor_names if n]
     unknown = [n for n in names if n not in SENSOR_NAMES]

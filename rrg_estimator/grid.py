@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rrg_sim.poses import wrap_angle
+from rrg_models.poses import wrap_angle
 
 from .config import UncertaintyLevel
 

@@ -45,10 +45,10 @@ from scipy.ndimage import convolve1d
 
 from rrg_estimator.config import LIKELIHOOD, LikelihoodParams
 from rrg_estimator.grid import Grid
-from rrg_sim.config import N_SENSORS
-from rrg_sim.observation import Observation
-from rrg_sim.poses import wrap_angle
-from rrg_sim.wrt import WRT
+from rrg_models.config import N_SENSORS
+from rrg_models.observation import Observation
+from rrg_models.poses import wrap_angle
+from rrg_models.wrt import WRT
 
 T = TypeVar("T")
 

@@ -27,9 +27,12 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from rrg_common.parallel import fork_map
 from rrg_estimator.config import LEVELS, UncertaintyLevel
 from rrg_estimator.grid import Grid
-from rrg_sim import config
+from rrg_models import config
+from rrg_models.observation import Observation
+from rrg_models.wrt import WRT
 from rrg_sim.config import WorldProfile, world_profile
 from rrg_sim.geometric_sim import (
     SIM_VERSION,
@@ -38,9 +41,6 @@ from rrg_sim.geometric_sim import (
     ObservationArrays,
     SweptPath,
 )
-from rrg_sim.observation import Observation
-from rrg_sim.parallel import fork_map
-from rrg_sim.wrt import WRT
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +53,7 @@ ARRAY_FIELDS = tuple(ObservationArrays.__dataclass_fields__)
 class ObservationTable:
     """Ω_τ(Δ) of one WRT and object over a grid of offsets Δ (centre (0,0,0)).
 
-    Arrays are over the grid's N points in flat order (see rrg_sim.observation.Observation):
+    Arrays are over the grid's N points in flat order (see rrg_models.observation.Observation):
     contact (N,) bool, progress (N,) float32 [m], sensors (N,10) bool, closure (N,3) float32
     [rad], tip_points / tip_normals (N,3,3) float32 in the hand frame (NaN = no contact),
     motion_dir (N,3) float32 and stop_pose (N,4,4) float32 in the estimate's frame e₀.
@@ -316,7 +316,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     """``--bench OBJECT``: time fresh builds of an object's tables (no cache) and print the
     figures: per WRT, seconds and µs per simulation; with ``--draws K``, the marginal table's
     too."""
-    from rrg_sim.objects import get_object
+    from rrg_models.objects import get_object
 
     p = argparse.ArgumentParser(prog="python -m rrg_estimator.obs_tables", description=main.__doc__)
     p.add_argument("--bench", metavar="OBJECT", required=True, help="catalogue object name")

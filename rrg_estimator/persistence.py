@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
+from rrg_common.state_file import check_format, read_state, write_atomically
 from rrg_estimator.belief import Belief
 from rrg_estimator.grid import Grid
 from rrg_estimator.tracker import BeliefTracker, WrtTables
-from rrg_sim.objects import get_object
-from rrg_sim.state_file import check_format, read_state, write_atomically
+from rrg_models.objects import get_object
 
 #: Bumped when the stored fields change; a state of another format is refused.
 STATE_FORMAT = 2

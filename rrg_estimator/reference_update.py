@@ -16,8 +16,8 @@ import numpy as np
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import LIKELIHOOD, TRANSITION, LikelihoodParams, TransitionParams
 from rrg_estimator.obs_model import ObsFeatures, TableLike
-from rrg_sim.observation import Observation
-from rrg_sim.poses import wrap_angle
+from rrg_models.observation import Observation
+from rrg_models.poses import wrap_angle
 
 #: Per-axis bump factors below this are skipped (≈ 7σ out; far below float32 likelihoods).
 _NEGLIGIBLE = 1e-12

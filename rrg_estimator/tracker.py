@@ -25,12 +25,12 @@ import numpy as np
 
 from rrg_estimator.config import LEVELS, LIKELIHOOD, LikelihoodParams, UncertaintyLevel
 from rrg_estimator.grid import Grid
-from rrg_sim.config import REORIENT_MIN_FINGERS
-from rrg_sim.goal import holds_object
-from rrg_sim.objects import ObjectModel, get_object
-from rrg_sim.observation import Observation
+from rrg_models.config import REORIENT_MIN_FINGERS
+from rrg_models.goal import holds_object
+from rrg_models.objects import ObjectModel, get_object
+from rrg_models.observation import Observation
+from rrg_models.wrt import WRT
 from rrg_sim.posture_calibration import PostureCalibration
-from rrg_sim.wrt import WRT
 
 from .belief import Belief
 from .obs_model import TableLike, likelihood_params

@@ -24,9 +24,9 @@ from threadpoolctl import ThreadpoolController
 
 from rrg_estimator.config import TRANSITION, TransitionParams
 from rrg_estimator.grid import Grid
-from rrg_sim.goal import Settling
-from rrg_sim.poses import compose_planar, relative_planar, wrap_angle
-from rrg_sim.wrt import ReorientOutcome
+from rrg_models.goal import Settling
+from rrg_models.poses import compose_planar, relative_planar, wrap_angle
+from rrg_models.wrt import ReorientOutcome
 
 from .belief import Belief
 

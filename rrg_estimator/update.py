@@ -8,7 +8,7 @@ from numba import njit
 
 from rrg_estimator.config import LIKELIHOOD, LikelihoodParams
 from rrg_estimator.grid import Grid
-from rrg_sim.observation import Observation
+from rrg_models.observation import Observation
 
 from .belief import Belief
 from .obs_model import (

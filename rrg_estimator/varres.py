@@ -21,7 +21,7 @@ import numpy as np
 
 from rrg_estimator.config import LEVELS, VARRES_EPS, VARRES_RECENTER, UncertaintyLevel
 from rrg_estimator.grid import Grid
-from rrg_sim.poses import wrap_angle
+from rrg_models.poses import wrap_angle
 
 from .belief import Belief
 from .transition import sample_density

@@ -39,10 +39,10 @@ from rrg_experiments.trials import (
     run_campaign,
     spec_of,
 )
+from rrg_models.objects import PAPER_OBJECTS, object_names
 from rrg_planner.config import SEARCH
 from rrg_planner.request_checks import STRATEGIES
 from rrg_sim.config import PROFILE_KNOBS, WORLD_PROFILES, world_spec
-from rrg_sim.objects import PAPER_OBJECTS, object_names
 
 QUICK = dict(objects=["box"], levels=["low", "high"], trials=2, fig9_trials=0)
 FIG9_DELTAS = (0.5, 0.3, 0.1, 0.03)

@@ -28,9 +28,9 @@ import numpy as np
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import LEVELS
 from rrg_experiments.trials import load_records, model_levels
+from rrg_models.config import WORLD
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.search import ForwardSearch, SparseBelief
-from rrg_sim.config import WORLD
 
 
 def _expected_value(search: ForwardSearch, sb: SparseBelief, sequence: tuple[int, ...]) -> float:

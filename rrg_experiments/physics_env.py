@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from rrg_sim.observation import Observation
+from rrg_models.observation import Observation
+from rrg_models.wrt import WRT
 from rrg_sim.physics.judge import judge_grasp
 from rrg_sim.physics.world import PhysicsWorld
-from rrg_sim.wrt import WRT
 
 
 class PhysicsEnvironment:

@@ -25,10 +25,13 @@ DEV_SEED = 0
 
 #: What defines the code's behaviour, relative to the repository root.
 CODE_PATHS = (
+    "rrg_models",
+    "rrg_common",
     "rrg_sim",
     "rrg_estimator",
     "rrg_planner",
     "rrg_hw_bridge",
+    "rrg_fake_hw",
     "rrg_experiments",
     "rrg_bags",
     "rrg_onboarding",

@@ -21,9 +21,9 @@ from rrg_experiments.calibration import (
     rrg_info_at_defaults,
     wilson,
 )
+from rrg_models.objects import PAPER_OBJECTS
+from rrg_models.objects.catalogue import get_object
 from rrg_planner.config import SEARCH
-from rrg_sim.objects import PAPER_OBJECTS
-from rrg_sim.objects.catalogue import get_object
 
 STRATEGY_LABELS = {"open-loop": "Open-loop", "rrg-goal": "RRG-Goal", "rrg-info": "RRG-Info"}
 

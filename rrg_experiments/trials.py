@@ -25,11 +25,11 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
+from rrg_common.parallel import fork_map
 from rrg_estimator.config import LEVELS
+from rrg_models.config import WORLD
+from rrg_models.poses import compose_planar
 from rrg_planner.config import SEARCH
-from rrg_sim.config import WORLD
-from rrg_sim.parallel import fork_map
-from rrg_sim.poses import compose_planar
 
 log = logging.getLogger(__name__)
 
@@ -161,8 +161,8 @@ def _model(obj: str, level: str, world: str, without: tuple[str, ...] = ()):
     """The planning model of a trial: the object's tables at the level's grids, and the world
     profile's calibration frames (the planner knows the profile, never a trial's draw), less
     the capabilities switched off."""
+    from rrg_models.objects import get_object
     from rrg_planner.planning_model import PlanningModel
-    from rrg_sim.objects import get_object
 
     def build() -> PlanningModel:
         names = None

@@ -2,7 +2,7 @@
 
 The file names the driver's joints in chain order (J1 … J7) with each joint's position range
 [rad], velocity limit [rad/s] and acceleration limit [rad/s²], a workspace box [m] in the world
-frame of ``rrg_sim.wam`` (the WAM base frame: J1's axis is z, the table top at
+frame of ``rrg_models.wam`` (the WAM base frame: J1's axis is z, the table top at
 ``WORLD.table_top_z``), and a ``source`` for every quantity. Layout::
 
     name: barrett_wam7
@@ -28,7 +28,7 @@ import numpy as np
 #: The limits file of the default arm (a Barrett WAM 7-DOF).
 DEFAULT_ARM_LIMITS = Path(__file__).parent / "arms" / "barrett_wam7.yaml"
 
-#: Joints of the arm the safety layer checks (rrg_sim.wam's kinematics: a 7-DOF WAM).
+#: Joints of the arm the safety layer checks (rrg_models.wam's kinematics: a 7-DOF WAM).
 N_JOINTS = 7
 #: Per-joint keys of the ``joints`` entries, in the order of ``ArmLimits``.
 JOINT_KEYS = ("lower", "upper", "max_velocity", "max_acceleration")
@@ -47,7 +47,7 @@ def _readonly(values) -> np.ndarray:
 class ArmLimits:
     """Limits of one arm: driver joint names, position range lower/upper [rad], max_velocity
     [rad/s] and max_acceleration [rad/s²] per joint (7,), and the workspace box
-    workspace_min/workspace_max (3,) [m] (x, y, z in rrg_sim.wam's world frame)."""
+    workspace_min/workspace_max (3,) [m] (x, y, z in rrg_models.wam's world frame)."""
 
     joint_names: tuple[str, ...]
     lower: np.ndarray

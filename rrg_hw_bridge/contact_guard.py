@@ -2,10 +2,10 @@
 
 ``HandState`` keeps the newest reading of every sensor the drivers stream (Nano17 loads, pad
 forces, measured joint angles, arm joint efforts), tared for a guarded move as the simulator
-tares its sensors, and turns it into the ``Reading`` the executor gets (rrg_sim.hand_sensing:
+tares its sensors, and turns it into the ``Reading`` the executor gets (rrg_models.hand_sensing:
 the same thresholds and contact localisation as the simulator). ``ContactGuard`` decides, on
 every new sample, whether a guarded move must stop: a Nano17 over its threshold, a pad over
-its threshold in two pad samples running (rrg_sim.hand_sensing.StopConfirmation, the
+its threshold in two pad samples running (rrg_models.hand_sensing.StopConfirmation, the
 simulator's rule), or an arm joint's effort changed by more than the collision threshold
 since the move started.
 """
@@ -17,9 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rrg_sim.config import SENSING
-from rrg_sim.executor.wrt_executor import Reading
-from rrg_sim.hand_sensing import StopConfirmation, fired_sensors, reading_from_joints
+from rrg_models.config import SENSING
+from rrg_models.hand_sensing import Reading, StopConfirmation, fired_sensors, reading_from_joints
 
 from .tactile import TACTILE_PADS_UNSENSED
 

@@ -18,7 +18,7 @@ Haddadin, De Luca and Albu-Schäffer, "Robot Collisions", IEEE T-RO 33(6), 2017,
 ṙ = K (τ_ext - r): it needs no acceleration, so the steps of a trajectory's acceleration do not
 show up as torque, and the motors' torque noise is averaged over 1/K.
 
-The model is what rrg_sim simulates (rrg_sim.physics.mjcf_robot); on a real arm its error
+The model is what rrg_sim simulates (rrg_models.description.mjcf_robot); on a real arm its error
 (friction, mass parameters, cable stretch) remains in the estimate, which is why the bridge
 reports the residual it sees in free motion (docs/hardware.md, first day).
 """
@@ -31,7 +31,7 @@ from collections import deque
 import mujoco
 import numpy as np
 
-from rrg_sim.physics.mjcf_robot import ARM_JOINTS, HAND_JOINTS, robot_xml
+from rrg_models.description.mjcf_robot import ARM_JOINTS, HAND_JOINTS, robot_xml
 
 from .config import BRIDGE
 

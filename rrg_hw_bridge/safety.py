@@ -12,7 +12,7 @@ an ``ArmLimits`` (rrg_hw_bridge.arm_limits), in this order:
    acceleration limits → JOINT_ACCELERATION_LIMIT. The arm rests before the first and after
    the last via-point (v = 0 over a segment of zero duration): a_0 = v_1 / (Δt_1 / 2). This is
    exact for a constant acceleration (segment mean velocities are mid-segment velocities);
-5. the hand frame origin (rrg_sim.wam.fk) and the arm's joint centres (rrg_sim.wam.arm_points)
+5. the hand frame origin (rrg_models.wam.fk) and the arm's joint centres (rrg_models.wam.arm_points)
    of every via-point inside the workspace box → WORKSPACE.
 
 A failed check returns a ``Refusal`` whose message names the first offending via-point (or
@@ -31,7 +31,7 @@ from typing import TypeVar
 
 import numpy as np
 
-from rrg_sim import wam
+from rrg_models import wam
 
 from .arm_limits import ArmLimits
 
@@ -41,7 +41,7 @@ POSITION_TOL = 1e-9
 #: joints at exactly their speed limit, which its via-points reproduce to ~ 1e-14).
 RATE_REL_TOL = 1e-9
 #: Names of the points the workspace check tests at every via-point: the hand frame origin,
-#: then rrg_sim.wam.arm_points (frames 3 and 4 origins either side of the elbow, frame 5 origin).
+#: then rrg_models.wam.arm_points (frames 3 and 4 origins either side of the elbow, frame 5 origin).
 WORKSPACE_POINTS = (
     "hand frame origin",
     "elbow (frame 3 origin)",

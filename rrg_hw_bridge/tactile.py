@@ -2,7 +2,7 @@
 
 Barrett's ROS 2 BarrettHand node publishes ``wam_msgs/TactilePressureArray``: four pucks in
 libbarrett's order (finger 1, finger 2, finger 3, palm), 24 cells each, pressure in N/cm². RRG's
-seven pads (rrg_sim.config.SENSOR_NAMES: palm, prox1-3, dist1-3) take a puck's force: the sum of
+seven pads (rrg_models.config.SENSOR_NAMES: palm, prox1-3, dist1-3) take a puck's force: the sum of
 its cells' pressures times the cell area. The real hand has no pads on its proximal links, so
 those never fire (as with derived pads).
 """

@@ -22,7 +22,7 @@ import sys
 from pathlib import Path
 
 from rrg_estimator.obs_tables import DEFAULT_CACHE_DIR
-from rrg_sim.objects import (
+from rrg_models.objects import (
     PAPER_OBJECTS,
     ObjectFileError,
     get_object,
@@ -30,8 +30,8 @@ from rrg_sim.objects import (
     unknown_object_message,
     user_objects_dir,
 )
-from rrg_sim.objects.mesh_import import UNITS_M, UP_AXES
-from rrg_sim.objects.object_model import REORIENTATION_FILE, SETTLING_FILE
+from rrg_models.objects.mesh_import import UNITS_M, UP_AXES
+from rrg_models.objects.object_model import REORIENTATION_FILE, SETTLING_FILE
 
 from .onboard import (
     DEFAULT_FRICTION,

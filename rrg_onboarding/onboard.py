@@ -1,10 +1,10 @@
 """``rrg-object add``: a mesh file onboarded as an installed object, stage by stage.
 
 1. *mesh*: read in its declared units and up axis, repaired and checked, stood on the table
-   (rrg_sim.objects.mesh_import);
+   (rrg_models.objects.mesh_import);
 2. *decompose*: CoACD's convex parts, one collision file each;
 3. *goal grasp*: the one given, or proposed: among the top-down pinches the info-grasp
-   generator finds on the parts (rrg_sim.objects.surface_pairs), narrower than the hand opens,
+   generator finds on the parts (rrg_models.objects.surface_pairs), narrower than the hand opens,
    whose descent is free and which the WAM reaches at the nominal pose, and side envelopes of
    the pinched faces (the object placed turned so that the WAM reaches them), a few distinct
    ones are each run from starts across twice the goal region in physics, and the one whose
@@ -38,34 +38,39 @@ import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from rrg_sim import wam
-from rrg_sim.config import WORLD
-from rrg_sim.objects import (
+from rrg_common.parallel import fork_map
+from rrg_models import wam
+from rrg_models.config import WORLD
+from rrg_models.objects import (
     ObjectFileError,
     Primitive,
     load_object_folder,
     object_folders,
     user_objects_dir,
 )
-from rrg_sim.objects.catalogue import USER_DIR_ENV
-from rrg_sim.objects.composites import turn_about_z
-from rrg_sim.objects.mesh_import import (
+from rrg_models.objects.catalogue import USER_DIR_ENV
+from rrg_models.objects.composites import turn_about_z
+from rrg_models.objects.mesh_import import (
     MeshError,
     check_mesh,
     convex_parts,
     import_mesh,
     stand_on_table,
 )
-from rrg_sim.objects.object_file import OBJECT_FILE
-from rrg_sim.objects.surface_pairs import MIN_FINGER_CLEARANCE, Pinch, finger_gap, pinch_candidates
-from rrg_sim.objects.wrt_generation import (
+from rrg_models.objects.object_file import OBJECT_FILE
+from rrg_models.objects.surface_pairs import (
+    MIN_FINGER_CLEARANCE,
+    Pinch,
+    finger_gap,
+    pinch_candidates,
+)
+from rrg_models.objects.wrt_generation import (
     line_grasp_wrt,
     side_rotation,
     top_down_poses,
     top_down_rotation,
 )
-from rrg_sim.parallel import fork_map
-from rrg_sim.poses import wrap_angle
+from rrg_models.poses import wrap_angle
 
 log = logging.getLogger(__name__)
 
@@ -105,7 +110,7 @@ ENVELOPE_DEPTH_M = 0.01
 ENVELOPE_BAND_M = 0.04
 #: Two envelopes whose approaches differ by less than this [rad] come at the same face.
 SAME_FACE_RAD = 0.1
-#: The pinch generator's preshapes by spread [rad] (rrg_sim.objects.surface_pairs).
+#: The pinch generator's preshapes by spread [rad] (rrg_models.objects.surface_pairs).
 PRESHAPES = {0.0: "finger 3 against fingers 1 and 2", float(np.pi / 2): "finger 1 against 2"}
 #: Headings [rad] about the nominal at which the goal grasp must run, or the object gets
 #: reorientation WRTs (as in tests of the paper objects).
@@ -118,7 +123,7 @@ class OnboardError(ValueError):
 
 @dataclass(frozen=True)
 class GoalSpec:
-    """A goal grasp as an object file holds it (rrg_sim.objects.object_file)."""
+    """A goal grasp as an object file holds it (rrg_models.objects.object_file)."""
 
     through_m: tuple[float, float, float]
     approach: str = "top_down"
@@ -132,7 +137,7 @@ class GoalSpec:
     #: the turn [rad] about z from the mesh as given to the object as placed on the table
     #: (the goal grasp is in the placed frame)
     placement_yaw_rad: float = 0.0
-    #: the goal region's centre (Δx [m], Δy [m], Δθ [rad]; rrg_sim.objects.GoalRegion)
+    #: the goal region's centre (Δx [m], Δy [m], Δθ [rad]; rrg_models.objects.GoalRegion)
     centre: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
@@ -541,8 +546,8 @@ def _measure_and_build(
     region about there, not where the estimate put the object. Reorientation WRTs that turn
     the object fully too rarely to fit are dropped: the goal grasp then runs only at the
     headings the WAM reaches."""
+    from rrg_models.objects import get_object
     from rrg_planner.planning_model import PlanningModel
-    from rrg_sim.objects import get_object
     from rrg_sim.physics import reorient_study, settle
     from rrg_sim.physics.render import render_goal_grasps
 

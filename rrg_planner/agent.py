@@ -19,12 +19,12 @@ import numpy as np
 
 from rrg_estimator.belief import Belief
 from rrg_estimator.update import goal_probability
+from rrg_models.goal import goal_grasp_mismatches
+from rrg_models.observation import Observation
 from rrg_planner.config import SEARCH
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.request_checks import check_choice
 from rrg_planner.search import ForwardSearch, SearchResult, SparseBelief
-from rrg_sim.goal import goal_grasp_mismatches
-from rrg_sim.observation import Observation
 
 log = logging.getLogger(__name__)
 
@@ -164,7 +164,7 @@ class RobustGraspAgent:
 
     def verify_goal(self, action: int, obs: Observation) -> list[str]:
         """For a goal WRT just executed: what its own observation says is wrong with the grasp
-        (rrg_sim.goal.goal_grasp_mismatches); [] for any other WRT, or with
+        (rrg_models.goal.goal_grasp_mismatches); [] for any other WRT, or with
         verification off. A grasp with a mismatch is not believed to hold, whatever the
         belief's P_b(G): its observation has already entered the belief, and the loop opens
         the hand and plans again."""

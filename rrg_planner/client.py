@@ -31,14 +31,14 @@ from typing import NamedTuple
 import numpy as np
 from rclpy.node import Node
 
+from rrg_common.ros.futures import ThreadSafeActionClient
+from rrg_common.ros.msg_conversions import planar_from_msg, planar_to_msg
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import LEVELS
 from rrg_estimator.ros.belief_msgs import belief_from_msg, belief_to_msg
 from rrg_msgs.action import RobustGrasp
 from rrg_msgs.msg import BeliefGrid
 from rrg_msgs.srv import GetBelief, ResetBelief, SelectAction
-from rrg_sim.ros_common.futures import ThreadSafeActionClient
-from rrg_sim.ros_common.msg_conversions import planar_from_msg, planar_to_msg
 
 #: The graph's namespace (every RRG service and action is under it).
 NAMESPACE = "/rrg"

@@ -37,12 +37,12 @@ import numpy as np
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import LEVELS, UncertaintyLevel
 from rrg_estimator.tracker import BeliefTracker
+from rrg_models.config import SENSOR_NAMES, WORLD
+from rrg_models.observation import Observation
+from rrg_models.wrt import WRT, InfeasibleWRT
 from rrg_planner.agent import MAX_BLOCKED, RobustGraspAgent
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.search import SearchResult
-from rrg_sim.config import SENSOR_NAMES, WORLD
-from rrg_sim.observation import Observation
-from rrg_sim.wrt import WRT, InfeasibleWRT
 
 log = logging.getLogger(__name__)
 

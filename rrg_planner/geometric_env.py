@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from rrg_sim.config import N_SENSORS, REORIENT_MIN_FINGERS, SENSING, SensingParams
+from rrg_models.config import N_SENSORS, REORIENT_MIN_FINGERS, SENSING, SensingParams
+from rrg_models.goal import goal_holds, holds_object
+from rrg_models.objects import ObjectModel
+from rrg_models.observation import Observation
+from rrg_models.poses import relative_planar
+from rrg_models.wrt import WRT
 from rrg_sim.geometric_sim import GeometricSimulator
-from rrg_sim.goal import goal_holds, holds_object
-from rrg_sim.objects import ObjectModel
-from rrg_sim.observation import Observation
-from rrg_sim.poses import relative_planar
-from rrg_sim.wrt import WRT
 
 from .search import full_turn
 

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rrg_common.state_file import check_format, read_state, write_atomically
 from rrg_planner.closed_loop import ClosedLoop, Step
-from rrg_sim.state_file import check_format, read_state, write_atomically
 
 #: Bumped when the stored fields change; a state of another format is refused.
 STATE_FORMAT = 1

@@ -16,15 +16,16 @@ from rrg_estimator.config import LEVELS, LIKELIHOOD, LikelihoodParams, Uncertain
 from rrg_estimator.grid import Grid
 from rrg_estimator.obs_model import likelihood_params
 from rrg_estimator.obs_tables import ObservationTable, load_or_build
+from rrg_models.config import REORIENT_MIN_FINGERS
+from rrg_models.goal import Settling, goal_weights, holds_object
+from rrg_models.objects import ObjectModel, get_object
+from rrg_models.wam_feasibility import FeasibilityMap
+from rrg_models.wrt import WRT
 from rrg_planner.clustering import ObservationClusters, cluster_table
 from rrg_planner.config import GOAL_AIM_FRACTION
-from rrg_sim.config import NOMINAL, REORIENT_MIN_FINGERS, WorldProfile, world_profile
+from rrg_sim.config import NOMINAL, WorldProfile, world_profile
 from rrg_sim.executor.wrt_executor import executed_poses
-from rrg_sim.goal import Settling, goal_weights, holds_object
-from rrg_sim.objects import ObjectModel, get_object
 from rrg_sim.posture_calibration import PostureCalibration
-from rrg_sim.wam_feasibility import FeasibilityMap
-from rrg_sim.wrt import WRT
 
 log = logging.getLogger(__name__)
 

@@ -13,9 +13,9 @@ import numpy as np
 
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import TRANSITION
+from rrg_models.poses import compose_planar, relative_planar, wrap_angle
 from rrg_planner.config import SEARCH, SearchParams
 from rrg_planner.planning_model import PlanningModel
-from rrg_sim.poses import compose_planar, relative_planar, wrap_angle
 
 Points = list[tuple[float, float, float]]
 

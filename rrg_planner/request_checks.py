@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from rrg_estimator.config import LEVELS
-from rrg_sim.objects import object_names, unknown_object_message
+from rrg_models.objects import object_names, unknown_object_message
 
 from .config import SEARCH
 

@@ -50,12 +50,12 @@ from rrg_estimator.belief import Belief
 from rrg_estimator.config import TRANSITION
 from rrg_estimator.grid import Grid
 from rrg_estimator.transition import displace
+from rrg_models.poses import compose_planar, relative_planar
+from rrg_models.wrt import ReorientOutcome
 from rrg_planner import search_kernels as kernels
 from rrg_planner.config import SEARCH, SearchParams
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.request_checks import check_search
-from rrg_sim.poses import compose_planar, relative_planar
-from rrg_sim.wrt import ReorientOutcome
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:

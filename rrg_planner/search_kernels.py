@@ -489,7 +489,7 @@ def child(
 
 @njit(cache=True)
 def _wrap_angle(a: float) -> float:  # pragma: no cover - compiled
-    """rrg_sim.poses.wrap_angle of one angle [rad]: the same remainder (skipped where it is
+    """rrg_models.poses.wrap_angle of one angle [rad]: the same remainder (skipped where it is
     the identity, on [0, 2π))."""
     shifted = a + np.pi
     if not (shifted >= 0 and shifted < _TWO_PI):

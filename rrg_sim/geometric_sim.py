@@ -7,7 +7,7 @@ computed (no dynamics): the object never moves. Collisions come from MuJoCo on a
 
 * the table top as the plane z = 0 (static, in ``world``);
 * the object as a free body holding its collision primitives (its qpos sets the pose w);
-* the hand from ``rrg_sim.hand.hand_tree()`` as one articulated free body (palm pose and
+* the hand from ``rrg_models.hand.hand_tree()`` as one articulated free body (palm pose and
   finger angles all set through qpos, distal joints coupled by hand).
 
 Only hand–object and hand–table pairs collide (contype/conaffinity). Unsensed hand parts
@@ -38,8 +38,8 @@ import numpy as np
 from numba import njit
 from scipy.spatial.transform import Rotation, Slerp
 
-from .config import GEOMSIM, N_SENSORS
-from .hand import (
+from rrg_models.config import GEOMSIM, N_SENSORS
+from rrg_models.hand import (
     FINGERS,
     LINKS,
     BodySpec,
@@ -50,10 +50,15 @@ from .hand import (
     hand_tree,
     joint_angles,
 )
-from .objects.primitives import Primitive, mjcf_mesh_asset, rotated_half_extents, union_bounds
-from .observation import Observation, grasp_arrived
-from .poses import planar_pose
-from .wrt import WRT
+from rrg_models.objects.primitives import (
+    Primitive,
+    mjcf_mesh_asset,
+    rotated_half_extents,
+    union_bounds,
+)
+from rrg_models.observation import Observation, grasp_arrived
+from rrg_models.poses import planar_pose
+from rrg_models.wrt import WRT
 
 FINE_PATH = 2**GEOMSIM.refine_iters  # fine path samples per coarse step
 FINE_CLOSE = 2**GEOMSIM.close_refine_iters  # fine closing angles per coarse step
@@ -71,7 +76,7 @@ class ObjectLike(Protocol):
 class ObservationArrays:
     """Predicted observations for N object offsets, in the path frame (see module doc).
 
-    Fields as in rrg_sim.observation.Observation; stop_pose is the hand pose at the stop.
+    Fields as in rrg_models.observation.Observation; stop_pose is the hand pose at the stop.
     """
 
     contact: np.ndarray  # (N,) bool

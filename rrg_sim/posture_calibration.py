@@ -7,7 +7,7 @@ every reading made in that posture sees the object moved by the same amount: at 
 position p, by M(p)·c. Two readings in one posture agree with each other, and a goal grasp in
 the posture of the readings that localized the object lands where they said; between postures
 the error differs, by 0-1.3 mm among top-down grasps and by 4-7 mm between top-down readings
-and a side grasp at σ 10 mrad (MuJoCo's WAM, rrg_sim.wam).
+and a side grasp at σ 10 mrad (MuJoCo's WAM, rrg_models.wam).
 
 So a belief is held in a *frame*: the posture class of the readings that made it ("" for the
 prior, which a camera gives in the world's frame). ``sigma(a, b)`` is the spread of the offset
@@ -30,12 +30,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import wam
-from .config import WORLD, WorldProfile
-from .executor.trajectory import InfeasiblePath
-from .executor.wrt_executor import wrt_path
-from .objects import ObjectModel
-from .poses import compose_planar, planar_map, relative_planar, wrap_angle
+from rrg_models import wam
+from rrg_models.config import WORLD
+from rrg_models.objects import ObjectModel
+from rrg_models.poses import compose_planar, planar_map, relative_planar, wrap_angle
+from rrg_models.trajectory import InfeasiblePath
+from rrg_sim.config import WorldProfile
+from rrg_sim.executor.wrt_executor import wrt_path
 
 #: Two postures whose offset's σ is within this (x [m], y [m], θ [rad]) share a frame (chosen:
 #: a fifth of the tightest goal tolerance, 1 cm and 0.14 rad; the top-down grasps of the ten

@@ -29,16 +29,16 @@ import logging
 import numpy as np
 from scipy.optimize import minimize
 
-from . import wam
-from .config import WORLD
-from .executor.trajectory import InfeasiblePath
-from .executor.wrt_executor import wrt_path
-from .hand import fingertip_points, hand_geoms_world
-from .objects import ObjectModel, get_object
-from .objects.object_model import TABLE_TOUCH_FILE
-from .poses import planar_pose
-from .posture_calibration import GRASP_CENTRE_Z, JACOBIAN_STEP, reading_posture
-from .wrt import WRT, table_touch_wrt
+from rrg_models import wam
+from rrg_models.config import WORLD
+from rrg_models.hand import fingertip_points, hand_geoms_world
+from rrg_models.objects import ObjectModel, get_object
+from rrg_models.objects.object_model import TABLE_TOUCH_FILE
+from rrg_models.poses import planar_pose
+from rrg_models.trajectory import InfeasiblePath
+from rrg_models.wrt import WRT, table_touch_wrt
+from rrg_sim.executor.wrt_executor import wrt_path
+from rrg_sim.posture_calibration import GRASP_CENTRE_Z, JACOBIAN_STEP, reading_posture
 
 log = logging.getLogger(__name__)
 
@@ -228,7 +228,7 @@ def reads_the_table(obj: ObjectModel, wrt: WRT) -> bool:
     """Whether the touch, run in the nominal MuJoCo world at the nominal pose with the object
     off it by each of CHECK_OFFSETS, reads the table within CHECK_TOLERANCE each time (no
     link or finger meets the object first)."""
-    from .physics.world import PhysicsWorld
+    from rrg_sim.physics.world import PhysicsWorld
 
     world = PhysicsWorld(obj.name, seed=0, touch_table=True)
     e = np.asarray(WORLD.nominal_pose, dtype=float)
@@ -302,8 +302,8 @@ def _report(name: str, fit: dict, _records) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from .objects import PAPER_OBJECTS
-    from .physics.settle import run_study, study_args
+    from rrg_models.objects import PAPER_OBJECTS
+    from rrg_sim.physics.settle import run_study, study_args
 
     args = study_args(argv, __doc__, list(PAPER_OBJECTS), "draws", 20, "prior estimates")
     run_study(

@@ -83,9 +83,9 @@ def floors(edges: dict[str, Counter]) -> dict[str, int]:
 
 
 def role(pkg: str) -> str:
-    """The package's docstring, on one line, in Markdown's code quotes."""
+    """The first paragraph of the package's docstring, on one line, in Markdown's code quotes."""
     doc = ast.get_docstring(ast.parse((ROOT / pkg / "__init__.py").read_text())) or pkg
-    return " ".join(doc.split()).replace("``", "`").rstrip(".")
+    return " ".join(doc.split("\n\n")[0].split()).replace("``", "`").rstrip(".")
 
 
 def layers_table(edges: dict[str, Counter]) -> str:

@@ -18,13 +18,13 @@ from collections import Counter
 
 import numpy as np
 
+from rrg_common.parallel import fork_map
 from rrg_experiments.report import judged_failures
-from rrg_sim.config import WORLD
-from rrg_sim.executor.trajectory import InfeasiblePath
-from rrg_sim.parallel import fork_map
+from rrg_models.config import WORLD
+from rrg_models.poses import compose_planar, raised
+from rrg_models.trajectory import InfeasiblePath
 from rrg_sim.physics.judge import judge_grasp
 from rrg_sim.physics.world import PhysicsWorld
-from rrg_sim.poses import compose_planar, raised
 
 
 def run(args: tuple[str, str, str, list[int]]) -> list[str]:

@@ -26,12 +26,12 @@ from rrg_estimator.config import LEVELS, UncertaintyLevel
 from rrg_estimator.grid import Grid
 from rrg_estimator.obs_model import likelihood_params
 from rrg_estimator.update import update
+from rrg_models.config import WORLD
+from rrg_models.poses import compose_planar
 from rrg_planner.config import SEARCH
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.search import ForwardSearch
-from rrg_sim.config import WORLD
 from rrg_sim.geometric_sim import GeometricSimulator
-from rrg_sim.poses import compose_planar
 
 FIXTURE = Path(__file__).resolve().parents[1] / "tests" / "data" / "search_decisions.json"
 

@@ -156,7 +156,7 @@ build_interfaces rrg_hw_bridge/interfaces/control_msgs .rrg-control_msgs-stamp \
 build_interfaces rrg_hw_bridge/interfaces/bhand_srvs .rrg-bhand_srvs-stamp bhand_srvs.srv
 build_interfaces rrg_hw_bridge/interfaces/wam_msgs .rrg-wam_msgs-stamp wam_msgs.msg
 build_interfaces rrg_hw_bridge/interfaces/wam_srvs .rrg-wam_srvs-stamp wam_srvs.srv
-build_interfaces rrg_sim/interfaces/tf2_msgs .rrg-tf2_msgs-stamp tf2_msgs.msg
+build_interfaces rrg_common/interfaces/tf2_msgs .rrg-tf2_msgs-stamp tf2_msgs.msg
 build_interfaces rrg_msgs .rrg-msgs-stamp rrg_msgs.msg rrg_msgs.srv rrg_msgs.action
 
 # ------------------------------------------------------------------ Foxglove readers (npm)

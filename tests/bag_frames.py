@@ -1,4 +1,4 @@
-"""The tf check of a recorded bag: the test's own small tf buffer (rrg_sim.robot_frames.compose
+"""The tf check of a recorded bag: the test's own small tf buffer (rrg_models.robot_frames.compose
 over /tf_static and the /tf of one stamp) against the project's forward kinematics."""
 
 from __future__ import annotations
@@ -9,10 +9,10 @@ import numpy as np
 from rosbags.highlevel import AnyReader
 from scipy.spatial.transform import Rotation
 
-from rrg_sim import wam
-from rrg_sim.hand import FINGERS, body_poses_at
-from rrg_sim.robot_frames import compose
-from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES
+from rrg_common.ros.msg_conversions import ARM_JOINT_NAMES
+from rrg_models import wam
+from rrg_models.hand import FINGERS, body_poses_at
+from rrg_models.robot_frames import compose
 
 JOINTS = "/rrg/joint_states"
 
@@ -32,8 +32,8 @@ def transform_matrix(t) -> np.ndarray:
 
 def check_frames(bag: Path, atol_m: float = 1e-6) -> tuple[int, int]:
     """Assert that the bag's /tf_static and the /tf of each recorded joint state (the same
-    stamp), composed from ``world``, put the palm where rrg_sim.wam.fk puts the hand and each
-    fingertip where rrg_sim.hand puts it at those joint angles (within ``atol_m``), and that the
+    stamp), composed from ``world``, put the palm where rrg_models.wam.fk puts the hand and each
+    fingertip where rrg_models.hand puts it at those joint angles (within ``atol_m``), and that the
     object's estimated and true frames are in /tf; returns (joint states checked, recorded)."""
     static, by_stamp, states = [], {}, []
     with AnyReader([bag]) as reader:

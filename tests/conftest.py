@@ -31,7 +31,7 @@ def leaves_threads(path: Path) -> bool:
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """The modules that start rclpy or Ray in this process run last: their threads outlive their
     sessions, and a process forked while they run (the workers of the table builds, studies and
-    campaigns: rrg_sim.parallel) can inherit their locks held, and hang or crash."""
+    campaigns: rrg_common.parallel) can inherit their locks held, and hang or crash."""
     items.sort(key=lambda item: leaves_threads(item.path))
 
 

@@ -20,5 +20,5 @@ NODE_MODULES = (
     "rrg_planner.ros.planner_node",
     "rrg_bags.recorder_node",
     "rrg_hw_bridge.ros.bridge_node",
-    "rrg_hw_bridge.fake.fake_hw_node",
+    "rrg_fake_hw.fake_hw_node",
 )

@@ -279,8 +279,8 @@ class ArmWatch:
         """Whether the last state has a joint more than ``tolerance_rad`` from home."""
         import numpy as np
 
-        from rrg_sim import wam
-        from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES
+        from rrg_common.ros.msg_conversions import ARM_JOINT_NAMES
+        from rrg_models import wam
 
         if not self.states:
             return False

@@ -11,15 +11,15 @@ import pytest
 
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import UncertaintyLevel
+from rrg_models.config import WORLD
+from rrg_models.poses import compose_planar, relative_planar
+from rrg_models.wrt import WRT, InfeasibleWRT
 from rrg_planner.agent import RobustGraspAgent
 from rrg_planner.closed_loop import run_in_process
 from rrg_planner.config import SEARCH
 from rrg_planner.geometric_env import GeometricEnvironment
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.search import ForwardSearch
-from rrg_sim.config import WORLD
-from rrg_sim.poses import compose_planar, relative_planar
-from rrg_sim.wrt import WRT, InfeasibleWRT
 
 SMALL = UncertaintyLevel(
     "small", sigma=(0.02, 0.02, 0.2), spacing=(0.01, 0.01, 0.1), shape=(9, 9, 5)
@@ -221,8 +221,8 @@ def test_a_goal_grasp_whose_own_sensors_show_too_few_fingers_is_never_declared(m
 
 
 def test_goal_grasp_mismatches_name_what_the_sensors_miss():
-    from rrg_sim.goal import goal_grasp_mismatches
-    from rrg_sim.objects import get_object
+    from rrg_models.goal import goal_grasp_mismatches
+    from rrg_models.objects import get_object
 
     drill = get_object("powerdrill").goal
     sensors = np.zeros(10, bool)

@@ -10,29 +10,37 @@ import pytest
 from repo_layout import PACKAGES
 
 ROOT = Path(__file__).resolve().parents[1]
-#: The packages each package may import besides itself, from the bottom up: the simulator and
-#: the robot models; the belief over them; the search over the belief; the bridge, which stands
-#: in for the simulator; the tools on the planner (bags, experiments, onboarding); and bringup,
-#: the launcher and the benchmarks, on top of everything.
+#: The packages each package may import besides itself, from the bottom up: the robot's models;
+#: the plumbing every node shares; the simulators, and the bridge that stands in for them on a
+#: real robot (it knows the robot's models, never a simulator); the belief; the search over the
+#: belief; the emulated drivers (the MuJoCo world behind the real drivers' protocols); the tools
+#: on the planner (bags, experiments, onboarding); and bringup, the launcher and the benchmarks,
+#: on top of everything.
+BASE = {"rrg_models", "rrg_common"}
 ALLOWED = {
-    "rrg_sim": set(),
-    "rrg_estimator": {"rrg_sim"},
-    "rrg_planner": {"rrg_sim", "rrg_estimator"},
-    "rrg_hw_bridge": {"rrg_sim"},
-    "rrg_bags": {"rrg_sim", "rrg_estimator", "rrg_planner"},
-    "rrg_experiments": {"rrg_sim", "rrg_estimator", "rrg_planner"},
-    "rrg_onboarding": {"rrg_sim", "rrg_estimator", "rrg_planner", "rrg_experiments"},
-    "rrg_bringup": {
+    "rrg_models": set(),
+    "rrg_common": {"rrg_models"},
+    "rrg_sim": BASE,
+    "rrg_hw_bridge": BASE,
+    "rrg_estimator": BASE | {"rrg_sim"},
+    "rrg_planner": BASE | {"rrg_sim", "rrg_estimator"},
+    "rrg_fake_hw": BASE | {"rrg_sim", "rrg_hw_bridge"},
+    "rrg_bags": BASE | {"rrg_sim", "rrg_estimator", "rrg_planner"},
+    "rrg_experiments": BASE | {"rrg_sim", "rrg_estimator", "rrg_planner"},
+    "rrg_onboarding": BASE | {"rrg_sim", "rrg_estimator", "rrg_planner", "rrg_experiments"},
+    "rrg_bringup": BASE
+    | {
         "rrg_sim",
         "rrg_estimator",
         "rrg_planner",
         "rrg_hw_bridge",
+        "rrg_fake_hw",
         "rrg_bags",
         "rrg_experiments",
     },
 }
 #: Sub-packages and modules that may use rclpy (nodes, their clients and the shared plumbing).
-ROS_PARTS = ("ros", "ros_common")
+ROS_PARTS = ("ros",)
 #: Packages that are ROS tools throughout: the launcher and its benchmarks, and the bags.
 ROS_PACKAGES = ("rrg_bringup", "rrg_bags")
 ROS_MODULES = (
@@ -156,7 +164,8 @@ def test_no_import_cycles():
 
 def test_a_self_import_cycle_is_detected():
     """The cycle finder is not vacuous: a two-module cycle added to the graph is found."""
-    a, b = "rrg_sim.poses", "rrg_sim.config"
+    a, b = "rrg_models.poses", "rrg_models.config"  # poses imports config
+    assert b in GRAPH[a]
     saved = set(GRAPH[b])
     GRAPH[b].add(a)
     try:
@@ -168,11 +177,31 @@ def test_a_self_import_cycle_is_detected():
 
 @pytest.mark.parametrize("name", sorted(MODULES))
 def test_dependencies_run_one_way(name):
-    """rrg_planner → rrg_estimator → rrg_sim, rrg_planner → rrg_hw_bridge → rrg_sim: never
+    """Each module imports only its own package and the packages ALLOWED below it: never
     upward."""
     own = name.split(".")[0]
     upward = sorted(d for d in GRAPH[name] if d.split(".")[0] not in ALLOWED[own] | {own})
     assert upward == []
+
+
+def _reachable(name: str) -> set[str]:
+    """Every project module ``name`` imports, directly or through others."""
+    seen, todo = set(), [name]
+    while todo:
+        for dep in GRAPH[todo.pop()] - seen:
+            seen.add(dep)
+            todo.append(dep)
+    return seen
+
+
+@pytest.mark.parametrize("name", sorted(n for n in MODULES if n.startswith("rrg_hw_bridge.")))
+def test_the_bridge_imports_no_simulator(name):
+    """The bridge runs a real robot on the robot's models (rrg_models) and the shared plumbing
+    (rrg_common), never on a simulator's code, directly or through another module."""
+    simulators = sorted(
+        d for d in _reachable(name) if d.split(".")[0] in ("rrg_sim", "rrg_fake_hw")
+    )
+    assert simulators == []
 
 
 @pytest.mark.parametrize("name", sorted(n for n in MODULES if n.endswith("_node")))
@@ -211,5 +240,6 @@ def test_the_architecture_docs_layers_are_the_codes():
     assert script["main"](["--check"]) == 0
     edges, _ = script["package_graph"]()
     floors = script["floors"](edges)
-    assert floors["rrg_sim"] == 1 and floors["rrg_bringup"] == max(floors.values())
+    assert floors["rrg_models"] == 1 and floors["rrg_bringup"] == max(floors.values())
+    assert floors["rrg_hw_bridge"] <= floors["rrg_sim"]
     assert set(edges) == set(PACKAGES)

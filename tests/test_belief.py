@@ -8,8 +8,8 @@ import pytest
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import HIGH, LOW
 from rrg_estimator.grid import Grid
-from rrg_sim.config import WORLD
-from rrg_sim.poses import wrap_angle
+from rrg_models.config import WORLD
+from rrg_models.poses import wrap_angle
 
 
 def wide_grid(center, sigma, n=(41, 41, 41)) -> Grid:

@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 
 from rrg_estimator.config import HIGH
+from rrg_models.config import WORLD
+from rrg_models.poses import compose_planar
 from rrg_planner.agent import RobustGraspAgent
 from rrg_planner.closed_loop import run_in_process
 from rrg_planner.geometric_env import GeometricEnvironment
 from rrg_planner.planning_model import PlanningModel
-from rrg_sim.config import WORLD
-from rrg_sim.poses import compose_planar
 
 pytestmark = pytest.mark.slow  # closed-loop trials
 

@@ -27,7 +27,7 @@ VENDORED = (
     "rrg_hw_bridge/interfaces/wam_msgs",
     "rrg_hw_bridge/interfaces/wam_srvs",
     "rrg_hw_bridge/interfaces/bhand_srvs",
-    "rrg_sim/interfaces/tf2_msgs",
+    "rrg_common/interfaces/tf2_msgs",
 )
 #: What a copy of the repository leaves out without git (hidden, generated or outside git).
 GENERATED = (".*", "*.egg-info", "build", "install", "log", "bags", "results", "__pycache__")
@@ -165,7 +165,7 @@ PROBE = """
 import importlib, json, sys
 from ament_index_python.packages import get_package_prefix
 modules = ["rrg_sim", "rrg_estimator.ros.estimator_node", "rrg_planner.ros.planner_node",
-           "rrg_hw_bridge.ros.bridge_node", "rrg_sim.objects"]
+           "rrg_hw_bridge.ros.bridge_node", "rrg_models.objects"]
 print(json.dumps({
     "files": {m: importlib.import_module(m).__file__ for m in modules},
     "prefix": get_package_prefix("rrg_estimator"),

@@ -1,4 +1,4 @@
-"""Every node's health on /diagnostics (rrg_sim.ros_common.diagnostics): the planner node, built
+"""Every node's health on /diagnostics (rrg_common.ros.diagnostics): the planner node, built
 in this process, publishes a DiagnosticArray once a second under its status name, WARN while
 the executor and the estimator it watches have not come up, OK once they have, and ERROR as
 soon as they are lost (a peer process killed)."""
@@ -16,12 +16,12 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import SingleThreadedExecutor
 from ros_testing import ROOT, environment, ros_env, ros_settings
 
-from rrg_sim.ros_common.diagnostics import ERROR, OK, WARN, Health, NodeDiagnostics
+from rrg_common.ros.diagnostics import ERROR, OK, WARN, Health, NodeDiagnostics
 
 #: A process that announces itself as the executor and the estimator (their liveliness only).
 PEERS = """
 import time, rclpy
-from rrg_sim.ros_common.liveliness import announce
+from rrg_common.ros.liveliness import announce
 rclpy.init()
 node = rclpy.create_node("diagnostics_test_peers")
 announce(node, "executor")

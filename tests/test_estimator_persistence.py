@@ -8,11 +8,11 @@ import os
 import numpy as np
 import pytest
 
+from rrg_common.state_file import StateError
 from rrg_estimator.config import LOW, MID
 from rrg_estimator.persistence import STATE_FORMAT, EstimatorState, load_state, save_state
 from rrg_estimator.tracker import BeliefTracker
 from rrg_sim.geometric_sim import GeometricSimulator
-from rrg_sim.state_file import StateError
 
 MEAN = np.array([0.62, 0.0, 0.0])
 

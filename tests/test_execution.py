@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rrg_sim import wam
-from rrg_sim.config import PHYSICS
-from rrg_sim.executor.trajectory import (
+from rrg_models import wam
+from rrg_models.config import PHYSICS
+from rrg_models.trajectory import (
     SETTLE_TIME,
     InfeasiblePath,
     plan_path,
@@ -131,9 +131,9 @@ def test_planned_paths_keep_clear_of_the_joint_limits_where_they_can():
     limit stop, and the collision detection reads a contact at progress 0. Paths keep
     LIMIT_MARGIN inside the limits when some chain does, and still pass through the margin
     when none does (the cooler's grasp at x = 0.75 touches J6's limit)."""
-    from rrg_sim.executor.trajectory import LIMIT_MARGIN
+    from rrg_models.objects import get_object
+    from rrg_models.trajectory import LIMIT_MARGIN
     from rrg_sim.executor.wrt_executor import wrt_path
-    from rrg_sim.objects import get_object
 
     def plan(name, e):
         return wrt_path(get_object(name).goal_wrt, np.array(e), wam.HOME_Q)
@@ -188,9 +188,9 @@ def test_a_feasibility_map_over_the_executed_path_agrees_with_the_executor():
     chain (23 of 200 poses drawn at high uncertainty; agents then replanned until they gave
     up). The map over ``executed_poses`` checks that descent and the lift. Near that pose it
     is wrong at least 4× less often (it does not check joint continuity: 11 → 2 of 40)."""
+    from rrg_models.objects import get_object
+    from rrg_models.wam_feasibility import FeasibilityMap
     from rrg_sim.executor.wrt_executor import executed_poses, wrt_path
-    from rrg_sim.objects import get_object
-    from rrg_sim.wam_feasibility import FeasibilityMap
 
     wrt = get_object("brita_pitcher").goal_wrt
     old, new = FeasibilityMap(wrt.poses), FeasibilityMap(executed_poses(wrt))
@@ -301,14 +301,14 @@ def test_a_goal_grasp_is_lifted_along_the_lift_its_plan_chose():
     when the hand stands within LIFT_START_TOLERANCE of the planned end (the joints within
     RETREAT_TOLERANCE), and plans a fresh lift otherwise: here the fresh plan has no chain, the
     planned one lifts."""
+    from rrg_models.objects import get_object
+    from rrg_models.poses import raised
     from rrg_sim.executor.wrt_executor import (
         LIFT_START_TOLERANCE,
         RETREAT_TOLERANCE,
         Execution,
         WrtExecutor,
     )
-    from rrg_sim.objects import get_object
-    from rrg_sim.poses import raised
 
     top = wam.fk(LIFT_PLANNED)
     planned = plan_path(top[None], LIFT_PLANNED, then=raised(top, PHYSICS.lift_height)[None])

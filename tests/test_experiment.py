@@ -32,8 +32,8 @@ from rrg_experiments.trials import (
     outcome,
     schedule,
 )
-from rrg_sim.config import WORLD
-from rrg_sim.poses import relative_planar
+from rrg_models.config import WORLD
+from rrg_models.poses import relative_planar
 
 
 @pytest.mark.slow  # a MuJoCo campaign

@@ -8,11 +8,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from rrg_fake_hw.emulated_robot import EmulatedRobot
 from rrg_hw_bridge.contact_guard import ContactGuard
 from rrg_hw_bridge.external_torque import ExternalTorqueObserver
-from rrg_hw_bridge.fake.emulated_robot import EmulatedRobot
-from rrg_sim import wam
-from rrg_sim.config import PHYSICS, SENSING
+from rrg_models import wam
+from rrg_models.config import PHYSICS, SENSING
 
 BOX_POSE = np.array([0.625, 0.004, 0.05])
 #: A configuration near home, 0.15-0.2 rad away on four joints.

@@ -12,14 +12,14 @@ import time
 import numpy as np
 import pytest
 
-from rrg_hw_bridge.fake.emulated_robot import (
+from rrg_fake_hw.emulated_robot import (
     JOINT_LIMIT_GLITCH,
     PREEMPTED_MESSAGE,
     EmulatedRobot,
     GoalState,
 )
-from rrg_sim import wam
-from rrg_sim.config import HAND, PHYSICS, SENSING
+from rrg_models import wam
+from rrg_models.config import HAND, PHYSICS, SENSING
 from rrg_sim.physics.world import PhysicsWorld
 
 BOX_POSE = np.array([0.625, 0.004, 0.05])
@@ -227,7 +227,7 @@ def fake_hw(tmp_path_factory, ros_domain):
     port = free_udp_port(HOSTS)
     params = {"object_name": "box", "sensor_noise": 0.0, "rdt_port": port}
     with node_processes(
-        [("rrg_hw_bridge.fake.fake_hw_node", params)], env, tmp_path_factory.mktemp("logs")
+        [("rrg_fake_hw.fake_hw_node", params)], env, tmp_path_factory.mktemp("logs")
     ) as procs:
         client = RosClient(env)
         n = client.node
@@ -296,8 +296,8 @@ def arm_goal(q: np.ndarray, seconds: float, names=DRIVER_ARM):
 
 
 def reset(client, c, pose=BOX_POSE):
+    from rrg_common.ros.msg_conversions import planar_to_msg
     from rrg_msgs.srv import ResetSim
-    from rrg_sim.ros_common.msg_conversions import planar_to_msg
 
     return client.call(c["reset"], ResetSim.Request(object_name="box", pose=planar_to_msg(pose)))
 

@@ -10,11 +10,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from rrg_estimator.obs_tables import ARRAY_FIELDS
-from rrg_sim.config import GEOMSIM, HAND, SENSOR_NAMES
+from rrg_models.config import GEOMSIM, HAND, SENSOR_NAMES
+from rrg_models.objects import Primitive, get_object
+from rrg_models.poses import make_pose
+from rrg_models.wrt import WRT
 from rrg_sim.geometric_sim import GeometricSimulator
-from rrg_sim.objects import Primitive, get_object
-from rrg_sim.poses import make_pose
-from rrg_sim.wrt import WRT
 
 DOWN = Rotation.from_rotvec([np.pi, 0.0, 0.0])  # hand z = world -z
 FORWARD = Rotation.from_rotvec([0.0, np.pi / 2, 0.0])  # hand z = world +x

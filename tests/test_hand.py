@@ -6,8 +6,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from rrg_sim.config import HAND, N_SENSORS
-from rrg_sim.hand import (
+from rrg_models.config import HAND, N_SENSORS
+from rrg_models.hand import (
     body_poses,
     finger_link_poses,
     fingertip_points,

@@ -1,5 +1,6 @@
-"""The hand's sensing logic shared by the simulator and the hardware bridge (rrg_sim.hand_sensing)
-and the bridge's hand state and trip logic (rrg_hw_bridge.contact_guard)."""
+"""The hand's sensing logic shared by the simulator and the hardware bridge
+(rrg_models.hand_sensing), and the bridge's hand state and trip logic
+(rrg_hw_bridge.contact_guard)."""
 
 from __future__ import annotations
 
@@ -7,8 +8,8 @@ import numpy as np
 import pytest
 
 from rrg_hw_bridge.contact_guard import ContactGuard, HandState, derived_pads, path_index
-from rrg_sim.config import HAND, PHYSICS, SENSING
-from rrg_sim.hand_sensing import (
+from rrg_models.config import HAND, PHYSICS, SENSING
+from rrg_models.hand_sensing import (
     CLOSE_START_TIME,
     FingerClosing,
     fired_sensors,
@@ -125,7 +126,7 @@ def test_stop_confirmation_waits_for_a_second_pad_sample():
     """A lone pad in one sample is rejected, in two samples running it stops the move; a
     Nano17 or the collision detection stops it at once, also while a pad is pending; with
     confirmation off a lone pad stops it at once."""
-    from rrg_sim.hand_sensing import StopConfirmation
+    from rrg_models.hand_sensing import StopConfirmation
 
     pad, tip = np.zeros(10, bool), np.zeros(10, bool)
     pad[2], tip[8] = True, True

@@ -36,25 +36,21 @@ from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from rrg_bringup.graph import FAKE_NETFT_HTTP_PORT, rdt_addresses
-from rrg_hw_bridge.fake.fake_hw_node import FAULTS
+from rrg_common.ros.msg_conversions import ARM_JOINT_NAMES, PROXIMAL_JOINT_NAMES, planar_to_msg
+from rrg_fake_hw.fake_hw_node import FAULTS
 from rrg_hw_bridge.rdt import read_box_config, set_box_rdt_rate
 from rrg_hw_bridge.ros.bridge_node import ARM_ON_START_DELAY_S
+from rrg_models import wam
+from rrg_models.config import HAND, SENSING
 from rrg_msgs.action import GuardedMove
 from rrg_msgs.srv import HandCommand, ResetSim
-from rrg_sim import wam
-from rrg_sim.config import HAND, SENSING
-from rrg_sim.ros_common.msg_conversions import (
-    ARM_JOINT_NAMES,
-    PROXIMAL_JOINT_NAMES,
-    planar_to_msg,
-)
 
 pytestmark = pytest.mark.slow  # node processes, MuJoCo in real time
 
 R = GuardedMove.Result
 H = HandCommand.Response
 Q = HandCommand.Request
-FAKE = "rrg_hw_bridge.fake.fake_hw_node"
+FAKE = "rrg_fake_hw.fake_hw_node"
 BRIDGE = "rrg_hw_bridge.ros.bridge_node"
 NODE_MODULES = ROOT / ".cache" / "npm" / "node_modules"
 #: The box, far from the hand at home (hand frame origin at (0.45, 0, 0.55) m): the hand closes

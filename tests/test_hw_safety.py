@@ -32,8 +32,8 @@ from rrg_hw_bridge.safety import (
     via_point_accelerations,
     workspace_points,
 )
-from rrg_sim import wam
-from rrg_sim.config import WORLD
+from rrg_models import wam
+from rrg_models.config import WORLD
 
 LIMITS = load_arm_limits()
 NAMES = LIMITS.joint_names
@@ -642,7 +642,7 @@ def executor_moves():
     """Every via-point trajectory (object, WRT, phase, q, t) the executor sends to
     PhysicsWorld.follow while running every WRT of REALISM_OBJECTS at the nominal pose and
     retreating from it."""
-    from rrg_sim.objects import get_object
+    from rrg_models.objects import get_object
     from rrg_sim.physics.world import PhysicsWorld
 
     moves, where = [], {}
@@ -673,7 +673,7 @@ def _without_repeats(q: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 
 def test_executor_moves_fit_positions_and_workspace(executor_moves):
-    from rrg_sim.objects import get_object
+    from rrg_models.objects import get_object
 
     wrts = {(m[0], m[1], m[2]) for m in executor_moves}
     for name in REALISM_OBJECTS:
@@ -716,7 +716,7 @@ def test_executor_moves_velocity_and_acceleration(executor_moves):
 def test_slowdown_to_limits_is_the_smallest_stretch_that_passes():
     from rrg_hw_bridge.arm_limits import load_arm_limits
     from rrg_hw_bridge.safety import check_trajectory, slowdown_to_limits
-    from rrg_sim.wam import HOME_Q
+    from rrg_models.wam import HOME_Q
 
     limits = load_arm_limits()
     q = np.tile(HOME_Q, (3, 1))

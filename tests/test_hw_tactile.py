@@ -14,7 +14,7 @@ from rrg_hw_bridge.tactile import (
     pads_from_pucks,
     pucks_from_pads,
 )
-from rrg_sim.config import SENSOR_NAMES
+from rrg_models.config import SENSOR_NAMES
 
 
 def test_a_pads_force_goes_through_the_cells_and_back():

@@ -1,5 +1,5 @@
 """The hardware bridge on Barrett's own wam_node (arm_backend wam_node), against the emulated
-wam_node of rrg_hw_bridge.fake (arm_interface wam_node): a guarded move is streamed on
+wam_node of rrg_fake_hw (arm_interface wam_node): a guarded move is streamed on
 /wam/RTJointPositionCMD along its via-points at 500 Hz and ends where commanded; a contact
 stops the stream and holds the arm at once through /wam/holdJointPosition, and the result
 reports the measured stop pose; a refused trajectory streams nothing."""
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from test_fake_hw import BOX_POSE, HOSTS, free_udp_port
 
-from rrg_sim import wam
-from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES
+from rrg_common.ros.msg_conversions import ARM_JOINT_NAMES
+from rrg_models import wam
 
 #: wam_node's arm joint names in /joint_states.
 WAM_JOINTS = tuple(f"q{i}" for i in range(1, 8))
@@ -45,7 +45,7 @@ def test_wam_interfaces_have_barretts_layout():
 # ---------------------------------------------------------------------- the emulation, no ROS
 @pytest.fixture
 def robot():
-    from rrg_hw_bridge.fake.emulated_robot import EmulatedRobot
+    from rrg_fake_hw.emulated_robot import EmulatedRobot
 
     r = EmulatedRobot("box", seed=0, sensor_noise=0.0)
     r.reset("box", BOX_POSE)
@@ -63,7 +63,7 @@ def stream(robot, q_from, q_to, seconds: float, stamp0: float = 100.0) -> None:
 
 @pytest.mark.slow
 def test_emulated_stream_tracks_its_commands_and_silence_holds(robot):
-    from rrg_hw_bridge.fake.emulated_robot import WAM_RT_TIMEOUT
+    from rrg_fake_hw.emulated_robot import WAM_RT_TIMEOUT
 
     q0 = robot.snapshot().arm_q
     robot.rt_joint_positions(q0 + STEP)  # the first command only starts tracking, here
@@ -100,11 +100,7 @@ def test_emulated_hold_stops_the_arm_and_the_stream_is_ignored_until_its_timeout
 
 @pytest.mark.slow
 def test_emulated_move_to_joint_position_is_libbarretts_trapezoid(robot):
-    from rrg_hw_bridge.fake.emulated_robot import (
-        MOVE_TO_ACCELERATION,
-        MOVE_TO_VELOCITY,
-        GoalState,
-    )
+    from rrg_fake_hw.emulated_robot import MOVE_TO_ACCELERATION, MOVE_TO_VELOCITY, GoalState
 
     q0 = robot.snapshot().arm_q
     goal = robot.move_to_joint_position(q0 + 2 * STEP)
@@ -132,9 +128,9 @@ def wam_bridge(tmp_path_factory, ros_domain):
     from std_srvs.srv import SetBool
     from wam_msgs.msg import RTJointPositions
 
+    from rrg_common.ros.msg_conversions import planar_to_msg
     from rrg_msgs.action import GuardedMove
     from rrg_msgs.srv import ResetSim
-    from rrg_sim.ros_common.msg_conversions import planar_to_msg
 
     env = ros_env(ros_domain)
     port = free_udp_port(HOSTS)
@@ -158,7 +154,7 @@ def wam_bridge(tmp_path_factory, ros_domain):
     logs = tmp_path_factory.mktemp("logs")
     bridge.update(arm_on_start="true", estop_latch_file=str(logs / "estop.latched"))
     with node_processes(
-        [("rrg_hw_bridge.fake.fake_hw_node", fake), ("rrg_hw_bridge.ros.bridge_node", bridge)],
+        [("rrg_fake_hw.fake_hw_node", fake), ("rrg_hw_bridge.ros.bridge_node", bridge)],
         env,
         logs,
     ) as procs:

@@ -9,12 +9,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from rrg_sim.config import PHYSICS, WORLD
-from rrg_sim.goal import RequiredContact
+from rrg_models.config import PHYSICS, WORLD
+from rrg_models.goal import RequiredContact
+from rrg_models.poses import compose_planar
 from rrg_sim.physics import judge
 from rrg_sim.physics.judge import judge_grasp
 from rrg_sim.physics.world import PhysicsWorld
-from rrg_sim.poses import compose_planar
 
 pytestmark = pytest.mark.slow  # MuJoCo grasps
 

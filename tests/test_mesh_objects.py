@@ -11,17 +11,17 @@ import numpy as np
 import pytest
 import trimesh
 
-from rrg_sim.geometric_sim import GeometricSimulator
-from rrg_sim.objects import Primitive, get_object
-from rrg_sim.objects.mesh_import import (
+from rrg_models.description.mjcf_robot import ROBOT_FILE, robot_xml
+from rrg_models.objects import Primitive, get_object
+from rrg_models.objects.mesh_import import (
     MeshError,
     check_mesh,
     convex_parts,
     import_mesh,
     stand_on_table,
 )
-from rrg_sim.objects.wrt_generation import info_wrts
-from rrg_sim.physics.mjcf_robot import ROBOT_FILE, robot_xml
+from rrg_models.objects.wrt_generation import info_wrts
+from rrg_sim.geometric_sim import GeometricSimulator
 from rrg_sim.physics.scene import scene_xml
 
 
@@ -168,7 +168,7 @@ def test_convex_parts_keep_a_concavity():
     )
     parts = [Primitive("mesh", (), vertices=v) for v in convex_parts(u)]
     assert 2 <= len(parts) <= 6
-    from rrg_sim.objects import signed_distance
+    from rrg_models.objects import signed_distance
 
     assert signed_distance(parts, [(0.0, 0.0, 0.02)]) > 0.005  # the notch stays open
     assert signed_distance(parts, [(0.03, 0.0, 0.0)]) < 0.0  # the walls stay solid
@@ -178,8 +178,8 @@ def test_convex_parts_keep_a_concavity():
 def test_an_object_file_takes_mesh_parts_from_its_folder(tmp_path, boxes):
     import shutil
 
-    from rrg_sim.objects import ObjectFileError, load_object_folder
-    from rrg_sim.objects.catalogue import BUILTIN_DIR
+    from rrg_models.objects import ObjectFileError, load_object_folder
+    from rrg_models.objects.catalogue import BUILTIN_DIR
 
     box, mesh_box = boxes
     folder = tmp_path / "box"

@@ -1,4 +1,4 @@
-"""The nodes' executor (rrg_sim.ros_common.node_main.SubmitOnceExecutor): with its thread pool
+"""The nodes' executor (rrg_common.ros.node_main.SubmitOnceExecutor): with its thread pool
 busy, rclpy's MultiThreadedExecutor hands a queued task over again on every turn; this one
 hands each task over once, still raises a callback's exception from the spin, and ends quietly
 on a shutdown that lands while it waits."""
@@ -13,7 +13,7 @@ import pytest
 import rclpy
 from rclpy.executors import MultiThreadedExecutor
 
-from rrg_sim.ros_common.node_main import RCLError, SubmitOnceExecutor, spin_until_shutdown
+from rrg_common.ros.node_main import RCLError, SubmitOnceExecutor, spin_until_shutdown
 
 
 def hand_overs(executor_class, ros_domain: int, seconds: float = 1.0) -> collections.Counter:
@@ -149,8 +149,8 @@ def test_a_destroyed_node_serves_its_action_no_longer(ros_domain, destroy_action
     takes them down with the node."""
     from rclpy.action import ActionClient, ActionServer
 
+    from rrg_common.ros.node_main import destroy_action_endpoints
     from rrg_msgs.action import RobustGrasp
-    from rrg_sim.ros_common.node_main import destroy_action_endpoints
 
     contexts = [rclpy.Context(), rclpy.Context()]
     for c in contexts:
@@ -177,7 +177,7 @@ def test_a_destroyed_node_serves_its_action_no_longer(ros_domain, destroy_action
 SLOW_CALLBACK_NODE = """
 import sys, time
 from rclpy.node import Node
-from rrg_sim.ros_common.node_main import run_node
+from rrg_common.ros.node_main import run_node
 
 class SlowCallback(Node):
     def __init__(self):

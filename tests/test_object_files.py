@@ -10,9 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from rrg_onboarding import object_cli
-from rrg_planner.request_checks import InvalidRequest, check_object
-from rrg_sim.objects import (
+from rrg_models.objects import (
     PAPER_OBJECTS,
     ObjectFileError,
     get_object,
@@ -20,7 +18,9 @@ from rrg_sim.objects import (
     object_folders,
     object_names,
 )
-from rrg_sim.objects.catalogue import BUILTIN_DIR, USER_DIR_ENV
+from rrg_models.objects.catalogue import BUILTIN_DIR, USER_DIR_ENV
+from rrg_onboarding import object_cli
+from rrg_planner.request_checks import InvalidRequest, check_object
 
 #: sha256 prefixes of everything a trial reads from each paper object (parts, mass,
 #: friction, goal region, every WRT with its measured outcome, the settling study), bit for

@@ -8,15 +8,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rrg_sim import hand, wam
-from rrg_sim.config import WORLD
-from rrg_sim.geometric_sim import GeometricSimulator
-from rrg_sim.goal import RequiredContact
-from rrg_sim.objects import PAPER_OBJECTS, GoalRegion, Primitive, get_object, signed_distance
-from rrg_sim.objects.clearance import hand_points, scene, transform_points
-from rrg_sim.objects.composites import box, cylinder, turn_about_z
-from rrg_sim.objects.primitives import box_distance, surface_samples
-from rrg_sim.objects.wrt_generation import (
+from rrg_models import hand, wam
+from rrg_models.config import WORLD
+from rrg_models.goal import RequiredContact
+from rrg_models.objects import PAPER_OBJECTS, GoalRegion, Primitive, get_object, signed_distance
+from rrg_models.objects.clearance import hand_points, scene, transform_points
+from rrg_models.objects.composites import box, cylinder, turn_about_z
+from rrg_models.objects.primitives import box_distance, surface_samples
+from rrg_models.objects.wrt_generation import (
     APPROACH_CLEARANCE,
     SWEEP_REACH,
     SWEEP_TIP_HEIGHT,
@@ -25,7 +24,8 @@ from rrg_sim.objects.wrt_generation import (
     line_grasp_wrt,
     top_down_rotation,
 )
-from rrg_sim.poses import home_pose, interpolate_poses, invert, planar_pose
+from rrg_models.poses import home_pose, interpolate_poses, invert, planar_pose
+from rrg_sim.geometric_sim import GeometricSimulator
 
 HANDLE_OBJECTS = ("powerdrill", "brita_pitcher", "cup", "giant_teacup")
 NOMINAL = np.asarray(WORLD.nominal_pose)

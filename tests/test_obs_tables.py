@@ -12,10 +12,10 @@ from rrg_estimator import obs_tables
 from rrg_estimator.config import HIGH
 from rrg_estimator.grid import Grid
 from rrg_estimator.obs_tables import ObservationTable, build_table, load_or_build
+from rrg_models.objects.primitives import Primitive
+from rrg_models.poses import compose_planar, make_pose
+from rrg_models.wrt import WRT
 from rrg_sim.geometric_sim import GeometricSimulator
-from rrg_sim.objects.primitives import Primitive
-from rrg_sim.poses import compose_planar, make_pose
-from rrg_sim.wrt import WRT
 
 COARSE = Grid((0.0, 0.0, 0.0), (0.03, 0.03, 0.5), (9, 9, 5))  # a sub-lattice of the HIGH grid
 

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import trimesh
 
+from rrg_models.objects import object_names
+from rrg_models.objects.catalogue import USER_DIR_ENV
 from rrg_onboarding import object_cli
 from rrg_onboarding.onboard import AddOptions, GoalSpec, OnboardError, add_object
-from rrg_sim.objects import object_names
-from rrg_sim.objects.catalogue import USER_DIR_ENV
 
 
 @pytest.fixture
@@ -87,8 +87,8 @@ def test_the_cli_prints_the_error_and_exits_2(user_dir, tmp_path, capsys):
 
 
 def _parts(mesh: trimesh.Trimesh, max_parts: int = 12):
-    from rrg_sim.objects import Primitive
-    from rrg_sim.objects.mesh_import import check_mesh, convex_parts, stand_on_table
+    from rrg_models.objects import Primitive
+    from rrg_models.objects.mesh_import import check_mesh, convex_parts, stand_on_table
 
     mesh = stand_on_table(check_mesh(mesh))
     return tuple(Primitive("mesh", (), vertices=v) for v in convex_parts(mesh, max_parts=max_parts))
@@ -165,8 +165,8 @@ def test_a_mesh_is_onboarded_end_to_end_and_removed(user_dir, tmp_path, capsys):
     """rrg-object add on a box mesh: every stage runs (goal proposed and ranked in physics,
     studies, tables, picture), the object loads by name with its region centred on the
     measured settling, a grasp trial runs on it, and remove leaves nothing."""
+    from rrg_models.objects import get_object
     from rrg_onboarding.object_cli import cached_tables
-    from rrg_sim.objects import get_object
 
     mesh = write(trimesh.creation.box(extents=(0.05, 0.07, 0.09)), tmp_path / "tin.stl")
     report = add_object(AddOptions(mesh, "tin", mass_kg=0.2, settle_grasps=12), say=print)

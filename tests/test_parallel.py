@@ -1,4 +1,4 @@
-"""rrg_sim.parallel.fork_map: results in order or as finished, and a worker that dies raises in
+"""rrg_common.parallel.fork_map: results in order or as finished, and a worker that dies raises in
 the caller instead of leaving it waiting."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from concurrent.futures.process import BrokenProcessPool
 
 import pytest
 
-from rrg_sim.parallel import fork_map
+from rrg_common.parallel import fork_map
 
 INHERITED = {"scale": 3}  # set before the fork: the workers see it without pickling
 

@@ -1,4 +1,4 @@
-"""The nodes' parameter tables (rrg_sim.ros_common.parameters): a Param's descriptor carries its
+"""The nodes' parameter tables (rrg_common.ros.parameters): a Param's descriptor carries its
 description, read-only flag and range; declare() puts a table on a node and refuses a string
 outside its choices; every node module's table is valid."""
 
@@ -11,7 +11,7 @@ import rclpy
 from rclpy.parameter import Parameter
 from repo_layout import NODE_MODULES
 
-from rrg_sim.ros_common.parameters import Param, declare
+from rrg_common.ros.parameters import Param, declare
 
 TABLE = (
     Param("timeout", 30.0, "Longest wait [s]", low=0.1, high=600.0),

@@ -7,11 +7,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rrg_sim import wam
-from rrg_sim.objects import PAPER_OBJECTS
+from rrg_models import wam
+from rrg_models.objects import PAPER_OBJECTS
+from rrg_models.poses import compose_planar, wrap_angle
 from rrg_sim.physics.runner import run_wrt
 from rrg_sim.physics.world import PhysicsWorld
-from rrg_sim.poses import compose_planar, wrap_angle
 
 
 @pytest.fixture(scope="module", params=PAPER_OBJECTS)

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rrg_sim.config import SENSOR_NAMES
-from rrg_sim.objects import get_object
+from rrg_models.config import SENSOR_NAMES
+from rrg_models.objects import get_object
+from rrg_models.poses import make_pose
+from rrg_models.wrt import WRT
 from rrg_sim.physics.world import PhysicsWorld
-from rrg_sim.poses import make_pose
-from rrg_sim.wrt import WRT
 
 DOWN = Rotation.from_rotvec([np.pi, 0.0, 0.0])  # hand z = world -z, hand y = world -y
 

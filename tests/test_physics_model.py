@@ -7,12 +7,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from rrg_sim import wam
-from rrg_sim.config import HAND, PHYSICS, WAM_LINKS
-from rrg_sim.hand import body_poses
-from rrg_sim.hand_sensing import TIP_RADIUS, TIP_Z0, TIP_Z1, contact_from_wrench
-from rrg_sim.objects import PAPER_OBJECTS
-from rrg_sim.physics.mjcf_robot import (
+from rrg_models import wam
+from rrg_models.config import HAND, PHYSICS, WAM_LINKS
+from rrg_models.description.mjcf_robot import (
     ARM_JOINTS,
     PAD_TOUCH,
     PALM_BODY,
@@ -21,6 +18,9 @@ from rrg_sim.physics.mjcf_robot import (
     TIP_TORQUE,
     robot_xml,
 )
+from rrg_models.hand import body_poses
+from rrg_models.hand_sensing import TIP_RADIUS, TIP_Z0, TIP_Z1, contact_from_wrench
+from rrg_models.objects import PAPER_OBJECTS
 from rrg_sim.physics.scene import ASSETS_DIR, asset_files, build_model
 
 
@@ -48,7 +48,7 @@ def test_hand_site_pose_matches_wam_fk(robot):
 
 
 def test_hand_bodies_match_hand_model(robot):
-    """Finger link poses in the hand frame equal rrg_sim.hand's at a random spread/closure."""
+    """Finger link poses in the hand frame equal rrg_models.hand's at a random spread/closure."""
     model, data = robot
     mujoco.mj_resetData(model, data)
     spread, prox = 0.7, np.array([0.4, 0.9, 1.3])

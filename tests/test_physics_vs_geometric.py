@@ -17,11 +17,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rrg_sim.config import WORLD
+from rrg_models.config import WORLD
+from rrg_models.poses import compose_planar
 from rrg_sim.geometric_sim import GeometricSimulator
 from rrg_sim.physics.agreement import agreement_stats, measure
 from rrg_sim.physics.world import PhysicsWorld
-from rrg_sim.poses import compose_planar
 
 #: Tolerances: about twice what the ``stats`` fixture below measures (6 objects, goal + info
 #: WRTs, Δ = 0 and 1 seeded estimate error, seed 5: deterministic), the measured value in each

@@ -13,11 +13,12 @@ from rrg_estimator.config import LOW, UncertaintyLevel
 from rrg_estimator.grid import Grid
 from rrg_estimator.tracker import BeliefTracker
 from rrg_estimator.transition import change_frame
+from rrg_models import wam
+from rrg_models.config import WORLD
+from rrg_models.objects import get_object
+from rrg_models.poses import compose_planar, planar_map, relative_planar
 from rrg_planner.planning_model import PlanningModel
-from rrg_sim import wam
-from rrg_sim.config import NOMINAL, REALISTIC, WORLD
-from rrg_sim.objects import get_object
-from rrg_sim.poses import compose_planar, planar_map, relative_planar
+from rrg_sim.config import NOMINAL, REALISTIC
 from rrg_sim.posture_calibration import (
     SAME_FRAME_SIGMA,
     PostureCalibration,

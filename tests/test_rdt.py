@@ -11,7 +11,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from rrg_hw_bridge.fake.fake_netft import FakeNetFtBox
+from rrg_fake_hw.fake_netft import FakeNetFtBox
 from rrg_hw_bridge.rdt import (
     COMMANDS,
     RDT_PORT,

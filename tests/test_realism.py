@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from rrg_sim import wam
-from rrg_sim.config import NOMINAL, PHYSICS, REALISTIC, SENSING, WORLD, WORLD_PROFILES
+from rrg_models import wam
+from rrg_models.config import PHYSICS, SENSING, WORLD
+from rrg_sim.config import NOMINAL, REALISTIC, WORLD_PROFILES
 from rrg_sim.physics.realism import draw_conditions
 from rrg_sim.physics.world import PhysicsWorld
 
@@ -239,7 +240,7 @@ def test_a_false_pad_alarm_stops_a_guarded_move_only_without_confirmation(confir
     space: confirmed stops ride through all seven alarms, unconfirmed ones stop at the first."""
     import dataclasses
 
-    from rrg_sim.poses import raised
+    from rrg_models.poses import raised
 
     alarms = dataclasses.replace(NOMINAL, name="alarms", pad_period=0.02, pad_false_alarm=1.0)
     world = PhysicsWorld("box", seed=1, profile=alarms, confirm_stops=confirm)

@@ -20,7 +20,7 @@ from rrg_bags.bag_read import read_messages
 from rrg_msgs.action import RobustGrasp
 
 #: How long the stall test stops the planner [s]: three liveliness leases
-#: (rrg_sim.ros_common.liveliness.ALIVE_LEASE_S), so its peers see it go away.
+#: (rrg_common.ros.liveliness.ALIVE_LEASE_S), so its peers see it go away.
 STALL_S = 3.0
 
 

@@ -1,4 +1,4 @@
-"""The robot's tf2 frames (rrg_sim.robot_frames, from the URDF and the joint states) against the
+"""The robot's tf2 frames (rrg_models.robot_frames, from the URDF and the joint states) against the
 project's own kinematics, and the vendored tf2_msgs against upstream's type hash."""
 
 from __future__ import annotations
@@ -10,15 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rrg_sim import wam
-from rrg_sim.hand import FINGERS, body_poses, joint_angles
-from rrg_sim.physics.urdf_robot import PALM_LINK, robot_urdf, ros_name
-from rrg_sim.robot_frames import RobotFrames, compose, urdf_joints
-from rrg_sim.ros_common.msg_conversions import (
-    ARM_JOINT_NAMES,
-    PROXIMAL_JOINT_NAMES,
-    SPREAD_JOINT_NAME,
-)
+from rrg_common.ros.msg_conversions import ARM_JOINT_NAMES, PROXIMAL_JOINT_NAMES, SPREAD_JOINT_NAME
+from rrg_models import wam
+from rrg_models.description.urdf_robot import PALM_LINK, robot_urdf, ros_name
+from rrg_models.hand import FINGERS, body_poses, joint_angles
+from rrg_models.robot_frames import RobotFrames, compose, urdf_joints
 
 #: RIHS01 type hash of upstream tf2_msgs/msg/TFMessage (tf2_msgs 0.36.4, ros2/geometry2 jazzy
 #: branch, commit 646342c): upstream's own package built with this venv's rosidl (ROS 2 Jazzy
@@ -34,7 +30,7 @@ def frames() -> RobotFrames:
 def test_the_frames_at_joint_states_are_the_models_poses(frames):
     """200 random joint states as the arm/hand interface publishes them (the arm, the spread
     and the proximal joints; no distal joints, which follow by their mimic): the palm is where
-    rrg_sim.wam.fk puts the hand and every hand link where rrg_sim.hand puts it, to 1e-9."""
+    rrg_models.wam.fk puts the hand and every hand link where rrg_models.hand puts it, to 1e-9."""
     rng = np.random.default_rng(39)
     names = [*ARM_JOINT_NAMES, SPREAD_JOINT_NAME, *PROXIMAL_JOINT_NAMES]
     for _ in range(200):
@@ -65,7 +61,7 @@ def test_measured_distal_angles_win_over_their_mimic_and_gaps_are_left_out(frame
 
 
 def test_tf2_msgs_is_upstreams():
-    """The venv's tf2_msgs (built by scripts/setup_ros.sh from rrg_sim/interfaces/tf2_msgs)
+    """The venv's tf2_msgs (built by scripts/setup_ros.sh from rrg_common/interfaces/tf2_msgs)
     hashes TFMessage as upstream jazzy does, and holds no other type."""
     from tf2_msgs.msg import TFMessage
 

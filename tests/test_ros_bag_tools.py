@@ -14,17 +14,17 @@ from rrg_bags.bag_plot import belief_frames, plot_bag
 from rrg_bags.bag_read import read_messages
 from rrg_bags.bag_summary import format_summary, summarize
 from rrg_bags.bag_writer import Rosbag2McapWriter
+from rrg_common.ros.msg_conversions import observation_to_msg
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import HIGH, LOW
 from rrg_estimator.grid import Grid
 from rrg_estimator.ros.belief_msgs import belief_to_msg
+from rrg_models.observation import Observation
+from rrg_models.poses import make_pose
 from rrg_msgs.action import RobustGrasp
 from rrg_msgs.msg import GraspOutcome
 from rrg_planner.closed_loop import Decision
 from rrg_planner.ros.grasp_records import decision_record, done_record
-from rrg_sim.observation import Observation
-from rrg_sim.poses import make_pose
-from rrg_sim.ros_common.msg_conversions import observation_to_msg
 
 TRUE_POSE = np.array([0.64, -0.02, 0.25])
 TOPICS = {

@@ -9,6 +9,16 @@ from builtin_interfaces.msg import Time
 from rclpy.serialization import deserialize_message, serialize_message
 from scipy.spatial.transform import Rotation
 
+from rrg_common.ros.msg_conversions import (
+    observation_from_msg,
+    observation_to_msg,
+    planar_from_msg,
+    planar_to_msg,
+    pose_from_msg,
+    pose_to_msg,
+    tip_contacts_from_msg,
+    tip_contacts_to_msg,
+)
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import HIGH, LOW
 from rrg_estimator.grid import Grid
@@ -21,19 +31,9 @@ from rrg_estimator.ros.belief_msgs import (
     grid_from_metadata,
     grid_to_metadata,
 )
+from rrg_models.observation import Observation
+from rrg_models.poses import make_pose
 from rrg_msgs.msg import Observation as ObservationMsg
-from rrg_sim.observation import Observation
-from rrg_sim.poses import make_pose
-from rrg_sim.ros_common.msg_conversions import (
-    observation_from_msg,
-    observation_to_msg,
-    planar_from_msg,
-    planar_to_msg,
-    pose_from_msg,
-    pose_to_msg,
-    tip_contacts_from_msg,
-    tip_contacts_to_msg,
-)
 
 
 def random_belief(seed: int, level=HIGH, center=(0.62, -0.01, 0.3)) -> Belief:

@@ -13,14 +13,14 @@ from ros_testing import RosClient, node_processes, ros_env
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from rrg_common.ros.msg_conversions import ARM_JOINT_NAMES, observation_from_msg, planar_to_msg
+from rrg_models import wam
 from rrg_msgs.action import ExecuteWrt, GuardedMove
 from rrg_msgs.msg import Observation as ObservationMsg
 from rrg_msgs.msg import Retreated
 from rrg_msgs.srv import HandCommand, ResetSim, Retreat
-from rrg_sim import wam
 from rrg_sim.physics.judge import judge_grasp
 from rrg_sim.physics.world import PhysicsWorld
-from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES, observation_from_msg, planar_to_msg
 
 pytestmark = pytest.mark.slow  # node processes
 
@@ -281,8 +281,8 @@ def test_an_opening_the_safety_layer_stopped_is_tried_again(
     """The robot client's policy on the bridge's answers to a hand position command, with the
     fingers at the given angles [rad]: an opening that was stopped midway is sent again, up to
     OPEN_RETRIES times; a refusal, a closing, or the last stop is the caller's."""
+    from rrg_common.ros.msg_conversions import PROXIMAL_JOINT_NAMES, SPREAD_JOINT_NAME
     from rrg_sim.executor import robot_client
-    from rrg_sim.ros_common.msg_conversions import PROXIMAL_JOINT_NAMES, SPREAD_JOINT_NAME
 
     monkeypatch.setattr(robot_client, "OPEN_RETRY_PAUSE_S", 0.0)
     robot = object.__new__(robot_client.RosRobot)

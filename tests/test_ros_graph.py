@@ -19,8 +19,8 @@ from rosbags.highlevel import AnyReader
 
 from rrg_bags.bag_cli import bag_info
 from rrg_bags.bag_cli import main as bag_cli
-from rrg_sim import wam
-from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES
+from rrg_common.ros.msg_conversions import ARM_JOINT_NAMES
+from rrg_models import wam
 
 NODE_MODULES = ROOT / ".cache" / "npm" / "node_modules"
 LAUNCH = [sys.executable, "-m", "rrg_bringup.launch"]
@@ -349,10 +349,10 @@ def test_without_sensor_noise_the_graph_takes_the_in_process_agents_actions(tmp_
     actions to the same P(goal)."""
 
     from rrg_experiments.physics_env import PhysicsEnvironment
+    from rrg_models.config import WORLD
     from rrg_planner.agent import RobustGraspAgent
     from rrg_planner.closed_loop import run_in_process
     from rrg_planner.planning_model import PlanningModel
-    from rrg_sim.config import WORLD
     from rrg_sim.physics.world import PhysicsWorld
 
     true = [0.72205, -0.12778, 0.21892]  # box, high uncertainty: five actions

@@ -16,10 +16,15 @@ from builtin_interfaces.msg import Time
 from rclpy.action import ActionClient
 from ros_testing import RosClient, node_processes, ros_env
 
+from rrg_common.ros.msg_conversions import observation_to_msg, planar_to_msg
+from rrg_common.ros.qos import LATCHED, STREAM
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import LOW
 from rrg_estimator.grid import Grid
 from rrg_estimator.ros.belief_msgs import belief_from_msg, belief_to_msg
+from rrg_models.config import WORLD
+from rrg_models.objects import get_object
+from rrg_models.poses import compose_planar
 from rrg_msgs.action import RobustGrasp
 from rrg_msgs.msg import BeliefGrid
 from rrg_msgs.msg import Observation as ObservationMsg
@@ -28,12 +33,7 @@ from rrg_planner.agent import RobustGraspAgent
 from rrg_planner.closed_loop import decide
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.search import ForwardSearch
-from rrg_sim.config import WORLD
 from rrg_sim.geometric_sim import GeometricSimulator
-from rrg_sim.objects import get_object
-from rrg_sim.poses import compose_planar
-from rrg_sim.ros_common.msg_conversions import observation_to_msg, planar_to_msg
-from rrg_sim.ros_common.qos import LATCHED, STREAM
 
 pytestmark = pytest.mark.slow  # node processes
 

@@ -23,8 +23,10 @@ from ros_testing import (
     ros_settings,
 )
 
+from rrg_common.ros.msg_conversions import planar_to_msg
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import LEVELS
+from rrg_models.config import WORLD
 from rrg_msgs.srv import ResetSim, SelectAction
 from rrg_planner.client import (
     Gaussian,
@@ -34,8 +36,6 @@ from rrg_planner.client import (
     RRGUnavailable,
     code_name,
 )
-from rrg_sim.config import WORLD
-from rrg_sim.ros_common.msg_conversions import planar_to_msg
 
 OBJECT = "box"
 NOMINAL = np.asarray(WORLD.nominal_pose)

@@ -21,7 +21,7 @@ from rosidl_parser.definition import (
 import rrg_msgs.action as actions
 import rrg_msgs.msg as msgs
 import rrg_msgs.srv as srvs
-from rrg_sim.config import SENSOR_NAMES
+from rrg_models.config import SENSOR_NAMES
 
 MESSAGES = [
     "PlanarPose",

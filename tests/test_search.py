@@ -12,6 +12,8 @@ from rrg_estimator.belief import Belief
 from rrg_estimator.config import UncertaintyLevel
 from rrg_estimator.grid import Grid
 from rrg_estimator.update import goal_probability, update
+from rrg_models.config import WORLD
+from rrg_models.poses import compose_planar, relative_planar
 from rrg_planner import reference_search, search_kernels
 from rrg_planner import search as search_module
 from rrg_planner.clustering import PROGRESS_BIN
@@ -19,9 +21,7 @@ from rrg_planner.config import SEARCH
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.reference_search import ReferenceSearch
 from rrg_planner.search import ForwardSearch, SparseBelief, merge_branches
-from rrg_sim.config import WORLD
 from rrg_sim.geometric_sim import GeometricSimulator
-from rrg_sim.poses import compose_planar, relative_planar
 
 SMALL = UncertaintyLevel(
     "small", sigma=(0.02, 0.02, 0.2), spacing=(0.01, 0.01, 0.1), shape=(9, 9, 5)

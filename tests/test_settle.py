@@ -12,11 +12,11 @@ from rrg_estimator.belief import Belief
 from rrg_estimator.config import LOW
 from rrg_estimator.grid import Grid
 from rrg_estimator.tracker import settle_after_grasp
-from rrg_sim.goal import load_settling
-from rrg_sim.objects import PAPER_OBJECTS, get_object
-from rrg_sim.objects.object_model import SETTLING_FILE
+from rrg_models.goal import load_settling
+from rrg_models.objects import PAPER_OBJECTS, get_object
+from rrg_models.objects.object_model import SETTLING_FILE
+from rrg_models.poses import relative_planar
 from rrg_sim.physics.settle import fit_affine
-from rrg_sim.poses import relative_planar
 
 
 def test_fit_affine_recovers_a_known_map_with_its_noise():
@@ -46,7 +46,7 @@ def test_every_object_has_a_committed_settling_fit(name):
 def test_every_object_has_a_realistic_settling_study_that_the_realistic_planner_reads(name):
     """The study measured in the realistic world (settle --world realistic) is committed, and
     a profile spec of that world reads it; the nominal world keeps its own."""
-    from rrg_sim.objects.object_model import settling_file
+    from rrg_models.objects.object_model import settling_file
 
     obj = get_object(name)
     assert settling_file("realistic") == "settling.realistic.json"
@@ -127,7 +127,7 @@ def test_the_outcome_corrects_the_affine_map_where_the_samples_say_so():
     """A closing that turns the object by +0.1 rad for Δθ < 0 and not at all otherwise: the
     affine fit averages the two; the kernel-corrected outcome follows each side, and is the
     affine map where there are no samples."""
-    from rrg_sim.goal import AffineSettle, Settling
+    from rrg_models.goal import AffineSettle, Settling
 
     rng = np.random.default_rng(3)
     start = rng.uniform(-1, 1, (600, 3)) * (0.02, 0.02, 0.25)
@@ -159,7 +159,7 @@ def test_the_goal_weights_follow_the_drill_grasps_measured_turn_and_hold():
     turned -0.1 rad, though both start inside its ±10° region; the weights also carry the
     measured chance that the grasp presses the trigger and holds; beyond the studied box
     nothing moves."""
-    from rrg_sim.goal import goal_holds, goal_weights
+    from rrg_models.goal import goal_holds, goal_weights
 
     obj = get_object("powerdrill")
     delta = np.array([[0.0, 0.0, 0.1], [0.0, 0.0, -0.1], [0.0, 0.0, 0.0], [0.03, 0.0, 0.0]])
@@ -179,7 +179,7 @@ def test_the_goal_weights_follow_the_drill_grasps_measured_turn_and_hold():
 def test_the_hold_probability_is_the_local_share_of_study_grasps_that_held():
     """Settling.hold_probability: where every nearby sample held it is near 1, where none
     did near 0, and half-way between in between."""
-    from rrg_sim.goal import Settling
+    from rrg_models.goal import Settling
 
     fit = load_settling(get_object("powerdrill").folder / SETTLING_FILE).closed
     start = np.array([[x, 0.0, 0.0] for x in np.linspace(-0.02, 0.02, 41)])
@@ -201,7 +201,7 @@ def test_a_coarse_grid_points_goal_weight_is_the_regions_average_over_its_cell()
     """On the high-uncertainty grid a point stands for its cell: the teacup's point -0.1 rad
     off the estimate (where its closing leaves it best placed, but the cell reaches 0.15 rad
     off, outside the 8° region) and the centre count less, and no cell reaches 0.9."""
-    from rrg_sim.goal import goal_weights
+    from rrg_models.goal import goal_weights
 
     obj = get_object("giant_teacup")
     delta = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, -0.1], [0.02, 0.0, 0.0]])

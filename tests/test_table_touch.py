@@ -8,12 +8,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from rrg_sim import wam
-from rrg_sim.config import WORLD
-from rrg_sim.hand import fingertip_lowest_z, fingertip_points
-from rrg_sim.objects import get_object
+from rrg_models import wam
+from rrg_models.config import WORLD
+from rrg_models.hand import fingertip_lowest_z, fingertip_points
+from rrg_models.objects import get_object
+from rrg_models.poses import home_pose
 from rrg_sim.physics.world import PhysicsWorld
-from rrg_sim.poses import home_pose
 from rrg_sim.posture_calibration import GRASP_CENTRE_Z
 from rrg_sim.table_touch import goal_posture, residual, vertical_jacobian
 

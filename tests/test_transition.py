@@ -9,8 +9,8 @@ from rrg_estimator.belief import Belief
 from rrg_estimator.config import HIGH, LOW, TRANSITION
 from rrg_estimator.grid import Grid
 from rrg_estimator.transition import bump, displacement_kernel, reorient, settle, splat
-from rrg_sim.goal import AffineSettle, Settling
-from rrg_sim.poses import relative_planar
+from rrg_models.goal import AffineSettle, Settling
+from rrg_models.poses import relative_planar
 
 EXACT_TURNS = dataclasses.replace(TRANSITION, reorient_sigma_theta=0.0)
 
@@ -99,9 +99,9 @@ def test_a_measured_reorientation_moves_the_full_turn_to_its_fitted_offset():
     """With a WRT's ReorientOutcome, a state at offset Δ from e inside the box ends, on the
     full turn, at e' ⊕ (Δ + shift) (e' = e turned by the angle); one outside turns rigidly; the
     planner's mixture (search.reorient_mixture) puts its full turn at the same poses."""
+    from rrg_models.poses import compose_planar
+    from rrg_models.wrt import ReorientOutcome
     from rrg_planner.search import reorient_mixture
-    from rrg_sim.poses import compose_planar
-    from rrg_sim.wrt import ReorientOutcome
 
     g = Grid.for_level(HIGH, center=(0.62, 0.0, 0.0))
     e = np.array([0.62, 0.0, 0.0])
@@ -200,7 +200,7 @@ def test_the_reorientation_study_fits_the_full_turns_shift_and_the_catalogue_loa
     """reorient_study.fit: the mean and σ of Δ' - Δ over the full turns (a partial turn,
     Δ'_θ half the angle away, is left to the mixture); the catalogue's reorientation WRTs
     carry the committed fits."""
-    from rrg_sim.objects import get_object
+    from rrg_models.objects import get_object
     from rrg_sim.physics.reorient_study import TooFewTurns, fit
 
     rng = np.random.default_rng(0)

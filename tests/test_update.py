@@ -29,9 +29,9 @@ from rrg_estimator.obs_model import (
 from rrg_estimator.obs_tables import ObservationTable
 from rrg_estimator.reference_update import table_index_reference, update_reference
 from rrg_estimator.update import apply_likelihood, goal_probability, update
-from rrg_sim.observation import Observation
-from rrg_sim.poses import compose_planar, planar_pose, relative_planar
-from rrg_sim.wrt import WRT
+from rrg_models.observation import Observation
+from rrg_models.poses import compose_planar, planar_pose, relative_planar
+from rrg_models.wrt import WRT
 
 E = np.array([0.62, 0.01, 0.3])
 
@@ -271,8 +271,8 @@ def test_an_unsensed_sensor_does_not_move_the_belief(high_table):
     """A robot without a reading of sensor 1 (likelihood_without): its silence, where the table
     predicts it fires, leaves the belief as if it had fired; the other sensors still speak."""
     from rrg_estimator.config import likelihood_without
+    from rrg_models.config import SENSOR_NAMES
     from rrg_planner.clustering import signature_keys
-    from rrg_sim.config import SENSOR_NAMES
 
     params = likelihood_without([SENSOR_NAMES[1]])
     assert params.unsensed == (1,)

@@ -1,6 +1,6 @@
 """The robot's URDF against the project's own models: MuJoCo's URDF parser (a parser of its own,
-apart from its MJCF one) compiles it, and its forward kinematics must equal rrg_sim.wam's and
-rrg_sim.hand's; its bodies, masses and inertias must equal the MJCF robot's."""
+apart from its MJCF one) compiles it, and its forward kinematics must equal rrg_models.wam's and
+rrg_models.hand's; its bodies, masses and inertias must equal the MJCF robot's."""
 
 from __future__ import annotations
 
@@ -10,15 +10,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from rrg_sim import wam
-from rrg_sim.hand import FINGERS, body_poses, joint_angles
-from rrg_sim.physics.mjcf_robot import robot_xml
-from rrg_sim.physics.urdf_robot import PALM_LINK, robot_urdf, ros_name
-from rrg_sim.ros_common.msg_conversions import (
-    ARM_JOINT_NAMES,
-    PROXIMAL_JOINT_NAMES,
-    SPREAD_JOINT_NAME,
-)
+from rrg_common.ros.msg_conversions import ARM_JOINT_NAMES, PROXIMAL_JOINT_NAMES, SPREAD_JOINT_NAME
+from rrg_models import wam
+from rrg_models.description.mjcf_robot import robot_xml
+from rrg_models.description.urdf_robot import PALM_LINK, robot_urdf, ros_name
+from rrg_models.hand import FINGERS, body_poses, joint_angles
 
 #: MuJoCo's URDF extension: keep the bodies of fixed joints (the palm, the fingertips) apart.
 KEEP_FIXED = '<mujoco><compiler fusestatic="false" discardvisual="false"/></mujoco>'
@@ -40,7 +36,7 @@ def pose(m: mujoco.MjModel, d: mujoco.MjData, body: str) -> np.ndarray:
 
 def test_the_urdf_palm_is_where_the_wam_model_puts_the_hand(urdf_model):
     """1,000 random arm configurations within the limits: the palm link's pose equals
-    rrg_sim.wam.fk's hand frame to 1e-9 m and 1e-9 in each rotation entry."""
+    rrg_models.wam.fk's hand frame to 1e-9 m and 1e-9 in each rotation entry."""
     m, d = urdf_model, mujoco.MjData(urdf_model)
     arm = [m.joint(n).qposadr[0] for n in ARM_JOINT_NAMES]
     rng = np.random.default_rng(39)
@@ -55,7 +51,7 @@ def test_the_urdf_palm_is_where_the_wam_model_puts_the_hand(urdf_model):
 
 def test_the_urdf_fingers_are_where_the_hand_model_puts_them(urdf_model):
     """200 random hand configurations (distal joints at their coupling): every hand link's pose
-    in the palm's frame equals rrg_sim.hand.body_poses to 1e-9."""
+    in the palm's frame equals rrg_models.hand.body_poses to 1e-9."""
     m, d = urdf_model, mujoco.MjData(urdf_model)
     rng = np.random.default_rng(40)
     for _ in range(200):

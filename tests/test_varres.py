@@ -8,7 +8,7 @@ from rrg_estimator.belief import Belief
 from rrg_estimator.config import HIGH, LOW, MID, VARRES_EPS
 from rrg_estimator.grid import Grid
 from rrg_estimator.varres import maybe_refine
-from rrg_sim.poses import wrap_angle
+from rrg_models.poses import wrap_angle
 
 COARSE = Grid.for_level(HIGH, center=(0.62, 0.0, 0.0))
 

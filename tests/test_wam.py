@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rrg_sim import wam, wam_feasibility
-from rrg_sim.config import HAND, WAM, WORLD
-from rrg_sim.poses import home_pose, interpolate_poses, make_pose, planar_pose
-from rrg_sim.wam_feasibility import FeasibilityMap, PolarGrid
+from rrg_models import wam, wam_feasibility
+from rrg_models.config import HAND, WAM, WORLD
+from rrg_models.poses import home_pose, interpolate_poses, make_pose, planar_pose
+from rrg_models.wam_feasibility import FeasibilityMap, PolarGrid
 
 WRIST_TO_HAND = WAM.dh[6][2] + WAM.hand_mount  # m
 DOWN = Rotation.from_rotvec([np.pi, 0.0, 0.0])  # hand z = world -z

@@ -41,12 +41,12 @@ def bench_plan(argv: list[str]) -> int:
     from rrg_estimator.obs_tables import build_table
     from rrg_estimator.reference_update import update_reference
     from rrg_estimator.update import update
+    from rrg_models.config import WORLD
+    from rrg_models.poses import compose_planar
     from rrg_planner.planning_model import PlanningModel
     from rrg_planner.reference_search import ReferenceSearch
     from rrg_planner.search import ForwardSearch
-    from rrg_sim.config import WORLD
     from rrg_sim.geometric_sim import GeometricSimulator
-    from rrg_sim.poses import compose_planar
 
     ap = argparse.ArgumentParser(
         prog="rrg-bench plan",
@@ -197,10 +197,10 @@ def bench_core() -> dict:
     from rrg_estimator.obs_model import table_indices
     from rrg_estimator.transition import bump
     from rrg_estimator.varres import maybe_refine
-    from rrg_sim import wam
-    from rrg_sim.config import HAND
-    from rrg_sim.poses import make_pose
-    from rrg_sim.wam_feasibility import FeasibilityMap
+    from rrg_models import wam
+    from rrg_models.config import HAND
+    from rrg_models.poses import make_pose
+    from rrg_models.wam_feasibility import FeasibilityMap
 
     out = {}
     e = np.array([0.62, 0.01, 0.3])

@@ -34,9 +34,9 @@ from tqdm import tqdm
 PARTS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("physics steps", ("mj_step", "mj_forward")),
     ("numba compiler", ("/numba/", "/llvmlite/")),
-    ("sensors and guards", ("rrg_sim/physics/sensing.py", "rrg_sim/hand_sensing.py")),
+    ("sensors and guards", ("rrg_sim/physics/sensing.py", "rrg_models/hand_sensing.py")),
     ("control loop", ("rrg_sim/physics/world.py", "rrg_sim/executor/wrt_executor.py")),
-    ("IK and paths", ("rrg_sim/executor/trajectory.py", "rrg_sim/wam.py", "wam_feasibility")),
+    ("IK and paths", ("rrg_models/trajectory.py", "rrg_models/wam.py", "wam_feasibility")),
     ("judge", ("rrg_sim/physics/judge.py",)),
     ("belief update", ("rrg_estimator/",)),
     (
@@ -95,9 +95,9 @@ def run(argv: list[str]) -> int:
 
     from rrg_experiments.experiment_cli import campaign_specs
     from rrg_experiments.trials import _env, _model, model_key, run_trial, schedule
+    from rrg_models.objects import PAPER_OBJECTS
     from rrg_planner.request_checks import STRATEGIES
     from rrg_sim.config import WORLD_PROFILES
-    from rrg_sim.objects import PAPER_OBJECTS
 
     ap = argparse.ArgumentParser(
         prog="rrg-bench campaign",

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from rrg_estimator.config import LEVELS
-from rrg_sim.config import WORLD
+from rrg_models.config import WORLD
 
 SELECT_TARGET_MS = 5.0  # the required target for the median select-action overhead
 LEVEL_NAMES = list(LEVELS)  # the planner loads all, as rrg-launch does (variable resolution)
@@ -65,8 +65,8 @@ def select_overhead(graph, object_name: str, level: str, horizon: int, calls: in
 
 def first_action(graph, object_name: str, level: str, horizon: int) -> float:
     """Seconds from the launch to the first robust-grasp feedback; cancels the grasp after it."""
+    from rrg_common.ros.msg_conversions import planar_to_msg
     from rrg_msgs.srv import ResetSim
-    from rrg_sim.ros_common.msg_conversions import planar_to_msg
 
     reset = graph.result(
         graph.clients["/rrg/reset_sim"].call_async(

@@ -4,7 +4,7 @@ drivers (speed is printed, never asserted in tests).
     rrg-bench hw [--trials 50] [--force 2.0] [--idle 5] [--rdt-rates 1000,3000,7000]
                  [--guard-window 4] [--domain-id N] [--log-dir DIR] [--seed 0] [--json]
 
-It starts the emulated WAM, BarrettHand and Net F/T drivers (``rrg_hw_bridge.fake.fake_hw_node``)
+It starts the emulated WAM, BarrettHand and Net F/T drivers (``rrg_fake_hw.fake_hw_node``)
 and the bridge (``rrg_hw_bridge.ros.bridge_node``) as ``rrg-launch --mode hw --fake-hw`` does:
 the launcher's ``Graph`` starts only the arm/hand interface (``--domain-id``, default 98), with
 the Net F/T boxes at ``rdt_addresses(domain)``. It waits until the bridge reports every
@@ -78,12 +78,12 @@ from rrg_bringup.graph import (
     rdt_addresses,
     ros_environment,
 )
+from rrg_common.ros.msg_conversions import ARM_JOINT_NAMES, planar_to_msg
 from rrg_hw_bridge.config import BRIDGE as BRIDGE_DEFAULTS
 from rrg_hw_bridge.rdt import set_box_rdt_rate
+from rrg_models.config import SENSING, SENSOR_NAMES, WORLD
 from rrg_msgs.action import GuardedMove
 from rrg_msgs.srv import ResetSim
-from rrg_sim.config import SENSING, SENSOR_NAMES, WORLD
-from rrg_sim.ros_common.msg_conversions import ARM_JOINT_NAMES, planar_to_msg
 
 #: Targets [ms] of the wrench crossing → cancel at the controller latency: its median and p99.
 LATENCY_MEDIAN_TARGET_MS = 5.0

@@ -34,8 +34,8 @@ TARGET_P99_MS = 100.0
 def client_main(argv: list[str]) -> int:
     """One client process: JSON lines on stdout, one per call (latency [s], planning time [s],
     or the error), after a line that says the graph was ready."""
+    from rrg_models.config import WORLD
     from rrg_planner.client import Gaussian, RRGClient, RRGError
-    from rrg_sim.config import WORLD
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--object", required=True)

@@ -16,7 +16,7 @@ import time
 import mujoco
 import numpy as np
 
-from rrg_sim.objects import PAPER_OBJECTS
+from rrg_models.objects import PAPER_OBJECTS
 from rrg_sim.physics.judge import judge_grasp
 from rrg_sim.physics.world import PhysicsWorld
 

@@ -13,10 +13,10 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from visualization_msgs.msg import Marker, MarkerArray
 
+from rrg_common.ros.msg_conversions import WORLD_FRAME, planar_from_msg, planar_to_msg
 from rrg_estimator.belief import Belief
 from rrg_estimator.grid import Grid
 from rrg_msgs.msg import BeliefGrid, BeliefGridMetaData
-from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, planar_from_msg, planar_to_msg
 
 
 class InvalidGrid(ValueError):

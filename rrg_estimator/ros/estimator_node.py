@@ -38,38 +38,38 @@ from builtin_interfaces.msg import Time
 from rclpy.node import Node
 from visualization_msgs.msg import MarkerArray
 
-from rrg_estimator.config import LEVELS
-from rrg_estimator.persistence import EstimatorState, load_state, save_state
-from rrg_estimator.ros.belief_msgs import belief_markers, belief_to_msg
-from rrg_estimator.ros.likelihood_param import declare_unsensed_sensors
-from rrg_estimator.tracker import BeliefTracker, CachedTables
-from rrg_msgs.msg import BeliefGrid, Retreated
-from rrg_msgs.msg import Observation as ObservationMsg
-from rrg_msgs.srv import GetBelief, ResetBelief
-from rrg_sim.config import WORLD_PROFILES, world_profile
-from rrg_sim.objects import get_object
-from rrg_sim.poses import planar_pose
-from rrg_sim.posture_calibration import PostureCalibration
-from rrg_sim.ros_common.diagnostics import WARN, Health, NodeDiagnostics, milliseconds
-from rrg_sim.ros_common.frames import OBJECT_ESTIMATE_FRAME, TfPublisher
-from rrg_sim.ros_common.liveliness import announce
-from rrg_sim.ros_common.msg_conversions import (
+from rrg_common.ros.diagnostics import WARN, Health, NodeDiagnostics, milliseconds
+from rrg_common.ros.frames import OBJECT_ESTIMATE_FRAME, TfPublisher
+from rrg_common.ros.liveliness import announce
+from rrg_common.ros.msg_conversions import (
     WORLD_FRAME,
     ns_to_stamp,
     observation_from_msg,
     planar_from_msg,
     stamp_to_ns,
 )
-from rrg_sim.ros_common.node_main import keep_serving, release_free_memory, run_node
-from rrg_sim.ros_common.parameters import Param, declare
-from rrg_sim.ros_common.qos import LATCHED, STREAM
-from rrg_sim.state_file import StateError
+from rrg_common.ros.node_main import keep_serving, release_free_memory, run_node
+from rrg_common.ros.parameters import Param, declare
+from rrg_common.ros.qos import LATCHED, STREAM
+from rrg_common.state_file import StateError
+from rrg_estimator.config import LEVELS
+from rrg_estimator.persistence import EstimatorState, load_state, save_state
+from rrg_estimator.ros.belief_msgs import belief_markers, belief_to_msg
+from rrg_estimator.ros.likelihood_param import declare_unsensed_sensors
+from rrg_estimator.tracker import BeliefTracker, CachedTables
+from rrg_models.objects import get_object
+from rrg_models.poses import planar_pose
+from rrg_msgs.msg import BeliefGrid, Retreated
+from rrg_msgs.msg import Observation as ObservationMsg
+from rrg_msgs.srv import GetBelief, ResetBelief
+from rrg_sim.config import WORLD_PROFILES, world_profile
+from rrg_sim.posture_calibration import PostureCalibration
 
 NODE_NAME = "estimator"
 NAMESPACE = "rrg"
 
 
-#: The node's parameters (rrg_sim.ros_common.parameters).
+#: The node's parameters (rrg_common.ros.parameters).
 PARAMETERS: tuple[Param, ...] = (
     Param(
         "frame_id", WORLD_FRAME, "Frame of the belief's poses (the WAM base frame)", read_only=True

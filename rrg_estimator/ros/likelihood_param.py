@@ -8,7 +8,7 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 
 from rrg_estimator.config import LikelihoodParams, likelihood_without
-from rrg_sim.config import SENSOR_NAMES
+from rrg_models.config import SENSOR_NAMES
 
 
 def declare_unsensed_sensors(node: Node) -> LikelihoodParams:

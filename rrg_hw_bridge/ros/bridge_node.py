@@ -47,12 +47,7 @@ from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 from wam_msgs.msg import TactilePressureArray
 
-from rrg_msgs.action import GuardedMove
-from rrg_msgs.msg import ContactPads
-from rrg_msgs.srv import HandCommand
-from rrg_sim.config import HAND, PHYSICS, SENSING, SENSOR_NAMES
-from rrg_sim.hand_sensing import FingerClosing
-from rrg_sim.ros_common.arm_hand_interface import (
+from rrg_common.ros.arm_hand_interface import (
     START_TOLERANCE,
     GoalError,
     StatePublishers,
@@ -61,15 +56,20 @@ from rrg_sim.ros_common.arm_hand_interface import (
     goal_via_points,
     serve_arm_hand_interface,
 )
-from rrg_sim.ros_common.msg_conversions import (
+from rrg_common.ros.msg_conversions import (
     ARM_JOINT_NAMES,
     PROXIMAL_JOINT_NAMES,
     SPREAD_JOINT_NAME,
     tip_contacts_to_msg,
     vector_to_msg,
 )
-from rrg_sim.ros_common.node_main import destroy_action_endpoints, keep_serving, run_node
-from rrg_sim.ros_common.parameters import Param, declare
+from rrg_common.ros.node_main import destroy_action_endpoints, keep_serving, run_node
+from rrg_common.ros.parameters import Param, declare
+from rrg_models.config import HAND, PHYSICS, SENSING, SENSOR_NAMES
+from rrg_models.hand_sensing import FingerClosing
+from rrg_msgs.action import GuardedMove
+from rrg_msgs.msg import ContactPads
+from rrg_msgs.srv import HandCommand
 
 from ..arm_limits import DEFAULT_ARM_LIMITS, load_arm_limits
 from ..config import BRIDGE
@@ -232,7 +232,7 @@ class ActiveMove:
     recovery_excess: float | None = None
 
 
-#: The node's parameters (rrg_sim.ros_common.parameters).
+#: The node's parameters (rrg_common.ros.parameters).
 PARAMETERS: tuple[Param, ...] = (
     Param(
         "arm_backend",
@@ -1464,7 +1464,7 @@ class BridgeNode(Node):
                 return
 
     def close_hand(self, guarded: bool) -> np.ndarray:
-        """Close every finger until it stops (rrg_sim.hand_sensing.FingerClosing, as the
+        """Close every finger until it stops (rrg_models.hand_sensing.FingerClosing, as the
         simulator's closing, fed each driver joint state on the driver's clock); returns the
         sensors (10,) fired at any time while closing."""
         closing = FingerClosing(guarded)

@@ -29,7 +29,7 @@ from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from wam_msgs.msg import RTJointPositions
 
-from rrg_sim.ros_common.futures import ThreadSafeActionClient, WaitTimeout, wait_for
+from rrg_common.ros.futures import ThreadSafeActionClient, WaitTimeout, wait_for
 
 from ..rdt import (
     CONFIG_PAGE,

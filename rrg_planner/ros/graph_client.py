@@ -12,7 +12,7 @@ Every wait polls ``interrupted`` (a cancel request or shutdown) and has a timeou
 raise GraphError with the robust-grasp result code that names them.
 
 Restarted nodes (operations §8): the executor and the estimator announce themselves
-(rrg_sim.ros_common.liveliness), so a wait on one that dies ends at once. A lost execution is
+(rrg_common.ros.liveliness), so a wait on one that dies ends at once. A lost execution is
 recovered: once the executor is back, the hand is retreated home (a restarted executor that
 has no path to retrace backs out and rises) and ``execute`` raises ExecutionLost, so the agent
 chooses again on the belief as it now is. A lost retreat or belief reset is made again. A
@@ -32,23 +32,18 @@ from builtin_interfaces.msg import Time
 from rclpy.callback_groups import CallbackGroup
 from rclpy.node import Node
 
+from rrg_common.ros.futures import ThreadSafeActionClient, WaitInterrupted, WaitTimeout, wait_for
+from rrg_common.ros.liveliness import PeerLost, PeerWatch
+from rrg_common.ros.msg_conversions import observation_from_msg, planar_to_msg
+from rrg_common.ros.qos import LATCHED
 from rrg_estimator.belief import Belief
 from rrg_estimator.ros.belief_msgs import belief_from_msg
+from rrg_models.observation import Observation
+from rrg_models.wrt import WRT, InfeasibleWRT
 from rrg_msgs.action import ExecuteWrt, RobustGrasp
 from rrg_msgs.msg import BeliefGrid
 from rrg_msgs.srv import ResetBelief, Retreat
 from rrg_planner.closed_loop import ExecutionLost
-from rrg_sim.observation import Observation
-from rrg_sim.ros_common.futures import (
-    ThreadSafeActionClient,
-    WaitInterrupted,
-    WaitTimeout,
-    wait_for,
-)
-from rrg_sim.ros_common.liveliness import PeerLost, PeerWatch
-from rrg_sim.ros_common.msg_conversions import observation_from_msg, planar_to_msg
-from rrg_sim.ros_common.qos import LATCHED
-from rrg_sim.wrt import WRT, InfeasibleWRT
 
 RG = RobustGrasp.Result
 SERVER_WAIT_S = 10.0  # longest wait for a service or action server to appear

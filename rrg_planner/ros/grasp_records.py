@@ -7,10 +7,10 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from std_msgs.msg import Header
 
+from rrg_common.ros.msg_conversions import WORLD_FRAME, planar_to_msg
 from rrg_msgs.action import RobustGrasp
 from rrg_msgs.msg import GraspStep
 from rrg_planner.closed_loop import Decision, Step
-from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, planar_to_msg
 
 
 def _record(goal: RobustGrasp.Goal, event: int, stamp: Time) -> GraspStep:

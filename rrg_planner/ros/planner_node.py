@@ -43,10 +43,19 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from rrg_common.ros.diagnostics import ERROR, Health, NodeDiagnostics, milliseconds
+from rrg_common.ros.futures import WaitInterrupted, wait_for
+from rrg_common.ros.liveliness import announce
+from rrg_common.ros.msg_conversions import planar_to_msg
+from rrg_common.ros.node_main import destroy_action_endpoints, run_node
+from rrg_common.ros.parameters import Param, declare
+from rrg_common.ros.qos import RESULT_TIMEOUT_S
+from rrg_common.state_file import StateError
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import LEVELS
 from rrg_estimator.ros.belief_msgs import InvalidBelief, InvalidGrid, belief_from_msg
 from rrg_estimator.ros.likelihood_param import declare_unsensed_sensors
+from rrg_models.config import WORLD
 from rrg_msgs.action import RobustGrasp
 from rrg_msgs.msg import GraspStep
 from rrg_msgs.srv import GetBelief, SelectAction
@@ -65,15 +74,7 @@ from rrg_planner.ros.grasp_records import (
     interrupted_record,
     resumed_record,
 )
-from rrg_sim.config import WORLD, WORLD_PROFILES, world_profile
-from rrg_sim.ros_common.diagnostics import ERROR, Health, NodeDiagnostics, milliseconds
-from rrg_sim.ros_common.futures import WaitInterrupted, wait_for
-from rrg_sim.ros_common.liveliness import announce
-from rrg_sim.ros_common.msg_conversions import planar_to_msg
-from rrg_sim.ros_common.node_main import destroy_action_endpoints, run_node
-from rrg_sim.ros_common.parameters import Param, declare
-from rrg_sim.ros_common.qos import RESULT_TIMEOUT_S
-from rrg_sim.state_file import StateError
+from rrg_sim.config import WORLD_PROFILES, world_profile
 
 NODE_NAME = "planner"
 NAMESPACE = "rrg"
@@ -95,7 +96,7 @@ class RequestError(Exception):
         return cls(getattr(codes, exc.code), str(exc))
 
 
-#: The node's parameters (rrg_sim.ros_common.parameters).
+#: The node's parameters (rrg_common.ros.parameters).
 PARAMETERS: tuple[Param, ...] = (
     Param(
         "levels",

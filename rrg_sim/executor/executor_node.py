@@ -32,28 +32,28 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from std_msgs.msg import Header
 
+from rrg_common.ros.diagnostics import ERROR, WARN, Health, NodeDiagnostics
+from rrg_common.ros.liveliness import announce
+from rrg_common.ros.msg_conversions import WORLD_FRAME, observation_to_msg, planar_from_msg
+from rrg_common.ros.node_main import destroy_action_endpoints, keep_serving, run_node
+from rrg_common.ros.parameters import Param, declare
+from rrg_common.ros.qos import RESULT_TIMEOUT_S, STREAM
+from rrg_models.objects import get_object, object_names, unknown_object_message
+from rrg_models.trajectory import InfeasiblePath
 from rrg_msgs.action import ExecuteWrt
 from rrg_msgs.msg import Observation as ObservationMsg
 from rrg_msgs.msg import Retreated
 from rrg_msgs.srv import Retreat
 from rrg_sim.config import WORLD_PROFILES, world_profile
 from rrg_sim.executor.robot_client import MotionCanceled, MotionFailed, RobotFault, RosRobot
-from rrg_sim.executor.trajectory import InfeasiblePath
 from rrg_sim.executor.wrt_executor import WrtExecutor
-from rrg_sim.objects import get_object, object_names, unknown_object_message
-from rrg_sim.ros_common.diagnostics import ERROR, WARN, Health, NodeDiagnostics
-from rrg_sim.ros_common.liveliness import announce
-from rrg_sim.ros_common.msg_conversions import WORLD_FRAME, observation_to_msg, planar_from_msg
-from rrg_sim.ros_common.node_main import destroy_action_endpoints, keep_serving, run_node
-from rrg_sim.ros_common.parameters import Param, declare
-from rrg_sim.ros_common.qos import RESULT_TIMEOUT_S, STREAM
 
 NODE_NAME = "executor"
 NAMESPACE = "rrg"
 R = ExecuteWrt.Result
 
 
-#: The node's parameters (rrg_sim.ros_common.parameters).
+#: The node's parameters (rrg_common.ros.parameters).
 PARAMETERS: tuple[Param, ...] = (
     Param(
         "motion_timeout",

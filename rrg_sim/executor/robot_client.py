@@ -19,26 +19,21 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from rrg_msgs.action import GuardedMove
-from rrg_msgs.srv import HandCommand
-from rrg_sim import wam
-from rrg_sim.config import HAND, N_SENSORS
-from rrg_sim.executor.wrt_executor import Reading
-from rrg_sim.ros_common.arm_hand_interface import INTERFACE_PEER
-from rrg_sim.ros_common.futures import (
-    ThreadSafeActionClient,
-    WaitInterrupted,
-    WaitTimeout,
-    wait_for,
-)
-from rrg_sim.ros_common.liveliness import PeerLost, PeerWatch
-from rrg_sim.ros_common.msg_conversions import (
+from rrg_common.ros.arm_hand_interface import INTERFACE_PEER
+from rrg_common.ros.futures import ThreadSafeActionClient, WaitInterrupted, WaitTimeout, wait_for
+from rrg_common.ros.liveliness import PeerLost, PeerWatch
+from rrg_common.ros.msg_conversions import (
     ARM_JOINT_NAMES,
     PROXIMAL_JOINT_NAMES,
     SPREAD_JOINT_NAME,
     stamp_to_ns,
     tip_contacts_from_msg,
 )
+from rrg_models import wam
+from rrg_models.config import HAND, N_SENSORS
+from rrg_models.hand_sensing import Reading
+from rrg_msgs.action import GuardedMove
+from rrg_msgs.srv import HandCommand
 
 
 class MotionFailed(RuntimeError):

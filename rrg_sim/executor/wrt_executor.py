@@ -23,9 +23,14 @@ from typing import Protocol
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from rrg_sim import wam
-from rrg_sim.config import GEOMSIM, N_SENSORS, PHYSICS, REORIENT_MIN_FINGERS, WORLD
-from rrg_sim.executor.trajectory import (
+from rrg_models import wam
+from rrg_models.config import GEOMSIM, N_SENSORS, PHYSICS, REORIENT_MIN_FINGERS, WORLD
+from rrg_models.goal import holds_object
+from rrg_models.hand import fingertip_lowest_z, hand_geoms_world, sensor_id
+from rrg_models.hand_sensing import Reading
+from rrg_models.observation import Observation, grasp_arrived
+from rrg_models.poses import planar_pose, raised
+from rrg_models.trajectory import (
     DensePath,
     InfeasiblePath,
     densify,
@@ -34,11 +39,7 @@ from rrg_sim.executor.trajectory import (
     sample_times,
     solve_path,
 )
-from rrg_sim.goal import holds_object
-from rrg_sim.hand import fingertip_lowest_z, hand_geoms_world, sensor_id
-from rrg_sim.observation import Observation, grasp_arrived
-from rrg_sim.poses import planar_pose, raised
-from rrg_sim.wrt import WRT
+from rrg_models.wrt import WRT
 
 log = logging.getLogger(__name__)
 
@@ -71,20 +72,6 @@ TOUCH_SPEED = 0.02
 #: something else, and corrects nothing (chosen: 3 σ of the vertical error at a touch, 6-7 mm
 #: at 10 mrad with the table's 2.3 mm).
 TOUCH_VALID = 0.02
-
-
-@dataclass(frozen=True)
-class Reading:
-    """What the hand senses at one instant.
-
-    fired: (10,) bool, config.SENSOR_NAMES order. tip_points / tip_normals: (3,3) Nano17
-    contact points [m] and unit normals (object → tip) in the hand frame, NaN rows for tips
-    below threshold.
-    """
-
-    fired: np.ndarray
-    tip_points: np.ndarray
-    tip_normals: np.ndarray
 
 
 class Robot(Protocol):

@@ -17,15 +17,14 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from rrg_sim.executor.trajectory import InfeasiblePath
-
-from ..config import HAND, WORLD
-from ..geometric_sim import GeometricSimulator
-from ..objects import PAPER_OBJECTS, get_object
-from ..observation import Observation
-from ..poses import compose_planar
-from ..wrt import WRT
-from .world import PhysicsWorld
+from rrg_models.config import HAND, WORLD
+from rrg_models.objects import PAPER_OBJECTS, get_object
+from rrg_models.observation import Observation
+from rrg_models.poses import compose_planar
+from rrg_models.trajectory import InfeasiblePath
+from rrg_models.wrt import WRT
+from rrg_sim.geometric_sim import GeometricSimulator
+from rrg_sim.physics.world import PhysicsWorld
 
 log = logging.getLogger(__name__)
 

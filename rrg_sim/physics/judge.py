@@ -18,7 +18,7 @@ After a goal WRT has closed the hand, the grasp succeeds iff
 
 The judge judges the truth only. What the robot's own sensors said of the grasp (the
 observation's fingers, ``info["sensed_fingers"]``) is the robot's business: its verification
-(rrg_sim.goal.goal_grasp_mismatches) may reject a grasp before it is ever judged.
+(rrg_models.goal.goal_grasp_mismatches) may reject a grasp before it is ever judged.
 
 The strict test (``info["strict_success"]``) also asks the offset where a finger first
 touched the object, before the closing pulled it into the hand, to lie in the goal region's
@@ -31,13 +31,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from rrg_sim.executor.trajectory import InfeasiblePath
-
-from ..config import PHYSICS
-from ..objects import ObjectModel
-from ..observation import Observation, fingers_in_contact
-from ..poses import compose_planar, invert, relative_planar
-from .world import PhysicsWorld
+from rrg_models.config import PHYSICS
+from rrg_models.objects import ObjectModel
+from rrg_models.observation import Observation, fingers_in_contact
+from rrg_models.poses import compose_planar, invert, relative_planar
+from rrg_models.trajectory import InfeasiblePath
+from rrg_sim.physics.world import PhysicsWorld
 
 #: The object counts as lifted when it rose at least this fraction of the lift (chosen: a
 #: grasp that lets it slide half-way out has failed).

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from ..config import NOMINAL, WorldProfile
+from rrg_sim.config import NOMINAL, WorldProfile
 
 
 @dataclass(frozen=True)

@@ -19,8 +19,8 @@ import mujoco
 import numpy as np
 from matplotlib import image as mpimg
 
-from ..objects import PAPER_OBJECTS
-from .world import PhysicsWorld
+from rrg_models.objects import PAPER_OBJECTS
+from rrg_sim.physics.world import PhysicsWorld
 
 DEFAULT_SIZE = (640, 480)  # px
 

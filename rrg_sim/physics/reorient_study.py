@@ -27,15 +27,14 @@ from pathlib import Path
 
 import numpy as np
 
-from rrg_sim.config import REORIENT_MIN_FINGERS, WORLD
-from rrg_sim.executor.trajectory import InfeasiblePath
-from rrg_sim.objects.object_model import REORIENTATION_FILE
-
-from ..goal import holds_object
-from ..objects import PAPER_OBJECTS, get_object
-from ..poses import compose_planar, relative_planar, wrap_angle
-from .settle import run_study, study_args
-from .world import PhysicsWorld
+from rrg_models.config import REORIENT_MIN_FINGERS, WORLD
+from rrg_models.goal import holds_object
+from rrg_models.objects import PAPER_OBJECTS, get_object
+from rrg_models.objects.object_model import REORIENTATION_FILE
+from rrg_models.poses import compose_planar, relative_planar, wrap_angle
+from rrg_models.trajectory import InfeasiblePath
+from rrg_sim.physics.settle import run_study, study_args
+from rrg_sim.physics.world import PhysicsWorld
 
 #: σ of the start offsets Δ [m, m, rad] (chosen: the low uncertainty level's 1 cm in x, y and
 #: a belief still some 6° wide in θ, as when the planner reorients).

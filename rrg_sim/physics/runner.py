@@ -15,14 +15,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rrg_sim.executor.trajectory import InfeasiblePath
+from rrg_models import wam
+from rrg_models.observation import Observation
+from rrg_models.poses import compose_planar
+from rrg_models.trajectory import InfeasiblePath
+from rrg_models.wrt import WRT
 from rrg_sim.physics.judge import judge_grasp
-
-from .. import wam
-from ..observation import Observation
-from ..poses import compose_planar
-from ..wrt import WRT
-from .world import PhysicsWorld
+from rrg_sim.physics.world import PhysicsWorld
 
 
 @dataclass

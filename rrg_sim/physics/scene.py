@@ -15,11 +15,11 @@ from pathlib import Path
 
 import mujoco
 
-from ..config import WORLD
-from ..objects import PAPER_OBJECTS, ObjectModel, get_object
-from ..objects.primitives import mjcf_mesh_asset
-from .mjcf import sub, to_xml
-from .mjcf_robot import ROBOT_FILE, robot_xml
+from rrg_models.config import WORLD
+from rrg_models.description.mjcf import sub, to_xml
+from rrg_models.description.mjcf_robot import ROBOT_FILE, robot_xml
+from rrg_models.objects import PAPER_OBJECTS, ObjectModel, get_object
+from rrg_models.objects.primitives import mjcf_mesh_asset
 
 ASSETS_DIR = Path(__file__).resolve().parent.parent / "assets"
 OBJECT_BODY = "object"

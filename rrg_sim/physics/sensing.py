@@ -8,7 +8,7 @@ when nothing touches it (a false alarm). The Nano17s are tared (biased) before e
 as a real F/T sensor is, which removes the fingertip's own weight. A contact point on a
 fingertip is recovered from its wrench: the force's line of action (p × F = τ) enters the
 fingertip's capsule surface at the contact; the normal there points from the object into the
-tip (rrg_sim.hand_sensing, which the hardware bridge shares).
+tip (rrg_models.hand_sensing, which the hardware bridge shares).
 """
 
 from __future__ import annotations
@@ -17,11 +17,16 @@ import mujoco
 import numpy as np
 from numba import njit
 
-from rrg_sim.executor.wrt_executor import Reading
-
-from ..config import N_SENSORS, NOMINAL, PHYSICS, SENSING, WorldProfile
-from ..hand_sensing import fired_sensors, tip_contacts
-from .mjcf_robot import PAD_TOUCH, PALM_BODY, TIP_BODIES, TIP_FORCE, TIP_TORQUE
+from rrg_models.config import N_SENSORS, PHYSICS, SENSING
+from rrg_models.description.mjcf_robot import (
+    PAD_TOUCH,
+    PALM_BODY,
+    TIP_BODIES,
+    TIP_FORCE,
+    TIP_TORQUE,
+)
+from rrg_models.hand_sensing import Reading, fired_sensors, tip_contacts
+from rrg_sim.config import NOMINAL, WorldProfile
 
 #: A noise-free signal this many σ below its threshold cannot fire (P < 1e-9): skip the noise.
 QUIET_SIGMAS = 6.0

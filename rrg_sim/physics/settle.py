@@ -15,7 +15,7 @@ maps near each Δ and predict the hold (objects.Settling.outcome, Settling.hold_
 the result is the object's ``objects.Settling`` model.
 
 ``python -m rrg_sim.physics.settle [objects…] [--grasps N] [--workers W]`` measures and
-writes each object's ``settling.json`` into its folder (rrg_sim.objects.catalogue), where
+writes each object's ``settling.json`` into its folder (rrg_models.objects.catalogue), where
 the object loads it. ``--world realistic`` measures in that world profile instead, each grasp
 with a trial's draws of its own (friction, centre of mass, table height, pads, the joint
 offsets' vertical error), and writes ``settling.realistic.json`` (settling_file), which the
@@ -39,16 +39,16 @@ import mujoco
 import numpy as np
 from tqdm import tqdm
 
-from rrg_sim.executor.trajectory import InfeasiblePath
-from rrg_sim.objects.object_model import SETTLING_THETA_BOX, settling_file
-from rrg_sim.parallel import fork_map
-
-from ..config import WORLD, WORLD_PROFILES
-from ..objects import PAPER_OBJECTS, get_object, object_folders
-from ..observation import fingers_in_contact
-from ..poses import compose_planar, relative_planar, wrap_angle
-from .judge import judge_grasp
-from .world import PhysicsWorld
+from rrg_common.parallel import fork_map
+from rrg_models.config import WORLD
+from rrg_models.objects import PAPER_OBJECTS, get_object, object_folders
+from rrg_models.objects.object_model import SETTLING_THETA_BOX, settling_file
+from rrg_models.observation import fingers_in_contact
+from rrg_models.poses import compose_planar, relative_planar, wrap_angle
+from rrg_models.trajectory import InfeasiblePath
+from rrg_sim.config import WORLD_PROFILES
+from rrg_sim.physics.judge import judge_grasp
+from rrg_sim.physics.world import PhysicsWorld
 
 log = logging.getLogger(__name__)
 

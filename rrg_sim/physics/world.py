@@ -21,24 +21,9 @@ from collections.abc import Callable
 import mujoco
 import numpy as np
 
-from rrg_sim.executor.trajectory import (
-    DensePath,
-    InfeasiblePath,
-    TimedPath,
-    plan_path,
-    servo_targets,
-    timed_controls,
-)
-from rrg_sim.executor.wrt_executor import Reading, WrtExecutor
-
-from .. import wam
-from ..config import HAND, NOMINAL, PHYSICS, WORLD, WorldProfile, world_profile
-from ..hand_sensing import CLOSE_START_TIME, FingerClosing, StopConfirmation
-from ..objects import ObjectModel, get_object
-from ..observation import Observation
-from ..poses import planar_map
-from ..wrt import WRT
-from .mjcf_robot import (
+from rrg_models import wam
+from rrg_models.config import HAND, PHYSICS, WORLD
+from rrg_models.description.mjcf_robot import (
     ARM_ACTUATORS,
     ARM_JOINTS,
     FINGER_ACTUATORS,
@@ -49,9 +34,24 @@ from .mjcf_robot import (
     SPREAD_ACTUATOR,
     SPREAD_JOINT,
 )
-from .realism import ModelConditions, draw_conditions, quantize
-from .scene import OBJECT_BODY, OBJECT_JOINT, build_model
-from .sensing import HandSensors
+from rrg_models.hand_sensing import CLOSE_START_TIME, FingerClosing, Reading, StopConfirmation
+from rrg_models.objects import ObjectModel, get_object
+from rrg_models.observation import Observation
+from rrg_models.poses import planar_map
+from rrg_models.trajectory import (
+    DensePath,
+    InfeasiblePath,
+    TimedPath,
+    plan_path,
+    servo_targets,
+    timed_controls,
+)
+from rrg_models.wrt import WRT
+from rrg_sim.config import NOMINAL, WorldProfile, world_profile
+from rrg_sim.executor.wrt_executor import WrtExecutor
+from rrg_sim.physics.realism import ModelConditions, draw_conditions, quantize
+from rrg_sim.physics.scene import OBJECT_BODY, OBJECT_JOINT, build_model
+from rrg_sim.physics.sensing import HandSensors
 
 __all__ = ["PhysicsWorld", "InfeasiblePath", "WorldsByObject"]
 
@@ -59,7 +59,7 @@ __all__ = ["PhysicsWorld", "InfeasiblePath", "WorldsByObject"]
 class PhysicsWorld:
     """The simulated robot and one object (see the module doc).
 
-    object_name: a catalogue name (rrg_sim.objects). seed: seeds the sensor noise and the
+    object_name: a catalogue name (rrg_models.objects). seed: seeds the sensor noise and the
     world profile's draws. sensor_noise: scale of every sensor's noise σ (1 = the profile's
     values, 0 = noiseless). profile: a config.WorldProfile or its spec (config.world_profile).
     confirm_stops: a guarded move stops on a lone pad only once the next pad sample agrees
@@ -457,7 +457,7 @@ class PhysicsWorld:
         )
 
     # ------------------------------------------------------------------ driver emulation
-    # Real-time stepping for emulated hardware drivers (rrg_hw_bridge.fake): one control period
+    # Real-time stepping for emulated hardware drivers (rrg_fake_hw): one control period
     # at a time with servo targets set from outside.
     def servo_targets(self) -> np.ndarray:
         """(11,) current servo targets: arm (7) [rad], spread, proximal 1-3 [rad]."""

@@ -1,5 +1,5 @@
 """Simulation-only reset and evaluation of a node that owns a PhysicsWorld (the simulator node and
-the emulated hardware drivers, rrg_hw_bridge.fake.fake_hw_node, share it).
+the emulated hardware drivers, rrg_fake_hw.fake_hw_node, share it).
 
 Serves ``reset_sim`` (rrg_msgs/ResetSim: place an object, arm home) and ``eval/judge_grasp``
 (std_srvs/Trigger: lift and hold the grasp the last goal WRT on ``observation`` left, judge it
@@ -21,23 +21,22 @@ from rclpy.node import Node
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
-from rrg_msgs.msg import GraspOutcome
-from rrg_msgs.msg import Observation as ObservationMsg
-from rrg_msgs.srv import ResetSim
-from rrg_sim.ros_common.frames import OBJECT_TRUE_FRAME, TfPublisher
-from rrg_sim.ros_common.msg_conversions import (
+from rrg_common.ros.frames import OBJECT_TRUE_FRAME, TfPublisher
+from rrg_common.ros.msg_conversions import (
     WORLD_FRAME,
     observation_from_msg,
     planar_from_msg,
     planar_to_msg,
     pose_to_msg,
 )
-from rrg_sim.ros_common.node_main import keep_serving
-
-from ..config import PHYSICS, WORLD
-from ..objects import object_names, unknown_object_message
-from ..physics.judge import judge_grasp
-from ..physics.world import PhysicsWorld
+from rrg_common.ros.node_main import keep_serving
+from rrg_models.config import PHYSICS, WORLD
+from rrg_models.objects import object_names, unknown_object_message
+from rrg_msgs.msg import GraspOutcome
+from rrg_msgs.msg import Observation as ObservationMsg
+from rrg_msgs.srv import ResetSim
+from rrg_sim.physics.judge import judge_grasp
+from rrg_sim.physics.world import PhysicsWorld
 
 
 @dataclass(frozen=True)

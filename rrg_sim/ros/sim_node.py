@@ -10,7 +10,7 @@ Publishes (every 1/state_rate s of wall time, also during motions): ``/rrg/joint
 (rrg_msgs/ContactPads), and, for evaluation only (the estimator never reads it),
 ``/rrg/eval/object_pose`` (geometry_msgs/PoseStamped, the true object pose). These state
 readings are noise-free; guarded moves and hand commands use the noisy sensors. Its health
-goes on ``/diagnostics`` once a second (``sim: status``, rrg_sim.ros_common.diagnostics).
+goes on ``/diagnostics`` once a second (``sim: status``, rrg_common.ros.diagnostics).
 
 Serves ``/rrg/guarded_move`` (rrg_msgs/GuardedMove: timed joint via-points, stopping at the
 first pad or Nano17 over its threshold; cancellable), ``/rrg/hand_command``
@@ -40,10 +40,7 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from rrg_msgs.action import GuardedMove
-from rrg_msgs.msg import ContactPads
-from rrg_msgs.srv import HandCommand
-from rrg_sim.ros_common.arm_hand_interface import (
+from rrg_common.ros.arm_hand_interface import (
     GoalError,
     StatePublishers,
     check_hand_command,
@@ -51,21 +48,21 @@ from rrg_sim.ros_common.arm_hand_interface import (
     goal_via_points,
     serve_arm_hand_interface,
 )
-from rrg_sim.ros_common.diagnostics import Health, NodeDiagnostics
-from rrg_sim.ros_common.msg_conversions import (
-    tip_contacts_to_msg,
-    vector_to_msg,
-)
-from rrg_sim.ros_common.node_main import destroy_action_endpoints, keep_serving, run_node
-from rrg_sim.ros_common.parameters import Param, declare
-
-from .. import wam
-from ..config import SENSING, WORLD_PROFILES, world_profile
-from ..physics.mjcf_robot import TIP_BODIES
-from ..physics.sensing import HandSensors
-from ..physics.urdf_robot import ros_name
-from ..physics.world import PhysicsWorld, WorldsByObject
-from .eval_services import EvalServices
+from rrg_common.ros.diagnostics import Health, NodeDiagnostics
+from rrg_common.ros.msg_conversions import tip_contacts_to_msg, vector_to_msg
+from rrg_common.ros.node_main import destroy_action_endpoints, keep_serving, run_node
+from rrg_common.ros.parameters import Param, declare
+from rrg_models import wam
+from rrg_models.config import SENSING
+from rrg_models.description.mjcf_robot import TIP_BODIES
+from rrg_models.description.urdf_robot import ros_name
+from rrg_msgs.action import GuardedMove
+from rrg_msgs.msg import ContactPads
+from rrg_msgs.srv import HandCommand
+from rrg_sim.config import WORLD_PROFILES, world_profile
+from rrg_sim.physics.sensing import HandSensors
+from rrg_sim.physics.world import PhysicsWorld, WorldsByObject
+from rrg_sim.ros.eval_services import EvalServices
 
 NODE_NAME = "sim"
 NAMESPACE = "rrg"
@@ -75,7 +72,7 @@ SPREAD_TOLERANCE = 0.01
 CHECK_EVERY = 10
 
 
-#: The node's parameters (rrg_sim.ros_common.parameters).
+#: The node's parameters (rrg_common.ros.parameters).
 PARAMETERS: tuple[Param, ...] = (
     Param(
         "object_name",

@@ -1,2 +1,0 @@
-"""Emulated WAM, BarrettHand and Net F/T drivers driven by the MuJoCo world (test doubles of the
-real drivers below rrg_hw_bridge.ros.bridge_node)."""
