@@ -71,7 +71,6 @@ from trajectory_msgs.msg import JointTrajectoryPoint
 from wam_msgs.msg import RTJointPositions, TactilePressure, TactilePressureArray
 from wam_srvs.srv import JointMove
 
-from rrg_common.ros.arm_hand_interface import START_TOLERANCE
 from rrg_common.ros.diagnostics import WARN, Health, NodeDiagnostics
 from rrg_common.ros.node_main import destroy_action_endpoints, keep_serving, run_node
 from rrg_common.ros.parameters import Param, declare
@@ -81,6 +80,7 @@ from rrg_fake_hw.fake_netft import FakeNetFtBox
 from rrg_hw_bridge.rdt import Calibration
 from rrg_hw_bridge.tactile import CELLS, pucks_from_pads
 from rrg_models.config import HAND, PHYSICS, SENSING
+from rrg_models.trajectory import GOAL_START_TOLERANCE
 from rrg_msgs.msg import ContactPads
 from rrg_sim.ros.eval_services import EvalNames, EvalServices
 
@@ -186,7 +186,7 @@ def validate_trajectory(goal, q_now: np.ndarray) -> tuple[np.ndarray, np.ndarray
     last_v = traj.points[-1].velocities
     if len(last_v) and np.any(np.asarray(last_v) != 0.0):
         raise ValueError("the last point must have zero velocity")
-    if t[0] == 0.0 and np.abs(q[0] - q_now).max() > START_TOLERANCE:
+    if t[0] == 0.0 and np.abs(q[0] - q_now).max() > GOAL_START_TOLERANCE:
         raise ValueError("the first point, at time 0, is away from the arm's configuration")
     return q, t
 

@@ -428,3 +428,14 @@ def timed_controls(
     """Servo targets for every control period along a dense path timed by ``sample_times``."""
     ctrl, index = servo_targets(path.q, sample_times(path, speeds))
     return TimedPath(path, ctrl, index)
+
+
+#: Largest distance [rad] between the arm and a guarded move's first via-point at time 0 (the
+#: arm/hand interface's check of a goal, in the simulator and in the bridge).
+GOAL_START_TOLERANCE = 0.05
+
+
+def client_fraction(index: float, n: int) -> float:
+    """Fraction [0, 1] of a client's n via-points done at fractional index ``index`` of the
+    followed points (the arm's configuration prepended to the client's)."""
+    return float(np.clip(index if n == 1 else (index - 1.0) / (n - 1), 0.0, 1.0))

@@ -21,15 +21,13 @@ from rrg_common.ros.qos import RESULT_TIMEOUT_S
 from rrg_models import wam
 from rrg_models.config import HAND
 from rrg_models.description.urdf_robot import robot_urdf
-from rrg_models.trajectory import DensePath, sample_times
+from rrg_models.trajectory import GOAL_START_TOLERANCE, DensePath, sample_times
 from rrg_msgs.action import GuardedMove
 from rrg_msgs.msg import ContactPads
 from rrg_msgs.srv import HandCommand
 
 #: The name the arm/hand interface (the simulator, or the bridge) announces itself under.
 INTERFACE_PEER = "arm_hand_interface"
-#: Largest distance [rad] between the arm and a trajectory's first via-point at time 0.
-START_TOLERANCE = 0.05
 
 
 class GoalError(ValueError):
@@ -66,7 +64,7 @@ def goal_via_points(goal: GuardedMove.Goal, q0: np.ndarray) -> tuple[np.ndarray,
     q = np.vstack([q0, q])
     if not np.any(t > 0.0):  # no timing: the executor's default speeds
         return q, sample_times(DensePath(wam.fk(q), q, np.zeros(len(q), int)))
-    if t[0] == 0.0 and np.abs(q[1] - q0).max() > START_TOLERANCE:
+    if t[0] == 0.0 and np.abs(q[1] - q0).max() > GOAL_START_TOLERANCE:
         raise GoalError(
             "the first point is away from the arm's configuration at time 0",
             R.INVALID_TRAJECTORY,
@@ -88,12 +86,6 @@ def check_hand_command(req: HandCommand.Request, resp: HandCommand.Response) -> 
         resp.error_code = R.OUT_OF_RANGE
         resp.error_msg = f"proximal {proximal.tolist()} outside {(lo, hi)} rad"
     return resp.error_code == R.NONE
-
-
-def client_fraction(index: float, n: int) -> float:
-    """Fraction [0, 1] of a client's n via-points done at fractional index ``index`` of the
-    followed points (the arm's configuration prepended to the client's)."""
-    return float(np.clip(index if n == 1 else (index - 1.0) / (n - 1), 0.0, 1.0))
 
 
 @dataclass

@@ -31,6 +31,8 @@ from wam_msgs.msg import RTJointPositions
 
 from rrg_common.ros.futures import ThreadSafeActionClient, WaitTimeout, wait_for
 
+from ..bridge_core import BridgeCore
+from ..driver_api import DriverError, Gate, Latched, open_gate
 from ..rdt import (
     CONFIG_PAGE,
     BoxConfig,
@@ -48,25 +50,6 @@ CONFIG_RETRY_S = 2.0
 
 #: Longest wait [s] for a driver's answer to one request (a goal, a cancel, a service call).
 DRIVER_TIMEOUT = 2.0
-
-
-class DriverError(RuntimeError):
-    """A driver refused a request or did not answer in time."""
-
-
-class Latched(DriverError):
-    """The E-stop was latched, so the command was not sent."""
-
-
-#: Runs a motion command only while the E-stop is released, so that no latch lands between
-#: the check and the send: gate(command) → (ran, command's value)
-#: (rrg_hw_bridge.safety.EStop.run_if_released).
-Gate = Callable[[Callable[[], object]], tuple[bool, object]]
-
-
-def open_gate(command: Callable[[], object]) -> tuple[bool, object]:
-    """The gate of a driver without an E-stop: always runs the command."""
-    return True, command()
 
 
 def answer(future: Future, service: str):
@@ -738,3 +721,48 @@ class WrenchTopicSensors:
     def unread(self) -> dict[str, str]:
         """Topic drivers publish calibrated wrenches: nothing to read first."""
         return {}
+
+
+def create_drivers(
+    node: Node, io: Node, p: Callable[[str], object], core: BridgeCore, group
+) -> tuple:
+    """(arm, its description, hand, fingertip sensors): the drivers a bridge node's parameters
+    name (p(name): a parameter's value), calling back into its core
+    (rrg_hw_bridge.bridge_core.BridgeCore); ``io`` spins the wrench topics."""
+    if p("arm_backend") == "wam_node":
+        arm = WamNodeArm(
+            node,
+            core.options.arm_driver_joints,
+            group,
+            lambda: core.measured().arm_q,
+            p("wam_rt_joint_topic"),
+            p("wam_hold_service"),
+            core.estop.run_if_released,
+        )
+        arm_text = arm.describe()
+    else:
+        arm = TrajectoryArm(
+            node,
+            p("arm_action"),
+            core.options.arm_driver_joints,
+            group,
+            core.estop.run_if_released,
+        )
+        arm_text = p("arm_action")
+    hand = BarrettHandServices(node, p("hand_service_prefix"), group, core.estop.run_if_released)
+    if p("wrench_source") == "rdt":
+        sensors = RdtSensors(
+            list(p("rdt_hosts")),
+            int(p("rdt_port")),
+            Calibration(p("counts_per_force"), p("counts_per_torque")),
+            core.on_wrench,
+            core.on_sensor_fault,
+            http_port=int(p("netft_http_port")),
+            on_config=core.on_box_config,
+            rdt_rate_hz=float(p("rdt_rate")),
+        )
+    else:
+        sensors = WrenchTopicSensors(
+            io, list(p("wrench_topics")), core.on_wrench, time.monotonic, None
+        )
+    return arm, arm_text, hand, sensors

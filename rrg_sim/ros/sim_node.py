@@ -44,7 +44,6 @@ from rrg_common.ros.arm_hand_interface import (
     GoalError,
     StatePublishers,
     check_hand_command,
-    client_fraction,
     goal_via_points,
     serve_arm_hand_interface,
 )
@@ -56,6 +55,7 @@ from rrg_models import wam
 from rrg_models.config import SENSING
 from rrg_models.description.mjcf_robot import TIP_BODIES
 from rrg_models.description.urdf_robot import ros_name
+from rrg_models.trajectory import client_fraction
 from rrg_msgs.action import GuardedMove
 from rrg_msgs.msg import ContactPads
 from rrg_msgs.srv import HandCommand
