@@ -21,11 +21,12 @@ Services and actions:
 The decisions are the core's (rrg_planner.agent.RobustGraspAgent) and the belief is the estimator
 node's: this node only moves messages.
 
-Recovery (operations §8): with ``state_file`` set, the node writes a running grasp's progress
-(rrg_planner.grasp_state) after every step. A restarted planner that receives the same robust
-grasp again with ``resume`` set goes on with it: it brings the hand home through the executor,
-then decides on the estimator's current belief with the steps it had taken. Lost executions
-and restarted executor or estimator nodes are the graph client's to recover
+Recovery (operations §8): with ``state_file`` set, a running grasp's progress
+(rrg_planner.grasp_state) is written after every step (rrg_planner.ros.grasp_run). A
+restarted planner that receives the same robust grasp again with ``resume`` set goes on with
+it: it brings the hand home through the executor, then decides on the estimator's current
+belief with the steps it had taken. Lost executions and restarted executor or estimator nodes
+are the graph client's to recover
 (rrg_planner.ros.graph_client).
 """
 
@@ -48,122 +49,31 @@ from rrg_common.ros.futures import WaitInterrupted, wait_for
 from rrg_common.ros.liveliness import announce
 from rrg_common.ros.msg_conversions import planar_to_msg
 from rrg_common.ros.node_main import destroy_action_endpoints, run_node
-from rrg_common.ros.parameters import Param, declare
+from rrg_common.ros.parameters import declare
 from rrg_common.ros.qos import RESULT_TIMEOUT_S
-from rrg_common.state_file import StateError
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import LEVELS
 from rrg_estimator.ros.belief_msgs import InvalidBelief, InvalidGrid, belief_from_msg
 from rrg_estimator.ros.likelihood_param import declare_unsensed_sensors
-from rrg_models.config import WORLD
 from rrg_msgs.action import RobustGrasp
 from rrg_msgs.msg import GraspStep
 from rrg_msgs.srv import GetBelief, SelectAction
 from rrg_planner import request_checks
 from rrg_planner.agent import RobustGraspAgent
-from rrg_planner.closed_loop import ClosedLoop, Decision, GraspCanceled, decide
-from rrg_planner.grasp_state import GraspState, load_grasp_state, save_grasp_state
+from rrg_planner.closed_loop import GraspCanceled, decide
+from rrg_planner.model_cache import ModelCache
 from rrg_planner.planning_model import PlanningModel
 from rrg_planner.request_checks import InvalidRequest
 from rrg_planner.ros.graph_client import GraphClient, GraphError
-from rrg_planner.ros.grasp_records import (
-    decision_record,
-    done_record,
-    goal_check_record,
-    infeasible_record,
-    interrupted_record,
-    resumed_record,
-)
-from rrg_sim.config import WORLD_PROFILES, world_profile
+from rrg_planner.ros.grasp_records import done_record
+from rrg_planner.ros.grasp_run import GraspRun, RequestError
+from rrg_planner.ros.planner_parameters import PARAMETERS
+from rrg_sim.config import world_profile
 
 NODE_NAME = "planner"
 NAMESPACE = "rrg"
 SA = SelectAction.Response
 RG = RobustGrasp.Result
-
-
-class RequestError(Exception):
-    """A request the node refuses: carries the interface's error code and the message."""
-
-    def __init__(self, code: int, message: str):
-        super().__init__(message)
-        self.code = code
-
-    @classmethod
-    def of(cls, exc: InvalidRequest, codes) -> RequestError:
-        """The interface's code for a core validation error (codes: SelectAction.Response or
-        RobustGrasp.Result)."""
-        return cls(getattr(codes, exc.code), str(exc))
-
-
-#: The node's parameters (rrg_common.ros.parameters).
-PARAMETERS: tuple[Param, ...] = (
-    Param(
-        "levels",
-        list(LEVELS),
-        ("Uncertainty levels whose tables are loaded (beliefs must use one of their grids)"),
-        read_only=True,
-    ),
-    Param(
-        "preload",
-        Parameter.Type.STRING_ARRAY,
-        (
-            "Objects whose planning models are loaded before the services start "
-            "(a first build takes ~1 min per object)"
-        ),
-        read_only=True,
-    ),
-    Param(
-        "reset_timeout",
-        300.0,
-        ("Longest wait [s] for the estimator's reset (it may load or build tables)"),
-        low=1.0,
-        high=3600.0,
-    ),
-    Param(
-        "execute_timeout",
-        300.0,
-        "Longest wait [s] for one WRT execution or retreat",
-        low=1.0,
-        high=3600.0,
-    ),
-    Param(
-        "belief_timeout",
-        120.0,
-        ("Longest wait [s] for the estimator's belief after an observation or a retreat"),
-        low=0.1,
-        high=3600.0,
-    ),
-    Param(
-        "restart_timeout",
-        60.0,
-        (
-            "Longest wait [s] for a node that died (the executor or the "
-            "estimator) to be back before the grasp fails"
-        ),
-        low=1.0,
-        high=3600.0,
-    ),
-    Param(
-        "world_profile",
-        "nominal",
-        (
-            "World profile the planner assumes the robot acts in "
-            f"(rrg_sim.config.world_profile: {', '.join(WORLD_PROFILES)}, …): its calibration "
-            "error values a goal grasp from a belief in another posture's frame"
-        ),
-        read_only=True,
-    ),
-    Param(
-        "state_file",
-        "",
-        (
-            "File the running grasp's progress is written to after every step, "
-            "for a restarted planner to resume it ('' = none)"
-        ),
-        read_only=True,
-    ),
-)
 
 
 class PlannerNode(Node):
@@ -180,13 +90,13 @@ class PlannerNode(Node):
         unknown = [lv for lv in self.levels if lv not in LEVELS]
         if unknown:
             raise ValueError(f"unknown levels {unknown}; valid: {sorted(LEVELS)}")
-        self._models: dict[str, PlanningModel] = {}
-        self._model_lock = threading.Lock()
-        self._loading = ""  # the object whose planning model is being loaded
+        self.models = ModelCache(
+            self.levels, self.world_profile, self.likelihood, self.get_logger()
+        )
         #: the last select_action's (answer, latency [s]) and the last grasp step's (text,
         #: planning time [s]), for /diagnostics
         self._last_select: tuple[str, float] | None = None
-        self._last_step: tuple[str, float] | None = None
+        self.last_step: tuple[str, float] | None = None
         for name in self.get_parameter_or("preload", Parameter("preload", value=[])).value:
             self.model(name)
 
@@ -210,8 +120,9 @@ class PlannerNode(Node):
         )
         announce(self, NODE_NAME)
         self.diagnostics = NodeDiagnostics(self, self.health)
+        loaded = sorted(self.models.models)
         self.get_logger().info(
-            f"planner ready (levels {list(self.levels)}, models loaded: {sorted(self._models)})"
+            f"planner ready (levels {list(self.levels)}, models loaded: {loaded})"
         )
 
     def destroy_node(self) -> None:
@@ -230,52 +141,27 @@ class PlannerNode(Node):
         select_action's answer and latency, the last grasp step, and the executor and the
         estimator (WARN while one is not up: a grasp waits for it, ERROR once it is lost)."""
         health = Health(values={"levels": ", ".join(self.levels)})
-        models = dict(self._models)
+        models = dict(self.models.models)
         health.values["models loaded"] = ", ".join(sorted(models)) or "none"
         for name, model in sorted(models.items()):
             for level in model.levels:
                 health.values[f"tables {name}/{level}"] = f"{len(model.actions)} WRTs"
-        health.values["loading"] = self._loading or "nothing"
-        if self._loading:
-            health.message = f"loading the planning model of {self._loading}"
+        loading = self.models.loading
+        health.values["loading"] = loading or "nothing"
+        if loading:
+            health.message = f"loading the planning model of {loading}"
         health.values["robust grasp"] = "running" if self._grasp_active.locked() else "idle"
         answer, latency = self._last_select or ("none", None)
         health.values["last select_action"] = answer
         health.values["last select_action latency [ms]"] = milliseconds(latency)
-        step, planning = self._last_step or ("none", None)
+        step, planning = self.last_step or ("none", None)
         health.values["last step"] = step
         health.values["last step planning time [ms]"] = milliseconds(planning)
         return health.peers((self.graph.executor, self.graph.estimator), lost_level=ERROR)
 
-    # ------------------------------------------------------------------ models
     def model(self, object_name: str) -> PlanningModel:
         """The object's planning model, loaded on first use (a first build takes ~1 min)."""
-        with self._model_lock:
-            if object_name not in self._models:
-                self._loading = object_name
-                self.get_logger().info(
-                    f"loading the planning model of {object_name} at levels "
-                    f"{list(self.levels)} (building missing tables takes ~1 min per object)"
-                )
-                t0 = time.monotonic()
-                # workers=1: forking a table-building pool from a process running DDS threads can
-                # deadlock; rrg-launch builds missing tables in parallel before it starts the nodes.
-                try:
-                    self._models[object_name] = PlanningModel(
-                        object_name,
-                        levels=self.levels,
-                        workers=1,
-                        progress=False,
-                        world=self.world_profile,
-                        likelihood=self.likelihood,
-                    )
-                finally:
-                    self._loading = ""
-                self.get_logger().info(
-                    f"model of {object_name} loaded in {time.monotonic() - t0:.1f} s: "
-                    f"WRTs {self._models[object_name].names}"
-                )
-            return self._models[object_name]
+        return self.models.get(object_name)
 
     # ------------------------------------------------------------------ select action
     def request_belief(self, req: SelectAction.Request) -> Belief:
@@ -362,29 +248,11 @@ class PlannerNode(Node):
             return GoalResponse.REJECT
         return GoalResponse.ACCEPT
 
-    def validate_grasp(self, goal: RobustGrasp.Goal) -> tuple[np.ndarray, np.ndarray, int]:
-        """(mean, sigma, max_actions) of a valid goal; RequestError otherwise."""
-        try:
-            request_checks.check_choice(goal.strategy, goal.horizon, goal.delta)
-            request_checks.check_object(goal.object_name)
-            request_checks.check_level(goal.level, self.levels)
-            mean = (
-                [goal.initial_mean.x, goal.initial_mean.y, goal.initial_mean.theta]
-                if goal.use_initial_mean
-                else WORLD.nominal_pose
-            )
-            mean, sigma = request_checks.grasp_prior(
-                goal.level, [goal.sigma_x, goal.sigma_y, goal.sigma_theta], mean
-            )
-            return mean, sigma, request_checks.max_actions(goal.max_actions)
-        except InvalidRequest as exc:
-            raise RequestError.of(exc, RG) from exc
-
     def execute_robust_grasp(self, handle: ServerGoalHandle) -> RobustGrasp.Result:
         with self._grasp_active:
             result = RobustGrasp.Result()
             try:
-                self.run_grasp(handle, result)
+                GraspRun(self, handle, result).run()
             except (RequestError, GraphError) as exc:
                 result.error_code, result.error_msg = exc.code, str(exc)
             except (WaitInterrupted, GraspCanceled):
@@ -411,140 +279,9 @@ class PlannerNode(Node):
         self.diagnostics.force_update()  # idle again
         return result
 
-    def run_grasp(self, handle: ServerGoalHandle, result: RobustGrasp.Result) -> None:
-        goal = handle.request
-        mean, sigma, max_actions = self.validate_grasp(goal)
-        model = self.model(goal.object_name)
-        interrupted = lambda: handle.is_cancel_requested or not self.context.ok()
-        agent = RobustGraspAgent(model, goal.strategy, goal.horizon, goal.delta, max_actions)
-        request = grasp_request(goal)
-        resumed = self.resumable(goal, request)
-
-        def save(loop: ClosedLoop, active: bool = True) -> None:
-            if self.state_file is None:
-                return
-            try:
-                save_grasp_state(self.state_file, GraspState.of(request, loop, active))
-            except OSError as exc:
-                self.get_logger().error(
-                    f"could not write the grasp state to {self.state_file} ({exc}); a "
-                    "restarted planner could not resume this grasp"
-                )
-
-        decisions: list[Decision] = []
-
-        def on_decision(d: Decision) -> None:
-            decisions.append(d)
-            self._last_step = (
-                f"{goal.object_name} step {d.number}: {d.wrt} ({d.kind}), P(goal) {d.p_goal:.3f}",
-                d.planning_time,
-            )
-            self.diagnostics.force_update()
-            handle.publish_feedback(
-                RobustGrasp.Feedback(
-                    step=d.number,
-                    wrt_name=d.wrt,
-                    value=d.value,
-                    p_goal=d.p_goal,
-                    belief=self.graph.belief_msg,
-                )
-            )
-            self.step_pub.publish(decision_record(goal, d, self.now()))
-            self.get_logger().info(
-                f"step {d.number}: {d.wrt} ({d.kind}) at e = {np.round(d.estimate, 3).tolist()}, "
-                f"P(goal) = {d.p_goal:.3f}, planned in {d.planning_time * 1e3:.0f} ms"
-            )
-
-        def on_infeasible(d: Decision, reason: str) -> None:
-            self.get_logger().warning(
-                f"{d.wrt} infeasible at {np.round(d.estimate, 3).tolist()} ({reason}): replanning"
-            )
-            self.step_pub.publish(infeasible_record(goal, d, reason, self.now()))
-            save(loop)
-
-        def on_lost(d: Decision, reason: str) -> None:
-            self.get_logger().warning(f"{d.wrt} lost ({reason}): replanning on the current belief")
-            self.step_pub.publish(interrupted_record(goal, d, reason, self.now()))
-
-        def on_step(step, belief) -> None:
-            result.actions_taken.append(step.wrt)
-            result.final_p_goal = step.p_goal
-            if step.kind == "goal":
-                d = decisions[-1]
-                self.step_pub.publish(goal_check_record(goal, d, step, belief.frame, self.now()))
-                self.get_logger().info(
-                    f"goal grasp {d.number} checked: P(goal) = {step.p_goal:.3f} (belief "
-                    f"{step.p_goal_belief:.3f} from frame {belief.frame or 'prior'!r}"
-                    + (f"; rejected: {'; '.join(step.mismatches)})" if step.mismatches else ")")
-                )
-            save(loop)
-
-        loop = ClosedLoop(
-            agent,
-            self.graph,
-            self.graph,
-            on_decision=on_decision,
-            on_infeasible=on_infeasible,
-            on_step=on_step,
-            canceled=interrupted,
-            on_lost=on_lost,
-        )
-        if resumed is None:
-            self.graph.reset(goal.object_name, goal.level, mean, sigma, interrupted)
-            save(loop)
-        else:
-            resumed.restore(loop)
-            result.actions_taken.extend(s.wrt for s in resumed.steps)
-            reason = f"resumed after {len(resumed.steps)} actions: bringing the hand home first"
-            self.get_logger().warning(f"robust grasp of {goal.object_name} {reason}")
-            self.step_pub.publish(resumed_record(goal, len(resumed.steps), reason, self.now()))
-            self.graph.resume(goal.object_name, interrupted)
-        try:
-            run = loop.run(resume=resumed is not None)
-        finally:
-            save(loop, active=False)
-        if run.error:
-            raise RequestError(RG.PLANNING_FAILED, run.error)
-        result.final_p_goal, result.success = run.p_goal, run.declared
-
-    def resumable(self, goal: RobustGrasp.Goal, request: dict) -> GraspState | None:
-        """The stored grasp a ``resume`` goal goes on with: a running one of the same request."""
-        if not goal.resume or self.state_file is None:
-            return None
-        try:
-            state = load_grasp_state(self.state_file)
-        except FileNotFoundError:
-            state = None
-        except StateError as exc:
-            self.get_logger().error(f"no grasp to resume: {exc}")
-            return None
-        if state is None or not state.active or state.request != request:
-            self.get_logger().warning(
-                f"resume asked for {goal.object_name}, but no running grasp of that request "
-                "is stored: starting afresh"
-            )
-            return None
-        return state
-
     def now(self):
         """The node clock's time as a message stamp."""
         return self.get_clock().now().to_msg()
-
-
-def grasp_request(goal: RobustGrasp.Goal) -> dict:
-    """The fields of a robust-grasp goal that define the grasp (all but ``resume``)."""
-    return {
-        "object_name": goal.object_name,
-        "level": goal.level,
-        "sigma": [goal.sigma_x, goal.sigma_y, goal.sigma_theta],
-        "initial_mean": [goal.initial_mean.x, goal.initial_mean.y, goal.initial_mean.theta]
-        if goal.use_initial_mean
-        else None,
-        "strategy": goal.strategy,
-        "horizon": int(goal.horizon),
-        "delta": float(goal.delta),
-        "max_actions": int(goal.max_actions),
-    }
 
 
 def main(argv: list[str] | None = None) -> int:
