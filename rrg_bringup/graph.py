@@ -7,18 +7,24 @@ from __future__ import annotations
 
 import os
 import shutil
-import signal
-import subprocess
 import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TextIO
 
 import numpy as np
 import yaml
 
+from rrg_bringup.supervisor import (
+    RESPAWN_DELAY_S,
+    RESPAWN_MAX,
+    Child,
+    LaunchError,
+    LaunchTimeout,
+    Supervisor,
+    ros_args,
+)
 from rrg_estimator.config import LEVELS
 from rrg_hw_bridge.contact_guard import DEFAULT_PAD_SOURCE, UNSENSED_PADS
 from rrg_models.config import WORLD
@@ -28,17 +34,6 @@ ROOT = Path(__file__).resolve().parents[1]
 RECORDER = "rrg_bag_recorder"
 #: The nodes' recovery state of each run goes in STATE_ROOT/<run name>/ (removed at the end).
 STATE_ROOT = ROOT / ".cache" / "state"
-#: SIGINT, then SIGTERM after this long [s], then SIGKILL after as long again (notes: a node
-#: sometimes misses the first SIGINT).
-STOP_ESCALATE_S = 3.0
-#: Restarts per child before the launcher gives up and stops the graph (launch_ros respawns
-#: without a limit; chosen: a node that dies three times in one run has a cause to fix).
-RESPAWN_MAX = 3
-#: Wait before a child's first restart [s], doubled for each next one up to RESPAWN_DELAY_MAX_S
-#: (chosen: short beside a node's start-up of ~1 s, so the recorder loses little, while a node
-#: that dies at start does not spin in a loop).
-RESPAWN_DELAY_S = 0.5
-RESPAWN_DELAY_MAX_S = 30.0
 #: The launcher's record of its children's exits and restarts: latched with a history deep
 #: enough for every event of a run, so that a restarted recorder receives them all.
 NODE_EVENTS_TOPIC = "/rrg/launch/node_events"
@@ -81,14 +76,6 @@ SERVICES = ("/rrg/hand_command", "/rrg/retreat")
 ACTIONS = ("/rrg/guarded_move", "/rrg/execute_wrt")
 
 
-class LaunchError(RuntimeError):
-    """The graph could not be started or a call into it failed."""
-
-
-class LaunchTimeout(LaunchError):
-    """A wait on the graph timed out."""
-
-
 @dataclass
 class GraspOutcome:
     """What ``--grasp`` prints (and, with ``--json``, prints as JSON on the last line)."""
@@ -107,78 +94,9 @@ class GraspOutcome:
     launch_to_first_action_s: float = float("nan")
 
 
-@dataclass
-class Child:
-    """A child process of the graph and what its restarts need."""
-
-    name: str
-    proc: subprocess.Popen
-    log: TextIO | None
-    args: list[str]  # after the interpreter
-    restart_args: list[str]  # added when it restarts (the recorder's --append)
-    restarts: int = 0  # restarts made or scheduled
-    restart_at: float | None = None  # time.monotonic() of the scheduled restart
-
-    def restart_command(self) -> list[str]:
-        """``args`` with ``restart_args`` before the ROS arguments."""
-        i = self.args.index("--ros-args") if "--ros-args" in self.args else len(self.args)
-        return [*self.args[:i], *self.restart_args, *self.args[i:]]
-
-
-def exit_description(returncode: int) -> str:
-    """How a process ended, from Popen's returncode (negative: the signal that killed it)."""
-    if returncode < 0:
-        try:
-            return f"killed by {signal.Signals(-returncode).name}"
-        except ValueError:
-            return f"killed by signal {-returncode}"
-    return f"exited with status {returncode}"
-
-
-def respawn_delay(attempt: int, first_s: float, max_s: float = RESPAWN_DELAY_MAX_S) -> float:
-    """The wait [s] before restart ``attempt`` (1-based): ``first_s``, doubled per attempt."""
-    return min(first_s * 2.0 ** (attempt - 1), max_s)
-
-
-#: ROS 2's automatic discovery ranges (ROS_AUTOMATIC_DISCOVERY_RANGE, Jazzy).
-DISCOVERY_RANGES = ("LOCALHOST", "SUBNET", "SYSTEM_DEFAULT", "OFF")
-
-
-def ros_environment(
-    domain_id: int, discovery_range: str = "LOCALHOST", static_peers: str = ""
-) -> dict[str, str]:
-    """The children's environment in the given DDS domain: loopback discovery by default (a
-    real robot's drivers on another host need SUBNET, or OFF with ``static_peers``, the
-    ``;``-separated addresses of ROS_STATIC_PEERS)."""
-    if discovery_range not in DISCOVERY_RANGES:
-        raise ValueError(f"discovery range must be one of {DISCOVERY_RANGES}")
-    env = dict(
-        os.environ,
-        ROS_DOMAIN_ID=str(domain_id),
-        ROS_AUTOMATIC_DISCOVERY_RANGE=discovery_range,
-        ROS_STATIC_PEERS=static_peers,
-        PYTHONUNBUFFERED="1",
-    )
-    env.pop("ROS_LOCALHOST_ONLY", None)  # deprecated; the discovery range replaces it
-    env.setdefault("AMENT_PREFIX_PATH", sys.prefix)
-    return env
-
-
-def ros_args(params: dict[str, object], params_file: Path | None = None) -> list[str]:
-    """``--ros-args [--params-file FILE] -p k:=v ...`` (the -p values override the file's; a
-    list or tuple becomes a ROS list of its items' Python literals)."""
-    args = ["--ros-args"]
-    if params_file is not None:
-        args += ["--params-file", str(params_file)]
-    for k, v in params.items():
-        if isinstance(v, (list, tuple)):
-            v = f"[{','.join(map(repr, v))}]"
-        args += ["-p", f"{k}:={v}"]
-    return args
-
-
-class Graph:
-    """The running graph: child processes plus the launcher's own client node."""
+class Graph(Supervisor):
+    """The running graph: RRG's nodes as child processes (Supervisor), plus the launcher's
+    own client node and one robust grasp on it."""
 
     def __init__(
         self,
@@ -190,16 +108,12 @@ class Graph:
         respawn_delay_s: float = RESPAWN_DELAY_S,
         state_dir: Path | None = None,
     ):
-        self.env = env
+        super().__init__(env, log_dir, respawn_max, respawn_delay_s, cwd=ROOT)
         #: where the estimator and the planner keep the state a restarted one resumes from
         self.state_dir = state_dir
-        self.respawn_max = respawn_max  # restarts per child
-        self.respawn_delay_s = respawn_delay_s  # before a child's first restart
         self.interface = interface  # a key of INTERFACE
         self.simulated = interface != "hw"  # the world can be reset and judged
         self.bag_dir = bag_dir
-        self.log_dir = log_dir
-        self.children: list[Child] = []
         self.started = time.monotonic()
         self.node = None
         self.executor = None
@@ -210,30 +124,8 @@ class Graph:
         self.outcomes_seen = 0  # grasp outcome messages the launcher has received
         self.grasp_task = None  # the running robust grasp (an rrg_planner.client.GraspTask)
         self.interrupted = False  # set by Ctrl-C or SIGTERM, acted on in spin_until
-        self.stopping = False  # the graph is being stopped: no more restarts
         self.node_events = None  # the publisher of NODE_EVENTS_TOPIC (connect creates it)
         self.planner = None  # the planner's liveliness (connect creates it)
-
-    # ------------------------------------------------------------------ processes
-    def spawn(self, name: str, args: list[str], restart_args: list[str] | None = None) -> None:
-        """Start a child process, ``python ARGS``; its restarts add ``restart_args``."""
-        log = None
-        if self.log_dir is not None:
-            self.log_dir.mkdir(parents=True, exist_ok=True)
-            log = (self.log_dir / f"{name}.log").open("w")
-        self.children.append(Child(name, self.popen(args, log), log, args, restart_args or []))
-
-    def popen(self, args: list[str], log: TextIO | None) -> subprocess.Popen:
-        # Own session: a terminal's Ctrl-C reaches only the launcher, which stops
-        # the children in order.
-        return subprocess.Popen(
-            [sys.executable, *args],
-            env=self.env,
-            cwd=ROOT,
-            start_new_session=True,
-            stdout=log or sys.stderr,
-            stderr=subprocess.STDOUT,
-        )
 
     def start(
         self,
@@ -347,70 +239,8 @@ class Graph:
             params_file = hw_params_file if name == "hw_bridge" else None
             self.spawn(name, ["-m", NODES[name], *ros_args(params[name], params_file)])
 
-    def process(self, name: str) -> subprocess.Popen | None:
-        """The running process of child ``name`` (None if it is not running, or not a child)."""
-        for c in self.children:
-            if c.name == name and c.proc.poll() is None:
-                return c.proc
-        return None
-
-    def supervise(self) -> None:
-        """Restart the children that died, each after its backoff; LaunchError when one has died
-        more often than ``respawn_max`` allows."""
-        if self.stopping:
-            return
-        now = time.monotonic()
-        for c in self.children:
-            if c.restart_at is not None:
-                if now >= c.restart_at:
-                    self.restart(c)
-                continue
-            status = c.proc.poll()
-            if status is None:
-                continue
-            ended = f"{c.name} {exit_description(status)} (pid {c.proc.pid})"
-            if c.restarts >= self.respawn_max:
-                message = (
-                    f"{ended}; gave up after {c.restarts} restart{'s' * (c.restarts != 1)}"
-                    if self.respawn_max
-                    else f"{ended}; not restarted (--respawn-max 0)"
-                )
-                self.publish_event(c, "EVENT_GAVE_UP", message, c.restarts)
-                raise LaunchError(message)
-            c.restarts += 1
-            delay = respawn_delay(c.restarts, self.respawn_delay_s)
-            c.restart_at = now + delay
-            self.publish_event(
-                c,
-                "EVENT_EXITED",
-                f"{ended}; restarting it in {delay:.1f} s "
-                f"(attempt {c.restarts} of {self.respawn_max})",
-                c.restarts,
-                delay,
-            )
-
-    def restart(self, c: Child) -> None:
-        """Start a new process of a dead child (its log continues)."""
-        c.restart_at = None
-        c.proc = self.popen(c.restart_command(), c.log)
-        self.publish_event(
-            c,
-            "EVENT_RESTARTED",
-            f"{c.name} restarted (pid {c.proc.pid}, attempt {c.restarts} of {self.respawn_max})",
-            c.restarts,
-        )
-
-    def publish_event(
-        self, c: Child, event: str, message: str, attempt: int, delay: float = 0.0
-    ) -> None:
-        """Log a child's exit, restart or the end of its restarts (``event``: a NodeEvent
-        constant's name; the LaunchError that follows the end reports it), and publish it once
-        the launcher's node runs."""
-        if event != "EVENT_GAVE_UP":
-            print(f"[rrg-launch] {message}", file=sys.stderr, flush=True)
-        if c.log is not None:
-            c.log.write(f"[rrg-launch] {message}\n")
-            c.log.flush()
+    def on_event(self, c: Child, event: str, message: str, attempt: int, delay: float) -> None:
+        """Publish a child's event on NODE_EVENTS_TOPIC once the launcher's node runs."""
         if self.node_events is None:
             return
         from rrg_msgs.msg import NodeEvent
@@ -429,29 +259,6 @@ class Graph:
         )
         msg.header.stamp = self.node.get_clock().now().to_msg()
         self.node_events.publish(msg)
-
-    def stop(self, escalate_s: float = STOP_ESCALATE_S) -> None:
-        """Stop the nodes (SIGINT → SIGTERM → SIGKILL, ``escalate_s`` apart), then the recorder
-        the same way."""
-        self.stopping = True
-        nodes = [c for c in self.children if c.name != "recorder"]
-        recorder = [c for c in self.children if c.name == "recorder"]
-        for group in (nodes, recorder):
-            for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
-                running = [c for c in group if c.proc.poll() is None]
-                if not running:
-                    break
-                for c in running:
-                    c.proc.send_signal(sig)
-                deadline = time.monotonic() + escalate_s
-                for c in running:
-                    try:
-                        c.proc.wait(max(0.0, deadline - time.monotonic()))
-                    except subprocess.TimeoutExpired:
-                        pass
-        for c in self.children:
-            if c.log is not None:
-                c.log.close()
 
     # ------------------------------------------------------------------ the launcher's node
     def connect(self) -> None:
@@ -618,25 +425,11 @@ class Graph:
         """Place the object, run the robust grasp, judge it; fills and returns ``outcome``.
         ``timeout_s``: longest wait for the robust grasp's result (LaunchTimeout after it);
         ``verbose``: print a line per step."""
-        from std_srvs.srv import Trigger
-
-        from rrg_common.ros.msg_conversions import planar_to_msg
         from rrg_msgs.action import RobustGrasp
-        from rrg_msgs.srv import ResetSim
-        from rrg_planner.client import GraspFeedback, RRGError
+        from rrg_planner.client import GraspFeedback
 
         if self.simulated:
-            reset = self.result(
-                self.clients["/rrg/reset_sim"].call_async(
-                    ResetSim.Request(
-                        object_name=outcome.object_name, pose=planar_to_msg(outcome.true_pose)
-                    )
-                ),
-                60.0,
-                "reset_sim",
-            )
-            if reset.error_code != ResetSim.Response.NONE:
-                raise LaunchError(f"reset_sim failed: {reset.error_msg}")
+            self.reset_sim(outcome)
 
         def feedback(fb: GraspFeedback) -> None:
             if fb.step == 1 and on_first_action is not None:
@@ -648,6 +441,45 @@ class Graph:
                     flush=True,
                 )
 
+        goal = dict(
+            level=outcome.level,
+            strategy=outcome.strategy,
+            horizon=horizon,
+            delta=delta,
+            max_actions=max_actions,
+            on_feedback=feedback,
+        )
+        res = self.robust_grasp(outcome.object_name, goal, timeout_s)
+        outcome.actions, outcome.p_goal, outcome.planner_success = (
+            res.actions,
+            res.final_p_goal,
+            res.success,
+        )
+        if res.error_code != RobustGrasp.Result.NONE:
+            outcome.error = f"robust_grasp error {res.error_code}: {res.error_msg}"
+        elif not self.simulated:
+            outcome.judge = "not judged: a real robot has no ground truth"
+        else:
+            self.judge(outcome)
+        return outcome
+
+    def reset_sim(self, outcome: GraspOutcome) -> None:
+        """Place the object at the outcome's true pose in the simulator."""
+        from rrg_common.ros.msg_conversions import planar_to_msg
+        from rrg_msgs.srv import ResetSim
+
+        request = ResetSim.Request(
+            object_name=outcome.object_name, pose=planar_to_msg(outcome.true_pose)
+        )
+        reset = self.result(self.clients["/rrg/reset_sim"].call_async(request), 60.0, "reset_sim")
+        if reset.error_code != ResetSim.Response.NONE:
+            raise LaunchError(f"reset_sim failed: {reset.error_msg}")
+
+    def robust_grasp(self, object_name: str, goal: dict, timeout_s: float):
+        """The planner's robust grasp of ``object_name`` (``goal``: start_robust_grasp's
+        keywords) to its result; a goal a restarted planner lost is sent again to resume."""
+        from rrg_planner.client import RRGError
+
         resumes = 0  # goals sent again to a restarted planner
         task = None
         while task is None or not task.done():
@@ -656,15 +488,7 @@ class Graph:
                 losses = self.planner.losses
                 try:
                     task = self.rrg.start_robust_grasp(
-                        outcome.object_name,
-                        level=outcome.level,
-                        strategy=outcome.strategy,
-                        horizon=horizon,
-                        delta=delta,
-                        max_actions=max_actions,
-                        on_feedback=feedback,
-                        resume=resumes > 0,
-                        timeout_s=30.0,
+                        object_name, **goal, resume=resumes > 0, timeout_s=30.0
                     )
                 except RRGError as exc:
                     raise LaunchError(str(exc)) from exc
@@ -700,19 +524,14 @@ class Graph:
             if resumes > self.respawn_max:
                 raise LaunchError("the planner kept going away: the grasp was not completed")
             task = None
-        res = task.result(0.0)
         self.grasp_task = None
-        outcome.actions, outcome.p_goal, outcome.planner_success = (
-            res.actions,
-            res.final_p_goal,
-            res.success,
-        )
-        if res.error_code != RobustGrasp.Result.NONE:
-            outcome.error = f"robust_grasp error {res.error_code}: {res.error_msg}"
-            return outcome
-        if not self.simulated:
-            outcome.judge = "not judged: a real robot has no ground truth"
-            return outcome
+        return task.result(0.0)
+
+    def judge(self, outcome: GraspOutcome) -> None:
+        """The simulator's judgement of the grasp into ``outcome``; waits until the outcome
+        message has reached the recorder."""
+        from std_srvs.srv import Trigger
+
         seen = self.outcomes_seen
         judged = self.result(
             self.clients["/rrg/eval/judge_grasp"].call_async(Trigger.Request()),
@@ -728,7 +547,6 @@ class Graph:
             self.spin_until(lambda: time.monotonic() > grace, OUTCOME_GRACE_S + 1.0, "the recorder")
         except LaunchTimeout as exc:
             print(f"[rrg-launch] warning: {exc}", file=sys.stderr, flush=True)
-        return outcome
 
     def on_outcome(self, _msg) -> None:
         self.outcomes_seen += 1

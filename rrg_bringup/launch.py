@@ -49,19 +49,21 @@ from pathlib import Path
 import numpy as np
 
 from rrg_bringup.graph import (
-    DISCOVERY_RANGES,
     GRASP_TIMEOUT_S,
-    RESPAWN_DELAY_MAX_S,
-    RESPAWN_DELAY_S,
-    RESPAWN_MAX,
     ROOT,
     STATE_ROOT,
     Graph,
     GraspOutcome,
-    LaunchError,
     draw_pose,
-    ros_environment,
     warm_tables,
+)
+from rrg_bringup.supervisor import (
+    DISCOVERY_RANGES,
+    RESPAWN_DELAY_MAX_S,
+    RESPAWN_DELAY_S,
+    RESPAWN_MAX,
+    LaunchError,
+    ros_environment,
 )
 from rrg_estimator.config import LEVELS
 from rrg_models.objects import PAPER_OBJECTS, object_names
@@ -89,6 +91,15 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="rrg-launch", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
+    _add_graph_arguments(p)
+    _add_run_arguments(p)
+    _add_grasp_arguments(p)
+    _add_output_arguments(p)
+    return p
+
+
+def _add_graph_arguments(p: argparse.ArgumentParser) -> None:
+    """How the graph runs: the simulator or the bridge, and DDS."""
     p.add_argument(
         "--mode",
         choices=("sim", "hw"),
@@ -136,6 +147,10 @@ def build_parser() -> argparse.ArgumentParser:
         default=int(os.environ.get("ROS_DOMAIN_ID", "0") or 0),
         help="ROS_DOMAIN_ID of the graph (0-101; default: $ROS_DOMAIN_ID or 0)",
     )
+
+
+def _add_run_arguments(p: argparse.ArgumentParser) -> None:
+    """What the run does: the graph alone, one grasp, or many."""
     p.add_argument(
         "--object",
         default="powerdrill",
@@ -174,6 +189,10 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="PATH",
         help="with --grasps: the JSON report (default: beside the bag, <bag>_soak.json)",
     )
+
+
+def _add_grasp_arguments(p: argparse.ArgumentParser) -> None:
+    """The grasp and the simulated world."""
     p.add_argument(
         "--level", default="high", choices=sorted(LEVELS), help="initial uncertainty of the grasp"
     )
@@ -215,6 +234,10 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"the simulated world's profile ({', '.join(WORLD_PROFILES)}, or one with some "
         "numbers set: rrg_sim.config.world_profile; sim mode only)",
     )
+
+
+def _add_output_arguments(p: argparse.ArgumentParser) -> None:
+    """The bag, the logs, respawning and the answer."""
     p.add_argument("--bags", type=Path, default=ROOT / "bags", help="folder of the bags")
     p.add_argument("--bag-name", help="bag folder name (default: rrg_<object>_<time>)")
     p.add_argument("--no-bag", action="store_true", help="do not record")
@@ -250,7 +273,6 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="print the grasp's outcome (with --grasps: the summary) as JSON on the last line",
     )
-    return p
 
 
 def bags_writable(folder: Path, low_space_bytes: int | None = None) -> bool:
@@ -272,14 +294,13 @@ def bags_writable(folder: Path, low_space_bytes: int | None = None) -> bool:
     return True
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def usage_error(args: argparse.Namespace) -> str | None:
+    """Why the arguments cannot run (exit status 2), or None; warns of a graph reachable
+    beyond this host."""
     if args.mode == "sim" and (args.fake_hw or args.hw_param or args.hw_params):
-        print("rrg-launch: --fake-hw and --hw-param need --mode hw", file=sys.stderr)
-        return 2
+        return "--fake-hw and --hw-param need --mode hw"
     if args.hw_params is not None and not args.hw_params.is_file():
-        print(f"rrg-launch: --hw-params: no such file: {args.hw_params}", file=sys.stderr)
-        return 2
+        return f"--hw-params: no such file: {args.hw_params}"
     if args.discovery_range != "LOCALHOST" or args.static_peers:
         print(
             f"[rrg-launch] discovery range {args.discovery_range}"
@@ -289,10 +310,17 @@ def main(argv: list[str] | None = None) -> int:
             flush=True,
         )
     if not 0 <= args.domain_id <= 101:
-        print(f"rrg-launch: --domain-id must be 0-101, got {args.domain_id}", file=sys.stderr)
-        return 2
+        return f"--domain-id must be 0-101, got {args.domain_id}"
     if args.respawn_max < 0 or not args.respawn_delay >= 0:
-        print("rrg-launch: --respawn-max and --respawn-delay must be >= 0", file=sys.stderr)
+        return "--respawn-max and --respawn-delay must be >= 0"
+    return None
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    error = usage_error(args)
+    if error is not None:
+        print(f"rrg-launch: {error}", file=sys.stderr)
         return 2
     soak = None
     if args.grasps is not None:
@@ -303,10 +331,7 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError as exc:
             print(f"rrg-launch: {exc}", file=sys.stderr)
             return 2
-    object_name = soak.draws[0][0] if soak else args.grasp or args.object
-    objects = soak.objects if soak else [object_name]
-    levels = [lv.strip() for lv in args.levels.split(",") if lv.strip()]
-    label = "soak" if soak else object_name
+    label = "soak" if soak else (args.grasp or args.object)
     name = args.bag_name or f"rrg_{label}_{datetime.now():%Y%m%d_%H%M%S}"
     bag_dir = None if args.no_bag else args.bags / name
     if bag_dir is not None and bag_dir.exists():
@@ -314,11 +339,6 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if bag_dir is not None and not bags_writable(args.bags):
         return 2
-
-    def interrupt(signum, _frame):  # Ctrl-C or SIGTERM: the graph's spin loop raises
-        graph.interrupted = True  # KeyboardInterrupt (raised inside rclpy's C++ it would turn
-        # into a RuntimeError)
-
     interface = "sim" if args.mode == "sim" else ("fake_hw" if args.fake_hw else "hw")
     state_dir = STATE_ROOT / f"{name}_{os.getpid()}"
     graph = Graph(
@@ -330,8 +350,36 @@ def main(argv: list[str] | None = None) -> int:
         args.respawn_delay,
         state_dir,
     )
-    status = 0
-    outcome = None
+    status, outcome = run(graph, args, soak, interface, bag_dir)
+    report_bag(bag_dir)
+    if soak is not None:
+        soaking.finish(
+            soak,
+            bag_dir,
+            args.soak_report or soaking.default_report_path(bag_dir, args.log_dir, name),
+            args.json,
+        )
+    if outcome is not None:
+        report_outcome(outcome, interface)
+        if outcome.error:
+            status = status or 1
+        if args.json:
+            print(json.dumps(asdict(outcome)), flush=True)
+    return status
+
+
+def run(graph: Graph, args: argparse.Namespace, soak, interface: str, bag_dir: Path | None):
+    """Start the graph, run what the arguments ask, and stop it → (exit status, the grasp's
+    outcome or None)."""
+
+    def interrupt(signum, _frame):  # Ctrl-C or SIGTERM: the graph's spin loop raises
+        graph.interrupted = True  # KeyboardInterrupt (raised inside rclpy's C++ it would turn
+        # into a RuntimeError)
+
+    object_name = soak.draws[0][0] if soak else args.grasp or args.object
+    objects = soak.objects if soak else [object_name]
+    levels = [lv.strip() for lv in args.levels.split(",") if lv.strip()]
+    status, outcome = 0, None
     try:
         print(
             f"[rrg-launch] observation tables of {', '.join(objects)} at levels {levels} "
@@ -361,40 +409,13 @@ def main(argv: list[str] | None = None) -> int:
         graph.connect()
         if soak is not None:
             soak.attach(graph)
-        print(
-            f"[rrg-launch] started {len(graph.children)} processes in domain {args.domain_id} ("
-            + ", ".join(f"{c.name} pid {c.proc.pid}" for c in graph.children)
-            + "); waiting for the graph (the planner loads its models first)",
-            flush=True,
-        )
-        ready_s = graph.wait_ready(args.ready_timeout)
-        print(
-            f"[rrg-launch] graph ready after {ready_s:.1f} s"
-            + (f", recording to {bag_dir}" if bag_dir else ""),
-            flush=True,
-        )
+        wait_for_graph(graph, args, bag_dir)
         if interface == "hw" and (args.grasp or soak is not None):
             graph.wait_armed(args.ready_timeout)
         if soak is not None:
             status = soak.run(graph)
         elif args.grasp:
-            outcome = GraspOutcome(
-                args.grasp,
-                args.level,
-                args.strategy,
-                np.round(true_pose(args), 5).tolist(),
-                bag=str(bag_dir or ""),
-            )
-            print(
-                f"[rrg-launch] robust grasp of {args.grasp} "
-                f"({args.level} uncertainty, {args.strategy}), true pose {outcome.true_pose}",
-                flush=True,
-            )
-
-            def first_action() -> None:
-                outcome.launch_to_first_action_s = time.monotonic() - graph.started
-
-            graph.grasp(outcome, args.horizon, args.delta, args.max_actions, first_action)
+            outcome = grasp(graph, args, bag_dir)
         else:
             print("[rrg-launch] running; Ctrl-C stops the graph", flush=True)
             while True:
@@ -412,8 +433,51 @@ def main(argv: list[str] | None = None) -> int:
         )  # a second Ctrl-C must not cut the shutdown short
         graph.disconnect()
         graph.stop()
-        shutil.rmtree(state_dir, ignore_errors=True)
+        shutil.rmtree(graph.state_dir, ignore_errors=True)
         signal.signal(signal.SIGINT, signal.default_int_handler)
+    return status, outcome
+
+
+def wait_for_graph(graph: Graph, args: argparse.Namespace, bag_dir: Path | None) -> None:
+    """Wait until every node of the started graph answers."""
+    print(
+        f"[rrg-launch] started {len(graph.children)} processes in domain {args.domain_id} ("
+        + ", ".join(f"{c.name} pid {c.proc.pid}" for c in graph.children)
+        + "); waiting for the graph (the planner loads its models first)",
+        flush=True,
+    )
+    ready_s = graph.wait_ready(args.ready_timeout)
+    print(
+        f"[rrg-launch] graph ready after {ready_s:.1f} s"
+        + (f", recording to {bag_dir}" if bag_dir else ""),
+        flush=True,
+    )
+
+
+def grasp(graph: Graph, args: argparse.Namespace, bag_dir: Path | None) -> GraspOutcome:
+    """One robust grasp of ``args.grasp`` on the running graph."""
+    outcome = GraspOutcome(
+        args.grasp,
+        args.level,
+        args.strategy,
+        np.round(true_pose(args), 5).tolist(),
+        bag=str(bag_dir or ""),
+    )
+    print(
+        f"[rrg-launch] robust grasp of {args.grasp} "
+        f"({args.level} uncertainty, {args.strategy}), true pose {outcome.true_pose}",
+        flush=True,
+    )
+
+    def first_action() -> None:
+        outcome.launch_to_first_action_s = time.monotonic() - graph.started
+
+    graph.grasp(outcome, args.horizon, args.delta, args.max_actions, first_action)
+    return outcome
+
+
+def report_bag(bag_dir: Path | None) -> None:
+    """What the run left in its bag (or that it left none)."""
     if bag_dir is not None and not Path(bag_dir).exists():
         print(f"[rrg-launch] no bag: stopped before the recorder started ({bag_dir})", flush=True)
     elif bag_dir is not None:
@@ -432,32 +496,23 @@ def main(argv: list[str] | None = None) -> int:
             ),
             flush=True,
         )
-    if soak is not None:
-        soaking.finish(
-            soak,
-            bag_dir,
-            args.soak_report or soaking.default_report_path(bag_dir, args.log_dir, name),
-            args.json,
+
+
+def report_outcome(outcome: GraspOutcome, interface: str) -> None:
+    """The grasp's outcome on one line."""
+    print(
+        f"[rrg-launch] outcome: actions {outcome.actions}, "
+        f"P(goal) = {outcome.p_goal:.3f}, planner "
+        f"{'succeeded' if outcome.planner_success else 'did not succeed'}; "
+        + (
+            f"simulator judged the grasp a {'SUCCESS' if outcome.success else 'FAILURE'}"
+            if interface != "hw"
+            else "not judged"
         )
-    if outcome is not None:
-        print(
-            f"[rrg-launch] outcome: actions {outcome.actions}, "
-            f"P(goal) = {outcome.p_goal:.3f}, planner "
-            f"{'succeeded' if outcome.planner_success else 'did not succeed'}; "
-            + (
-                f"simulator judged the grasp a {'SUCCESS' if outcome.success else 'FAILURE'}"
-                if interface != "hw"
-                else "not judged"
-            )
-            + (f" ({outcome.judge})" if outcome.judge else "")
-            + (f"; {outcome.error}" if outcome.error else ""),
-            flush=True,
-        )
-        if outcome.error:
-            status = status or 1
-        if args.json:
-            print(json.dumps(asdict(outcome)), flush=True)
-    return status
+        + (f" ({outcome.judge})" if outcome.judge else "")
+        + (f"; {outcome.error}" if outcome.error else ""),
+        flush=True,
+    )
 
 
 if __name__ == "__main__":

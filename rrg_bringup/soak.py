@@ -44,14 +44,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from rrg_bringup.graph import (
-    GRASP_TIMEOUT_S,
-    Graph,
-    GraspOutcome,
-    LaunchError,
-    LaunchTimeout,
-    draw_pose,
-)
+from rrg_bringup.graph import GRASP_TIMEOUT_S, Graph, GraspOutcome, draw_pose
+from rrg_bringup.supervisor import LaunchError, LaunchTimeout
 from rrg_models.objects import object_names
 
 #: The grasp whose sample is the baseline of the memory growth in a long run.

@@ -7,7 +7,7 @@ import ast
 from pathlib import Path
 
 import pytest
-from repo_layout import PACKAGES
+from repo_layout import NODE_MODULES, PACKAGES
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The packages each package may import besides itself, from the bottom up: the robot's models;
@@ -202,6 +202,25 @@ def test_the_bridge_imports_no_simulator(name):
         d for d in _reachable(name) if d.split(".")[0] in ("rrg_sim", "rrg_fake_hw")
     )
     assert simulators == []
+
+
+#: A node module wires a ROS-free core to topics, services and actions (design §1, as
+#: ros2/examples' nodes): at most this many lines, and no function over FUNCTION_MAX_LINES.
+NODE_MAX_LINES = 450
+FUNCTION_MAX_LINES = 80
+
+
+@pytest.mark.parametrize("name", NODE_MODULES)
+def test_node_modules_are_thin(name):
+    path = MODULES[name]
+    tree = ast.parse(path.read_text())
+    long_functions = sorted(
+        (f.name, f.end_lineno - f.lineno + 1)
+        for f in ast.walk(tree)
+        if isinstance(f, ast.FunctionDef | ast.AsyncFunctionDef)
+        and f.end_lineno - f.lineno + 1 > FUNCTION_MAX_LINES
+    )
+    assert (len(path.read_text().splitlines()) <= NODE_MAX_LINES, long_functions) == (True, [])
 
 
 @pytest.mark.parametrize("name", sorted(n for n in MODULES if n.endswith("_node")))

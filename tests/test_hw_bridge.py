@@ -37,7 +37,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from rrg_bringup.graph import FAKE_NETFT_HTTP_PORT, rdt_addresses
 from rrg_common.ros.msg_conversions import ARM_JOINT_NAMES, PROXIMAL_JOINT_NAMES, planar_to_msg
-from rrg_fake_hw.fake_hw_node import FAULTS
+from rrg_fake_hw.fake_hw_core import FAULTS
 from rrg_hw_bridge.bridge_core import ARM_ON_START_DELAY_S
 from rrg_hw_bridge.rdt import read_box_config, set_box_rdt_rate
 from rrg_models import wam

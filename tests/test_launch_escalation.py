@@ -26,13 +26,8 @@ from ros_testing import (
 
 from rrg_bags.bag_info import bag_info
 from rrg_bags.bag_read import NODE_EVENTS_TOPIC, read_messages
-from rrg_bringup.graph import (
-    Graph,
-    LaunchError,
-    exit_description,
-    respawn_delay,
-    ros_environment,
-)
+from rrg_bringup.graph import Graph
+from rrg_bringup.supervisor import LaunchError, exit_description, respawn_delay, ros_environment
 from rrg_msgs.msg import NodeEvent
 
 CHILD = str(Path(__file__).with_name("launch_children.py"))

@@ -281,7 +281,8 @@ def test_hw_options_are_checked(args, message):
 def test_the_launcher_tells_the_belief_which_pads_the_bridge_cannot_read(tmp_path):
     """The bridge's pad_source, from --hw-param or its parameters file, gives the pads the
     estimator and the planner leave out."""
-    from rrg_bringup.graph import LaunchError, bridge_pad_source
+    from rrg_bringup.graph import bridge_pad_source
+    from rrg_bringup.supervisor import LaunchError
     from rrg_hw_bridge.contact_guard import DERIVED_PADS_UNSENSED, UNSENSED_PADS
 
     params = tmp_path / "bridge.yaml"

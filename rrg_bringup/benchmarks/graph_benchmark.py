@@ -92,7 +92,8 @@ def first_action(graph, object_name: str, level: str, horizon: int) -> float:
 
 
 def bench_ros(argv: list[str]) -> int:
-    from rrg_bringup.graph import Graph, ros_environment, warm_tables
+    from rrg_bringup.graph import Graph, warm_tables
+    from rrg_bringup.supervisor import ros_environment
 
     ap = argparse.ArgumentParser(
         prog="rrg-bench ros",

@@ -71,13 +71,8 @@ from sensor_msgs.msg import JointState
 from tqdm import tqdm
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from rrg_bringup.graph import (
-    FAKE_NETFT_HTTP_PORT,
-    Graph,
-    LaunchError,
-    rdt_addresses,
-    ros_environment,
-)
+from rrg_bringup.graph import FAKE_NETFT_HTTP_PORT, Graph, rdt_addresses
+from rrg_bringup.supervisor import LaunchError, ros_environment
 from rrg_common.ros.msg_conversions import ARM_JOINT_NAMES, planar_to_msg
 from rrg_hw_bridge.config import BRIDGE as BRIDGE_DEFAULTS
 from rrg_hw_bridge.rdt import set_box_rdt_rate

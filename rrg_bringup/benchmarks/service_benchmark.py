@@ -65,7 +65,7 @@ def client_main(argv: list[str]) -> int:
 
 def start_node(module: str, params: dict, env: dict, log_path: Path) -> subprocess.Popen:
     """``python -m module --ros-args -p k:=v ...``, its output in ``log_path``."""
-    from rrg_bringup.graph import ros_args
+    from rrg_bringup.supervisor import ros_args
 
     with log_path.open("w") as log:
         return subprocess.Popen(
@@ -78,7 +78,8 @@ def start_node(module: str, params: dict, env: dict, log_path: Path) -> subproce
 
 
 def bench_service(argv: list[str]) -> int:
-    from rrg_bringup.graph import ros_environment, warm_tables
+    from rrg_bringup.graph import warm_tables
+    from rrg_bringup.supervisor import ros_environment
 
     ap = argparse.ArgumentParser(
         prog="rrg-bench service",
