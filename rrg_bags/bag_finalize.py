@@ -73,6 +73,12 @@ def data_records(path: Path, end: int) -> Iterator[tuple[int, int, bytes]]:
 def summary_tail(path: Path, end: int) -> bytes:
     """What closes the file cut at ``end`` as a finalized one: DataEnd, the summary of the
     records before ``end``, the summary offsets, the footer and the closing magic."""
+    return closing_records(end, *summarize(path, end))
+
+
+def summarize(path: Path, end: int):
+    """(schemas, channels, chunk indexes, metadata indexes, statistics) of the records before
+    ``end``."""
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
     chunks: list[ChunkIndex] = []
@@ -139,7 +145,12 @@ def summary_tail(path: Path, end: int) -> bytes:
             add(Message.read(stream, len(content)))
     stats.schema_count, stats.channel_count = len(schemas), len(channels)
     stats.chunk_count, stats.metadata_count = len(chunks), len(metadata)
+    return schemas, channels, chunks, metadata, stats
 
+
+def closing_records(end: int, schemas, channels, chunks, metadata, stats) -> bytes:
+    """DataEnd, the summary (the mcap writer's groups, in its order), the summary offsets, the
+    footer and the closing magic of a file whose data section ends at ``end``."""
     head = RecordBuilder()
     DataEnd(data_section_crc=0).write(head)
     summary_start = end + head.count

@@ -60,7 +60,8 @@ VARRES_RECENTER = 0.25
 @dataclass(frozen=True)
 class LikelihoodParams:
     """P(o | w, τ(e)) (algorithm §5). Chosen to cover the physics simulator's spread of
-    outcomes around the geometric prediction (measured by tests/test_physics_vs_geometric)."""
+    outcomes around the geometric prediction (measured by
+    tests/rrg_sim/test_physics_vs_geometric)."""
 
     p_contact_mismatch: float = 0.05  # P(early contact differs from prediction)
     sigma_progress: float = 0.012  # m, where along the path the hand stopped

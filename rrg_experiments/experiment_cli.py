@@ -118,7 +118,8 @@ def add_seed_options(ap: argparse.ArgumentParser) -> None:
     )
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """``rrg-experiment``'s arguments."""
     ap = argparse.ArgumentParser(
         prog="rrg-experiment",
         description=__doc__,
@@ -180,6 +181,11 @@ def main(argv: list[str] | None = None) -> int:
         "its own base seed and world, and print those whose records differ beyond the timing "
         "fields and the code version; status 1 if any does",
     )
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = build_parser()
     args = ap.parse_args(argv)
     logging.basicConfig(
         level=logging.INFO if args.replay and len(args.replay) == 1 else logging.WARNING,

@@ -51,11 +51,11 @@ class BridgeParams:
     #: or acceleration limits before it refuses it instead (chosen: the executor's transits run
     #: J5-J7 at up to 2× Barrett's 1.5 rad/s, and one powerdrill retreat reaches 18.8× the
     #: 10 rad/s² limit where the speed cap changes between samples, which needs 4.3×;
-    #: tests/test_hw_safety.py measures them).
+    #: tests/rrg_hw_bridge/test_hw_safety.py measures them).
     max_slowdown: float = 6.0
     #: Gain [1/s] of the momentum observer that estimates the arm's external joint torques
     #: (chosen: a 20 ms time constant; on the emulated WAM with 0.2 N m torque noise its
-    #: free-motion residual stays below 0.5 N m, tests/test_external_torque.py).
+    #: free-motion residual stays below 0.5 N m, tests/rrg_hw_bridge/test_external_torque.py).
     observer_gain: float = 50.0
     #: Longest gap [s] between joint states the observer integrates over; after a longer one
     #: it starts again (chosen: 50 periods of a 500 Hz controller).

@@ -445,38 +445,13 @@ def add_object(opts: AddOptions, say: Callable[[str], None] = print) -> AddRepor
         source = f"mesh {Path(opts.mesh).name} ({opts.units}, {opts.up} up)"
         with stage("goal grasp"):
             if opts.goal is None:
-                candidates = goal_candidates(parts, opts.goal_tol)
-                scores = _rank(staging, folder, opts, mesh, part_files, mass, source, candidates)
-                for goal, score in zip(candidates, scores):
-                    choose(f"{score:4.0%} held of {RANKING_GRASPS}: {goal.description}")
-                best = int(np.argmax(scores))
-                if scores[best] == 0.0:
-                    raise OnboardError(
-                        f"none of the {len(candidates)} proposed goal grasps held the object in "
-                        "physics; give a goal grasp (--goal-through ...)"
-                    )
-                goal = candidates[best]
-                choose(f"chose the goal grasp that held most: {goal.description}")
+                args = (staging, folder, opts, mesh, part_files, mass, source)
+                goal = _best_goal(parts, args, choose)
             else:
                 goal = opts.goal
                 choose(f"the given goal grasp through {goal.through_m}")
         with stage("object file"):
-            place(folder, ["mesh.stl", *part_files], goal.placement_yaw_rad)
-            if goal.placement_yaw_rad:
-                choose(f"placed turned by {goal.placement_yaw_rad:+.2f} rad for the goal grasp")
-            obj = _write_and_load(folder, opts, mesh, part_files, mass, goal, source, False)
-            nominal = np.asarray(WORLD.nominal_pose)
-            if not wam.feasible_path(obj.goal_wrt.with_home(nominal)):
-                raise OnboardError(
-                    "the WAM cannot reach the goal grasp at the nominal pose "
-                    f"{WORLD.nominal_pose}; give another (--goal-through, --goal-yaw, ...)"
-                )
-            headings = [(nominal[0], nominal[1], t) for t in HEADINGS]
-            reorient = not all(wam.feasible_path(obj.goal_wrt.with_home(e)) for e in headings)
-            if reorient:
-                obj = _write_and_load(folder, opts, mesh, part_files, mass, goal, source, True)
-                choose("reorientation WRTs: the goal grasp cannot run at every heading")
-            choose(f"{len(obj.wrts())} WRTs: " + ", ".join(w.name for w in obj.wrts()))
+            reorient = _write_object(folder, opts, mesh, part_files, mass, goal, source, choose)
 
         def rewrite(goal: GoalSpec, reorientation: bool) -> None:
             _write_and_load(folder, opts, mesh, part_files, mass, goal, source, reorientation)
@@ -490,6 +465,48 @@ def add_object(opts: AddOptions, say: Callable[[str], None] = print) -> AddRepor
         raise OnboardError(str(exc)) from exc
     finally:
         shutil.rmtree(staging, ignore_errors=True)
+
+
+def _best_goal(parts, rank_args: tuple, choose: Callable[[str], None]) -> GoalSpec:
+    """The proposed goal grasp that held the object most often in physics (_rank's arguments
+    but the candidates: ``rank_args``); OnboardError when none held it."""
+    opts = rank_args[2]
+    candidates = goal_candidates(parts, opts.goal_tol)
+    scores = _rank(*rank_args, candidates)
+    for goal, score in zip(candidates, scores):
+        choose(f"{score:4.0%} held of {RANKING_GRASPS}: {goal.description}")
+    best = int(np.argmax(scores))
+    if scores[best] == 0.0:
+        raise OnboardError(
+            f"none of the {len(candidates)} proposed goal grasps held the object in "
+            "physics; give a goal grasp (--goal-through ...)"
+        )
+    goal = candidates[best]
+    choose(f"chose the goal grasp that held most: {goal.description}")
+    return goal
+
+
+def _write_object(folder, opts, mesh, part_files, mass, goal, source, choose) -> bool:
+    """Place the object for its goal grasp and write its object file, with reorientation WRTs
+    when the goal grasp cannot run at every heading (returned); OnboardError when the WAM
+    cannot reach the goal grasp at the nominal pose."""
+    place(folder, ["mesh.stl", *part_files], goal.placement_yaw_rad)
+    if goal.placement_yaw_rad:
+        choose(f"placed turned by {goal.placement_yaw_rad:+.2f} rad for the goal grasp")
+    obj = _write_and_load(folder, opts, mesh, part_files, mass, goal, source, False)
+    nominal = np.asarray(WORLD.nominal_pose)
+    if not wam.feasible_path(obj.goal_wrt.with_home(nominal)):
+        raise OnboardError(
+            "the WAM cannot reach the goal grasp at the nominal pose "
+            f"{WORLD.nominal_pose}; give another (--goal-through, --goal-yaw, ...)"
+        )
+    headings = [(nominal[0], nominal[1], t) for t in HEADINGS]
+    reorient = not all(wam.feasible_path(obj.goal_wrt.with_home(e)) for e in headings)
+    if reorient:
+        obj = _write_and_load(folder, opts, mesh, part_files, mass, goal, source, True)
+        choose("reorientation WRTs: the goal grasp cannot run at every heading")
+    choose(f"{len(obj.wrts())} WRTs: " + ", ".join(w.name for w in obj.wrts()))
+    return reorient
 
 
 def _rank(staging, folder, opts, mesh, part_files, mass, source, candidates) -> list[float]:

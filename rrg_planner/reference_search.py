@@ -20,7 +20,7 @@ from rrg_planner.planning_model import PlanningModel
 Points = list[tuple[float, float, float]]
 
 # The reference shares no code with the fast search (search.py); these constants must equal its
-# own (tests/test_search.py checks that they do).
+# own (tests/rrg_planner/test_search.py checks that they do).
 #: weights this close (relative) to the maximum tie for w*(b), broken by index
 TIE_RTOL = 1e-9
 #: branch probabilities are ordered rounded to this many decimals, ties by index

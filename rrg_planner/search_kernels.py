@@ -6,9 +6,10 @@ order, that NumPy uses for the same expression, so it has NumPy's bits: the tabl
 float32), the cluster masses (np.bincount's order), sums (NumPy's pairwise sum,
 ``pairwise_sum``), the tie order of probabilities (np.round, stable sort), the merged branch
 probabilities, the compacted posteriors and the goal grasp's terms (whose dot product NumPy
-takes). The decisions depend on those bits where values tie: tests/test_search_equivalence.py
-holds them to recorded decisions. Only the posteriors' moments, which decide which branches
-merge (by tolerances), are summed in any order: in float32, vectorized over the states.
+takes). The decisions depend on those bits where values tie:
+tests/rrg_planner/test_search_equivalence.py holds them to recorded decisions. Only the
+posteriors' moments, which decide which branches merge (by tolerances), are summed in any
+order: in float32, vectorized over the states.
 """
 
 from __future__ import annotations

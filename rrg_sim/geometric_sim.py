@@ -453,6 +453,39 @@ def _sweep_box_candidates(
 
 
 @njit(cache=True)
+def _finger_links_hit(M, b, links, parts, union, slack, cb, Rb, scratch):  # pragma: no cover
+    """Whether a link box of one finger at one angle (``links``: its links' rotations,
+    centres, half sizes and radii in the hand frame) touches the table or the object's parts
+    (``parts``: rotations, centres, half sizes, radii; ``union``: their bounding box's centre
+    and half size), the hand frame mapped to the object's by M (3,3) and b (3,). cb, Rb and
+    scratch are work arrays."""
+    link_rot, link_centre, link_half, link_radius = links
+    union_centre, union_half = union
+    for link in range(link_rot.shape[0]):
+        for i in range(3):
+            cb[i] = _dot3(M[i], link_centre[link]) + b[i]
+        r = link_radius[link] + slack
+        near_object = _sphere_near_box(cb[0], cb[1], cb[2], r, union_centre, union_half)
+        if cb[2] >= r and not near_object:
+            continue
+        R = link_rot[link]
+        h = link_half[link]
+        for i in range(3):
+            for j in range(3):
+                Rb[i, j] = M[i, 0] * R[0, j] + M[i, 1] * R[1, j] + M[i, 2] * R[2, j]
+        lowest = cb[2] - (abs(Rb[2, 0]) * h[0] + abs(Rb[2, 1]) * h[1])
+        lowest -= abs(Rb[2, 2]) * h[2]
+        if lowest < slack or (
+            near_object
+            and _box_touches_object(
+                Rb, cb, h, link_radius[link], parts[0], parts[1], parts[2], parts[3], slack, scratch
+            )
+        ):
+            return True
+    return False
+
+
+@njit(cache=True)
 def _closing_box_candidates(
     T_stop,
     w,
@@ -528,39 +561,10 @@ def _closing_box_candidates(
                 r = finger_radius[a, f] + slack
                 if z >= r and not _sphere_near_box(x, y, z, r, union_centre, union_half):
                     continue
-                hit = False
-                for link in range(link_rot.shape[2]):
-                    for i in range(3):
-                        cb[i] = _dot3(M[i], link_centre[a, f, link]) + b[i]
-                    r = link_radius[f, link] + slack
-                    near_object = _sphere_near_box(cb[0], cb[1], cb[2], r, union_centre, union_half)
-                    if cb[2] >= r and not near_object:
-                        continue
-                    R = link_rot[a, f, link]
-                    h = link_half[f, link]
-                    for i in range(3):
-                        for j in range(3):
-                            Rb[i, j] = M[i, 0] * R[0, j] + M[i, 1] * R[1, j] + M[i, 2] * R[2, j]
-                    lowest = cb[2] - (abs(Rb[2, 0]) * h[0] + abs(Rb[2, 1]) * h[1])
-                    lowest -= abs(Rb[2, 2]) * h[2]
-                    if lowest < slack or (
-                        near_object
-                        and _box_touches_object(
-                            Rb,
-                            cb,
-                            h,
-                            link_radius[f, link],
-                            part_rot,
-                            part_centre,
-                            part_half,
-                            part_radius,
-                            slack,
-                            scratch,
-                        )
-                    ):
-                        hit = True
-                        break
-                if hit:
+                links = (link_rot[a, f], link_centre[a, f], link_half[f], link_radius[f])
+                parts = (part_rot, part_centre, part_half, part_radius)
+                union = (union_centre, union_half)
+                if _finger_links_hit(M, b, links, parts, union, slack, cb, Rb, scratch):
                     out[n, a, f] = True
                     found += 1
                     if found == limit:

@@ -2,13 +2,14 @@
 
     python scripts/make_search_fixture.py
 
-tests/test_search_equivalence.py rebuilds the same beliefs (``belief_of``: from each case's
-model, level, kind and seed) and replays them against the search: a change to the search's
-speed must leave these decisions as recorded. The beliefs: centred on the nominal
+tests/rrg_planner/test_search_equivalence.py rebuilds the same beliefs (``belief_of``: from
+each case's model, level, kind and seed) and replays them against the search: a change to the
+search's speed must leave these decisions as recorded. The beliefs: centred on the nominal
 pose (exactly symmetric, and with noise), off-centre, two-peaked, at a corner of the grid, and
-posteriors after one or two simulated readings; the box and giant teacup of tests/test_search.py
-on their small grids, and the powerdrill, giant teacup and box (symmetric) on the high and low
-grids, the drill also in the realistic world (beliefs in its readings' frames).
+posteriors after one or two simulated readings; the box and giant teacup of
+tests/rrg_planner/test_search.py on their small grids, and the powerdrill, giant teacup and box
+(symmetric) on the high and low grids, the drill also in the realistic world (beliefs in its
+readings' frames).
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from rrg_sim.geometric_sim import GeometricSimulator
 
 FIXTURE = Path(__file__).resolve().parents[1] / "tests" / "data" / "search_decisions.json"
 
-#: tests/test_search.py's small grids (the same levels, so the same cached tables)
+#: tests/rrg_planner/test_search.py's small grids (the same levels, so the same cached tables)
 SMALL = UncertaintyLevel(
     "small", sigma=(0.02, 0.02, 0.2), spacing=(0.01, 0.01, 0.1), shape=(9, 9, 5)
 )

@@ -5,7 +5,7 @@
 #   - the ros-jazzy-* wheels, their undeclared build dependencies, and the bag libraries,
 #     re-installed only when the package list below changes;
 #   - colcon (colcon-common-extensions), for building RRG as a lab's workspace would
-#     (docs/colcon.md, tests/test_colcon.py), re-installed only when its list changes;
+#     (docs/colcon.md, tests/repo/test_colcon.py), re-installed only when its list changes;
 #   - the manylinux interpreter paths in <venv>/share/**/*.cmake rewritten to this venv's;
 #   - the interface packages (control_msgs, Barrett's wam_msgs, wam_srvs and bhand_srvs for the
 #     hardware bridge, tf2_msgs for the robot's frames, then rrg_msgs)
@@ -160,7 +160,8 @@ build_interfaces rrg_common/interfaces/tf2_msgs .rrg-tf2_msgs-stamp tf2_msgs.msg
 build_interfaces rrg_msgs .rrg-msgs-stamp rrg_msgs.msg rrg_msgs.srv rrg_msgs.action
 
 # ------------------------------------------------------------------ Foxglove readers (npm)
-# Decoding every bag with Foxglove's own libraries as well as rosbags (tests/test_bag_recorder.py).
+# Decoding every bag with Foxglove's own libraries as well as rosbags
+# (tests/rrg_bags/test_bag_recorder.py).
 NPM_PACKAGES=(@foxglove/rosmsg@5 @foxglove/rosmsg2-serialization@3 @mcap/core@2)
 NPM_STAMP="$NODE_DIR/.rrg-npm-stamp"
 NPM_SUM="$(printf '%s\n' "${NPM_PACKAGES[@]}" | sha256sum | cut -d' ' -f1)"

@@ -1,5 +1,6 @@
 // Decode every message of an MCAP bag with Foxglove's own readers (@mcap/core, @foxglove/rosmsg,
-// @foxglove/rosmsg2-serialization), as Foxglove Studio does. Used by tests/test_bag_recorder.py.
+// @foxglove/rosmsg2-serialization), as Foxglove Studio does. Used by
+// tests/rrg_bags/test_bag_recorder.py.
 // A file without its summary and index (its recorder was killed) is read as Foxglove Studio reads
 // an unindexed file: streamed from the start, up to its last complete record.
 //

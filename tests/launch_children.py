@@ -1,5 +1,5 @@
-"""Stand-ins for the graph's nodes in tests/test_launch_escalation.py: child processes whose way of
-ending is known, without ROS.
+"""Stand-ins for the graph's nodes in tests/rrg_bringup/test_launch_escalation.py: child
+processes whose way of ending is known, without ROS.
 
     python tests/launch_children.py sleep [--ignore INT,TERM] [ARG ...]   # until a signal ends it
     python tests/launch_children.py die SECONDS STATUS [ARG ...]          # exits on its own

@@ -34,19 +34,9 @@ PAPER_SELECT_S = {1: 3.0, 2: 30.0, 3: 180.0}  # the paper's reported times (non-
 UPDATE_REPEATS = 200  # timed belief updates per figure (a fraction of a millisecond each)
 
 
-def bench_plan(argv: list[str]) -> int:
-    from rrg_estimator.belief import Belief
+def plan_parser() -> argparse.ArgumentParser:
+    """``rrg-bench plan``'s arguments."""
     from rrg_estimator.config import LEVELS
-    from rrg_estimator.grid import Grid
-    from rrg_estimator.obs_tables import build_table
-    from rrg_estimator.reference_update import update_reference
-    from rrg_estimator.update import update
-    from rrg_models.config import WORLD
-    from rrg_models.poses import compose_planar
-    from rrg_planner.planning_model import PlanningModel
-    from rrg_planner.reference_search import ReferenceSearch
-    from rrg_planner.search import ForwardSearch
-    from rrg_sim.geometric_sim import GeometricSimulator
 
     ap = argparse.ArgumentParser(
         prog="rrg-bench plan",
@@ -65,11 +55,21 @@ def bench_plan(argv: list[str]) -> int:
     ap.add_argument(
         "--json", action="store_true", help="print the medians as JSON on the last line"
     )
-    args = ap.parse_args(argv)
+    return ap
+
+
+def bench_plan(argv: list[str]) -> int:
+    from rrg_estimator.belief import Belief
+    from rrg_estimator.config import LEVELS
+    from rrg_estimator.grid import Grid
+    from rrg_estimator.obs_tables import build_table
+    from rrg_models.config import WORLD
+    from rrg_planner.planning_model import PlanningModel
+
+    args = plan_parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
     level = LEVELS[args.level]
     rng = np.random.default_rng(args.seed)
-
     print(
         f"[plan] object={args.object} level={args.level} grid={level.shape} "
         f"({int(np.prod(level.shape))} points)",
@@ -86,10 +86,38 @@ def bench_plan(argv: list[str]) -> int:
 
     mean = np.asarray(WORLD.nominal_pose)
     belief = Belief.for_level(level, mean)
+    rows = time_selection(model, belief, args)
+    t_upd, t_upd_ref, update_case = time_update(model, belief, goal, mean, level, args, rng)
+    rows["belief update"] = (t_upd, t_upd_ref)
+    rows["table build / WRT"] = (table_s, None)
+    print_plan_table(rows)
+    out = {
+        "select_ms_h1": rows["select H=1"][0] * 1e3,
+        "select_ms_h2": rows["select H=2"][0] * 1e3,
+        "select_ms_h3": rows["select H=3"][0] * 1e3,
+        "update_ms": t_upd * 1e3,
+        "table_s_per_wrt": table_s,
+        "ref_speedup_h1": (rows["select H=1"][1] / rows["select H=1"][0])
+        if rows["select H=1"][1]
+        else None,
+        "ref_speedup_update": t_upd_ref / t_upd,
+        **update_case["contact"],
+        **bench_core(),
+        "roofline": update_case["roofline"],
+    }
+    if args.json:
+        print(json.dumps(out))
+    return 0
+
+
+def time_selection(model, belief, args) -> dict[str, tuple[float, float | None]]:
+    """Median seconds of action selection at H = 1, 2, 3, fast and (where asked) reference."""
+    from rrg_planner.reference_search import ReferenceSearch
+    from rrg_planner.search import ForwardSearch
+
     fast = ForwardSearch(model)
     ref = ReferenceSearch(model)
     ref_h = {int(h) for h in args.reference_horizons.split(",") if h.strip()}
-
     rows: dict[str, tuple[float, float | None]] = {}
     for h in (1, 2, 3):
         t_fast = median_seconds(
@@ -107,15 +135,23 @@ def bench_plan(argv: list[str]) -> int:
             + (f", reference {t_ref:.2f} s" if t_ref else ""),
             flush=True,
         )
+    return rows
 
-    # Belief update with an observation simulated at a random true pose.
+
+def time_update(model, belief, goal, mean, level, args, rng) -> tuple[float, float, dict]:
+    """Median seconds of a belief update at the mean ``mean`` (3,), fast and reference, with an
+    observation simulated at a true pose drawn from ``level``; and the update's roofline and
+    contact figures ({"roofline": …, "contact": …})."""
+    from rrg_estimator.reference_update import update_reference
+    from rrg_estimator.update import update
+    from rrg_models.poses import compose_planar
+    from rrg_sim.geometric_sim import GeometricSimulator
+
     true = compose_planar(mean, rng.normal(0.0, level.sigma))
     obs = GeometricSimulator(model.obj, goal.wrt).simulate(true, mean)
     table = goal.tables[args.level]
     t_upd = median_seconds(lambda: update(belief, table, mean, obs), UPDATE_REPEATS)
     t_upd_ref = median_seconds(lambda: update_reference(belief, table, mean, obs), 1, warmup=False)
-    rows["belief update"] = (t_upd, t_upd_ref)
-    rows["table build / WRT"] = (table_s, None)
     print(
         f"[plan] belief update of {belief.grid.size:,} points "
         f"({'contact' if obs.contact else 'no contact'}): {t_upd * 1e3:.3f} ms "
@@ -124,7 +160,11 @@ def bench_plan(argv: list[str]) -> int:
     )
     roof = bench_roofline(belief, table, mean, obs, args.repeats)
     contact = bench_contact_update(belief, table, mean, rng, args.repeats)
+    return t_upd, t_upd_ref, {"roofline": roof, "contact": contact}
 
+
+def print_plan_table(rows: dict[str, tuple[float, float | None]]) -> None:
+    """The timings against the reference and the paper, as a Markdown table."""
     print("\n| figure | fast | reference | speed-up | paper |")
     print("|---|---|---|---|---|")
     for name, (tf, tr) in rows.items():
@@ -132,23 +172,6 @@ def bench_plan(argv: list[str]) -> int:
         ratio = f"{tr / tf:.0f}×" if tr else "–"
         ref_txt = f"{tr * 1e3:.0f} ms" if tr else "not run"
         print(f"| {name} | {tf * 1e3:.1f} ms | {ref_txt} | {ratio} | {paper} |")
-    out = {
-        "select_ms_h1": rows["select H=1"][0] * 1e3,
-        "select_ms_h2": rows["select H=2"][0] * 1e3,
-        "select_ms_h3": rows["select H=3"][0] * 1e3,
-        "update_ms": t_upd * 1e3,
-        "table_s_per_wrt": table_s,
-        "ref_speedup_h1": (rows["select H=1"][1] / rows["select H=1"][0])
-        if rows["select H=1"][1]
-        else None,
-        "ref_speedup_update": t_upd_ref / t_upd,
-        **contact,
-        **bench_core(),
-        "roofline": roof,
-    }
-    if args.json:
-        print(json.dumps(out))
-    return 0
 
 
 def bench_roofline(belief, table, e, obs, repeats: int) -> dict:

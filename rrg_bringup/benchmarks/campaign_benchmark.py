@@ -90,11 +90,8 @@ def split_by_part(stats: pstats.Stats) -> dict[str, float]:
     return dict(seconds)
 
 
-def run(argv: list[str]) -> int:
-    from threadpoolctl import threadpool_limits
-
-    from rrg_experiments.experiment_cli import campaign_specs
-    from rrg_experiments.trials import _env, _model, model_key, run_trial, schedule
+def campaign_parser() -> argparse.ArgumentParser:
+    """``rrg-bench campaign``'s arguments."""
     from rrg_models.objects import PAPER_OBJECTS
     from rrg_planner.request_checks import STRATEGIES
     from rrg_sim.config import WORLD_PROFILES
@@ -122,8 +119,14 @@ def run(argv: list[str]) -> int:
     )
     ap.add_argument("--profile-out", type=Path, help="write the cProfile stats here (.prof)")
     ap.add_argument("--json", action="store_true", help="print one JSON object last")
-    args = ap.parse_args(argv)
+    return ap
 
+
+def run(argv: list[str]) -> int:
+    from rrg_experiments.experiment_cli import campaign_specs
+    from rrg_experiments.trials import schedule
+
+    args = campaign_parser().parse_args(argv)
     objects, levels = args.objects.split(","), args.levels.split(",")
     strategies = args.strategies.split(",")
     sample = campaign_specs(
@@ -137,37 +140,9 @@ def run(argv: list[str]) -> int:
         counts[s.cell.key] += 1
 
     sample = schedule(sample)  # as a campaign runs them: each model's cells together
-    per_cell: dict[str, list[float]] = defaultdict(list)
-    loads: dict[tuple, float] = {}  # model key → seconds to load its model and world
-    t0 = time.perf_counter()
-    with threadpool_limits(1):
-        for spec in tqdm(sample, desc="timing", unit="trial", dynamic_ncols=True):
-            cell = spec.cell
-            key = model_key(cell.object, cell.level, spec.world, cell.without)
-            if key not in loads:  # a worker's load of the model, timed apart from its trials
-                t = time.perf_counter()
-                _model(cell.object, cell.level, spec.world, cell.without)
-                _env(cell.object, spec.world, "confirm" not in cell.without)
-                loads[key] = time.perf_counter() - t
-            per_cell[cell.key].append(run_trial(spec)["wall_s"])
-    trials_s = time.perf_counter() - t0
+    per_cell, loads, trials_s = time_sample(sample)
     load_s = sum(loads.values())
-
-    parts: dict[str, float] = {}
-    if args.profile:  # again, under the profiler (its overhead stays out of the timing)
-        profiler = cProfile.Profile()
-        with threadpool_limits(1):
-            for spec in tqdm(sample, desc="profiling", unit="trial", dynamic_ncols=True):
-                cell = spec.cell
-                _model(cell.object, cell.level, spec.world, cell.without)  # loaded unprofiled
-                _env(cell.object, spec.world, "confirm" not in cell.without)
-                profiler.enable()
-                run_trial(spec)
-                profiler.disable()
-        stats = pstats.Stats(profiler)
-        if args.profile_out:
-            stats.dump_stats(str(args.profile_out))
-        parts = split_by_part(stats)
+    parts = profile_sample(sample, args.profile_out) if args.profile else {}
     profiled = sum(parts.values())
     # Every worker loads each model once (the schedule keeps a model's cells together).
     worker_s = sum(counts[k] * sum(v) / len(v) for k, v in per_cell.items())
@@ -199,3 +174,48 @@ def run(argv: list[str]) -> int:
         )
         print(json.dumps(out))
     return 0
+
+
+def time_sample(sample) -> tuple[dict[str, list[float]], dict[tuple, float], float]:
+    """Each sampled trial's wall time per cell [s], each model's load time [s] (timed apart
+    from its trials), and the whole sample's time [s]."""
+    from threadpoolctl import threadpool_limits
+
+    from rrg_experiments.trials import _env, _model, model_key, run_trial
+
+    per_cell: dict[str, list[float]] = defaultdict(list)
+    loads: dict[tuple, float] = {}  # model key → seconds to load its model and world
+    t0 = time.perf_counter()
+    with threadpool_limits(1):
+        for spec in tqdm(sample, desc="timing", unit="trial", dynamic_ncols=True):
+            cell = spec.cell
+            key = model_key(cell.object, cell.level, spec.world, cell.without)
+            if key not in loads:  # a worker's load of the model, timed apart from its trials
+                t = time.perf_counter()
+                _model(cell.object, cell.level, spec.world, cell.without)
+                _env(cell.object, spec.world, "confirm" not in cell.without)
+                loads[key] = time.perf_counter() - t
+            per_cell[cell.key].append(run_trial(spec)["wall_s"])
+    return per_cell, loads, time.perf_counter() - t0
+
+
+def profile_sample(sample, profile_out: Path | None) -> dict[str, float]:
+    """The sample again, under cProfile (its overhead stays out of the timing): seconds per
+    part of the code (split_by_part)."""
+    from threadpoolctl import threadpool_limits
+
+    from rrg_experiments.trials import _env, _model, run_trial
+
+    profiler = cProfile.Profile()
+    with threadpool_limits(1):
+        for spec in tqdm(sample, desc="profiling", unit="trial", dynamic_ncols=True):
+            cell = spec.cell
+            _model(cell.object, cell.level, spec.world, cell.without)  # loaded unprofiled
+            _env(cell.object, spec.world, "confirm" not in cell.without)
+            profiler.enable()
+            run_trial(spec)
+            profiler.disable()
+    stats = pstats.Stats(profiler)
+    if profile_out:
+        stats.dump_stats(str(profile_out))
+    return split_by_part(stats)

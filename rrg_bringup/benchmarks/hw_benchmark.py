@@ -474,77 +474,32 @@ def bench_hw(argv: list[str]) -> int:
     return run_bench(args)
 
 
+@dataclass
+class HwRun:
+    """What one run of the hardware benchmark measured."""
+
+    latencies: list[float] = field(default_factory=list)  # ms, crossing → cancel
+    problems: list[str] = field(default_factory=list)  # failed trials
+    cpu: dict[str, dict[str, float]] = field(default_factory=dict)  # % of a core
+    guard: list[dict[str, float]] = field(default_factory=list)  # per RDT rate (guard_cost)
+    idle_status: list = field(default_factory=list)  # bridge status while streaming idle
+    status: list = field(default_factory=list)  # bridge status during the trials
+
+
 def run_bench(args: argparse.Namespace) -> int:
-    domain = args.domain_id
-    rng = np.random.default_rng(args.seed)
     load_before = os.getloadavg()[0]
-    latencies: list[float] = []
-    problems: list[str] = []
-    cpu: dict[str, dict[str, float]] = {}
-    guard: list[dict[str, float]] = []  # per RDT rate (guard_cost)
-    with (
-        tempfile.TemporaryDirectory(prefix="rrg_bench_hw_") as tmp,
-    ):
+    run = HwRun()
+    with tempfile.TemporaryDirectory(prefix="rrg_bench_hw_") as tmp:
         log_dir = args.log_dir or Path(tmp) / "logs"
-        bench = HwBench(domain, log_dir)
+        bench = HwBench(args.domain_id, log_dir)
 
         def interrupt(signum, _frame):  # Ctrl-C or SIGTERM: acted on in Graph.spin_until
             bench.graph.interrupted = True
 
         signal.signal(signal.SIGTERM, interrupt)
         signal.signal(signal.SIGINT, interrupt)
-        obs = bench.obs
         try:
-            bench.start(args.seed)
-            print(f"[hw] emulated drivers and bridge in DDS domain {domain}", flush=True)
-            ready_s = bench.wait_ready(120.0)
-            print(f"[hw] bridge ready after {ready_s:.1f} s", flush=True)
-            pids = {c.name: c.proc.pid for c in bench.graph.children}
-            meter = CpuMeter(pids)
-            meter.start()
-            idle_start = time.monotonic()
-            bench.wait(args.idle)
-            idle = meter.stop()
-            print(
-                "[hw] CPU while streaming idle [% of a core]: "
-                + ", ".join(f"{k} {v:.0f} %" for k, v in idle.items()),
-                flush=True,
-            )
-            if idle["other"] > BUSY_OTHER_PCT:
-                print(
-                    f"[hw] warning: other work on the machine uses {idle['other']:.0f} % of a "
-                    f"core ({os.cpu_count()} cores): the latencies and rates will show it",
-                    flush=True,
-                )
-            q_home = obs.arm_q.copy()
-            idle_status = [v for t, _, v in obs.status if t > idle_start + 1.0]
-            for rate in args.rdt_rates:
-                cost = bench.guard_cost(q_home, rate, args.guard_window, pids)
-                guard.append(cost)
-                print(
-                    f"[hw] boxes at {rate:.0f} Hz, guarded move: the bridge receives "
-                    f"{cost['records_per_s']:.0f} records/s, {cost['guard_us_per_record']:.1f} "
-                    f"µs CPU per record, {cost[f'cpu_{BRIDGE}_pct']:.0f} % of a core in all",
-                    flush=True,
-                )
-            if args.rdt_rates:  # the trials at the boxes' 1 kHz
-                bench.set_rdt_rate(RATE_TARGET_HZ)
-            first_status = len(obs.status)
-            meter.start()
-            bar = tqdm(range(args.trials), desc="[hw] trials", unit="trial", file=sys.stderr)
-            for _ in bar:
-                delay = float(rng.uniform(*FAULT_DELAY_S))
-                latency, problem = bench.trial(q_home, args.force, delay)
-                if latency is None:
-                    problems.append(problem)
-                    tqdm.write(f"[hw] trial failed: {problem}", file=sys.stderr)
-                else:
-                    latencies.append(latency)
-                    bar.set_postfix(latency=f"{latency:.2f} ms")
-            bar.close()
-            busy = meter.stop()
-            cpu = {k: {"idle_pct": idle[k], "trials_pct": busy[k]} for k in idle}
-            status = [values for _, _, values in obs.status[first_status:]]
+            measure(bench, args, run)
         except KeyboardInterrupt:
             print("[hw] interrupted: stopping the processes", flush=True)
             return 1
@@ -555,45 +510,113 @@ def run_bench(args: argparse.Namespace) -> int:
             signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut it short
             bench.stop()
             signal.signal(signal.SIGINT, signal.default_int_handler)
+    out = figures(run, args, bench.incidents, load_before)
+    print_table(out, run, args)
+    if args.json:
+        print(json.dumps(finite_or_none(out)))
+    return 0 if not run.problems else 1
 
+
+def measure(bench: HwBench, args: argparse.Namespace, run: HwRun) -> None:
+    """Start the emulated drivers and the bridge, measure the idle stream and the guard's cost
+    per RDT rate, then the trials; fills ``run``."""
+    rng = np.random.default_rng(args.seed)
+    obs = bench.obs
+    bench.start(args.seed)
+    print(f"[hw] emulated drivers and bridge in DDS domain {args.domain_id}", flush=True)
+    ready_s = bench.wait_ready(120.0)
+    print(f"[hw] bridge ready after {ready_s:.1f} s", flush=True)
+    pids = {c.name: c.proc.pid for c in bench.graph.children}
+    meter = CpuMeter(pids)
+    meter.start()
+    idle_start = time.monotonic()
+    bench.wait(args.idle)
+    idle = meter.stop()
+    print(
+        "[hw] CPU while streaming idle [% of a core]: "
+        + ", ".join(f"{k} {v:.0f} %" for k, v in idle.items()),
+        flush=True,
+    )
+    if idle["other"] > BUSY_OTHER_PCT:
+        print(
+            f"[hw] warning: other work on the machine uses {idle['other']:.0f} % of a "
+            f"core ({os.cpu_count()} cores): the latencies and rates will show it",
+            flush=True,
+        )
+    q_home = obs.arm_q.copy()
+    run.idle_status = [v for t, _, v in obs.status if t > idle_start + 1.0]
+    for rate in args.rdt_rates:
+        cost = bench.guard_cost(q_home, rate, args.guard_window, pids)
+        run.guard.append(cost)
+        print(
+            f"[hw] boxes at {rate:.0f} Hz, guarded move: the bridge receives "
+            f"{cost['records_per_s']:.0f} records/s, {cost['guard_us_per_record']:.1f} "
+            f"µs CPU per record, {cost[f'cpu_{BRIDGE}_pct']:.0f} % of a core in all",
+            flush=True,
+        )
+    if args.rdt_rates:  # the trials at the boxes' 1 kHz
+        bench.set_rdt_rate(RATE_TARGET_HZ)
+    first_status = len(obs.status)
+    meter.start()
+    bar = tqdm(range(args.trials), desc="[hw] trials", unit="trial", file=sys.stderr)
+    for _ in bar:
+        delay = float(rng.uniform(*FAULT_DELAY_S))
+        latency, problem = bench.trial(q_home, args.force, delay)
+        if latency is None:
+            run.problems.append(problem)
+            tqdm.write(f"[hw] trial failed: {problem}", file=sys.stderr)
+        else:
+            run.latencies.append(latency)
+            bar.set_postfix(latency=f"{latency:.2f} ms")
+    bar.close()
+    busy = meter.stop()
+    run.cpu = {k: {"idle_pct": idle[k], "trials_pct": busy[k]} for k in idle}
+    run.status = [values for _, _, values in obs.status[first_status:]]
+
+
+def figures(run: HwRun, args: argparse.Namespace, incidents: list, load_before: float) -> dict:
+    """The benchmark's figures (the --json object)."""
+    latencies = run.latencies
     median = lambda r: statistics.median(r) if r else float("nan")
-    rate_idle = {b: median(r) for b, (r, _) in box_figures(idle_status).items()}
-    boxes = box_figures(status)
-    rate = {b: median(r) for b, (r, _) in boxes.items()}
-    rate_min = {b: min(r) if r else float("nan") for b, (r, _) in boxes.items()}
-    lost = {b: (n[-1] - n[0]) if n else None for b, (_, n) in boxes.items()}
-    lost_total = {b: n[-1] if n else None for b, (_, n) in boxes.items()}
+    rate_idle = {b: median(r) for b, (r, _) in box_figures(run.idle_status).items()}
+    boxes = box_figures(run.status)
     med, p99 = (
         (statistics.median(latencies), percentile(latencies, 99))
         if latencies
         else (float("nan"), float("nan"))
     )
-    out = {
+    return {
         "latency_median_ms": med,
         "latency_p99_ms": p99,
         "latency_max_ms": max(latencies) if latencies else float("nan"),
         "latency_ms": [round(x, 4) for x in latencies],
-        "rdt_rate_hz": rate,
-        "rdt_rate_min_hz": rate_min,
+        "rdt_rate_hz": {b: median(r) for b, (r, _) in boxes.items()},
+        "rdt_rate_min_hz": {b: min(r) if r else float("nan") for b, (r, _) in boxes.items()},
         "rdt_rate_idle_hz": rate_idle,
-        "lost": lost,
-        "lost_since_start": lost_total,
+        "lost": {b: (n[-1] - n[0]) if n else None for b, (_, n) in boxes.items()},
+        "lost_since_start": {b: n[-1] if n else None for b, (_, n) in boxes.items()},
         "trials": args.trials,
-        "failed": len(problems),
-        "failures": problems,
-        "cpu": cpu,
-        "guard_cost": guard,
+        "failed": len(run.problems),
+        "failures": run.problems,
+        "cpu": run.cpu,
+        "guard_cost": run.guard,
         "force_n": args.force,
         "threshold_n": SENSING.tip_force_threshold,
-        "incidents": bench.incidents,
+        "incidents": incidents,
         "load_average": [load_before, os.getloadavg()[0]],
-        "domain_id": domain,
+        "domain_id": args.domain_id,
     }
+
+
+def print_table(out: dict, run: HwRun, args: argparse.Namespace) -> None:
+    """The figures against their targets, as a Markdown table."""
+    med, p99 = out["latency_median_ms"], out["latency_p99_ms"]
+    rate, rate_min, lost = out["rdt_rate_hz"], out["rdt_rate_min_hz"], out["lost"]
     ok = lambda good: "met" if good else "MISSED"
     print("\n| figure | value | target |")
     print("|---|---|---|")
     print(
-        f"| crossing → cancel at the controller, median of {len(latencies)} "
+        f"| crossing → cancel at the controller, median of {len(run.latencies)} "
         f"| {med:.2f} ms | ≤ {LATENCY_MEDIAN_TARGET_MS:.0f} ms "
         f"({ok(med <= LATENCY_MEDIAN_TARGET_MS)}) |"
     )
@@ -606,32 +629,29 @@ def run_bench(args: argparse.Namespace) -> int:
         print(
             f"| {b}'s Net F/T at the bridge during the trials: median rate (lowest second), "
             f"records lost; idle median | {rate[b]:.0f} Hz ({rate_min[b]:.0f} Hz), {lost[b]} lost; "
-            f"{rate_idle[b]:.0f} Hz | ≥ {RATE_TARGET_HZ:.0f} Hz ({ok(met)}) |"
+            f"{out['rdt_rate_idle_hz'][b]:.0f} Hz | ≥ {RATE_TARGET_HZ:.0f} Hz ({ok(met)}) |"
         )
-    for k, v in cpu.items():
+    for k, v in run.cpu.items():
         what = {"other": "other work on the machine", "benchmark": "the benchmark's own node"}
         print(
             f"| CPU of {what.get(k, k)}, streaming idle / during the trials "
             f"| {v['idle_pct']:.0f} % / {v['trials_pct']:.0f} % of a core | – |"
         )
-    for g in guard:
+    for g in run.guard:
         print(
             f"| the bridge with the boxes at {g['rate_set_hz']:.0f} Hz during a guarded move: "
             f"records received (all boxes), CPU per record of its receive threads (decode and "
             f"guard), its whole CPU | {g['records_per_s']:.0f} /s, "
             f"{g['guard_us_per_record']:.1f} µs, {g[f'cpu_{BRIDGE}_pct']:.0f} % of a core | – |"
         )
-    if problems:
-        print(f"| failed trials | {len(problems)} of {args.trials} | 0 |")
-    if bench.incidents:
-        print(f"| incidents outside the measurements | {len(bench.incidents)} | 0 |")
+    if run.problems:
+        print(f"| failed trials | {len(run.problems)} of {args.trials} | 0 |")
+    if out["incidents"]:
+        print(f"| incidents outside the measurements | {len(out['incidents'])} | 0 |")
     print(
-        f"| load average (1 min) before / after | {load_before:.1f} / "
+        f"| load average (1 min) before / after | {out['load_average'][0]:.1f} / "
         f"{out['load_average'][1]:.1f} on {os.cpu_count()} cores | – |"
     )
-    if args.json:
-        print(json.dumps(finite_or_none(out)))
-    return 0 if not problems else 1
 
 
 if __name__ == "__main__":

@@ -77,10 +77,8 @@ def start_node(module: str, params: dict, env: dict, log_path: Path) -> subproce
         )
 
 
-def bench_service(argv: list[str]) -> int:
-    from rrg_bringup.graph import warm_tables
-    from rrg_bringup.supervisor import ros_environment
-
+def service_parser() -> argparse.ArgumentParser:
+    """``rrg-bench service``'s arguments."""
     ap = argparse.ArgumentParser(
         prog="rrg-bench service",
         description=__doc__,
@@ -95,8 +93,14 @@ def bench_service(argv: list[str]) -> int:
     ap.add_argument("--busy", type=int, default=0, help="CPU-burning processes beside the load")
     ap.add_argument("--domain-id", type=int, default=96)
     ap.add_argument("--json", action="store_true", help="print the figures as JSON last")
-    args = ap.parse_args(argv)
+    return ap
 
+
+def bench_service(argv: list[str]) -> int:
+    from rrg_bringup.graph import warm_tables
+    from rrg_bringup.supervisor import ros_environment
+
+    args = service_parser().parse_args(argv)
     warm_tables(args.object, [args.level])
     env = ros_environment(args.domain_id)
     with tempfile.TemporaryDirectory(prefix="rrg_bench_service_") as tmp:
@@ -110,48 +114,9 @@ def bench_service(argv: list[str]) -> int:
             ),
             start_node("rrg_estimator.ros.estimator_node", {}, env, Path(tmp) / "estimator.log"),
         ]
-        procs: list[subprocess.Popen] = []
-        busy: list[subprocess.Popen] = []
         try:
-            start_at = time.time() + 20.0 + 2.0 * args.clients  # all ready by then
-            for _ in range(args.clients):
-                procs.append(
-                    subprocess.Popen(
-                        [sys.executable, "-m", "rrg_bringup.benchmarks.service_benchmark", "client"]
-                        + ["--object", args.object, "--level", args.level]
-                        + ["--horizon", str(args.horizon), "--calls", str(args.calls)]
-                        + ["--call-timeout", str(args.call_timeout)]
-                        + ["--start-at", str(start_at)],
-                        env=env,
-                        cwd=ROOT,
-                        stdout=subprocess.PIPE,
-                        stderr=(Path(tmp) / f"client_{len(procs)}.log").open("w"),
-                        text=True,
-                    )
-                )
-            busy += [
-                subprocess.Popen([sys.executable, "-c", "while True: pass"])
-                for _ in range(args.busy)
-            ]
-            print(
-                f"[service] planner + {args.clients} clients × {args.calls} calls "
-                f"(H={args.horizon}, {args.object}/{args.level}), {args.busy} busy processes",
-                flush=True,
-            )
-            rows = []
-            failed = []  # clients that exited with an error: their log's tail
-            for i, p in enumerate(procs):
-                for line in p.stdout:
-                    row = json.loads(line)
-                    if "ready" not in row:
-                        rows.append(row)
-                if p.wait() != 0:
-                    failed.append((Path(tmp) / f"client_{i}.log").read_text()[-2000:])
-            load_s = time.time() - start_at  # the calls' wall time
+            rows, failed, load_s = run_clients(args, env, Path(tmp))
         finally:
-            for p in [*procs, *busy]:
-                if p.poll() is None:
-                    p.kill()
             for node in nodes:
                 node.send_signal(2)
             for node in nodes:
@@ -160,6 +125,61 @@ def bench_service(argv: list[str]) -> int:
                 except subprocess.TimeoutExpired:
                     node.kill()
         planner_log = log_path.read_text()
+    out, errors, send_failures = service_figures(args, rows, failed, load_s, planner_log)
+    print_service_table(args, out, errors, failed, send_failures)
+    if args.json:
+        print(json.dumps(out))
+    return 0
+
+
+def run_clients(args: argparse.Namespace, env: dict[str, str], tmp: Path):
+    """The client processes' calls, all starting at one instant → (their rows, the log tails
+    of clients that failed, the calls' wall time [s])."""
+    procs: list[subprocess.Popen] = []
+    busy: list[subprocess.Popen] = []
+    try:
+        start_at = time.time() + 20.0 + 2.0 * args.clients  # all ready by then
+        for _ in range(args.clients):
+            procs.append(
+                subprocess.Popen(
+                    [sys.executable, "-m", "rrg_bringup.benchmarks.service_benchmark", "client"]
+                    + ["--object", args.object, "--level", args.level]
+                    + ["--horizon", str(args.horizon), "--calls", str(args.calls)]
+                    + ["--call-timeout", str(args.call_timeout)]
+                    + ["--start-at", str(start_at)],
+                    env=env,
+                    cwd=ROOT,
+                    stdout=subprocess.PIPE,
+                    stderr=(tmp / f"client_{len(procs)}.log").open("w"),
+                    text=True,
+                )
+            )
+        busy += [
+            subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.busy)
+        ]
+        print(
+            f"[service] planner + {args.clients} clients × {args.calls} calls "
+            f"(H={args.horizon}, {args.object}/{args.level}), {args.busy} busy processes",
+            flush=True,
+        )
+        rows = []
+        failed = []  # clients that exited with an error: their log's tail
+        for i, p in enumerate(procs):
+            for line in p.stdout:
+                row = json.loads(line)
+                if "ready" not in row:
+                    rows.append(row)
+            if p.wait() != 0:
+                failed.append((tmp / f"client_{i}.log").read_text()[-2000:])
+        return rows, failed, time.time() - start_at
+    finally:
+        for p in [*procs, *busy]:
+            if p.poll() is None:
+                p.kill()
+
+
+def service_figures(args, rows: list[dict], failed: list[str], load_s: float, planner_log: str):
+    """(the figures, the calls' errors, the planner's failed sends)."""
     lat = np.array([r["latency_s"] for r in rows if "latency_s" in r])
     plan = np.array([r["planning_s"] for r in rows if "planning_s" in r])
     errors = [r["error"] for r in rows if "error" in r]
@@ -179,11 +199,16 @@ def bench_service(argv: list[str]) -> int:
         "busy": args.busy,
         "horizon": args.horizon,
     }
+    return out, errors, send_failures
+
+
+def print_service_table(args, out: dict, errors: list, failed: list, send_failures: list) -> None:
+    """The figures against their targets, as a Markdown table, and the first problems."""
     print("\n| figure | value | target |")
     print("|---|---|---|")
     calls = f"{out['calls_per_s']:.1f}"
     print(f"| calls/s ({args.clients} clients) | {calls} | ≥ {TARGET_CALLS_PER_S:.0f} |")
-    if lat.size:
+    if out["answered"]:
         p50, p99 = out["latency_p50_ms"], out["latency_p99_ms"]
         print(f"| latency p50 / p99 | {p50:.1f} / {p99:.1f} ms | p99 ≤ {TARGET_P99_MS:.0f} ms |")
         plan_ms, over_ms = out["planning_p50_ms"], out["overhead_p50_ms"]
@@ -195,9 +220,6 @@ def bench_service(argv: list[str]) -> int:
         print(f"  a client failed:\n{text}")
     for ln in send_failures[:5]:
         print(f"  planner: {ln}")
-    if args.json:
-        print(json.dumps(out))
-    return 0
 
 
 if __name__ == "__main__":

@@ -37,7 +37,7 @@ from rrg_bags.bag_read import read_messages
 from rrg_bags.bag_writer import RecordingStopped, Rosbag2McapWriter
 from rrg_bringup import launch
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 S = 1_000_000_000  # ns
 TOPIC = "/fill"
 

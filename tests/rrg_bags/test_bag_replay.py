@@ -59,7 +59,7 @@ def rewrite_bag(
         reader = make_reader(f)
         summary = reader.get_summary()
         writer = Writer(g)
-        writer.start(profile="ros2", library="tests/test_bag_replay.py")
+        writer.start(profile="ros2", library="tests/rrg_bags/test_bag_replay.py")
         schemas = {
             sid: writer.register_schema(s.name, s.encoding, schema_edit(s.name, s.data))
             for sid, s in summary.schemas.items()

@@ -30,7 +30,7 @@ from rrg_bringup.graph import Graph
 from rrg_bringup.supervisor import LaunchError, exit_description, respawn_delay, ros_environment
 from rrg_msgs.msg import NodeEvent
 
-CHILD = str(Path(__file__).with_name("launch_children.py"))
+CHILD = str(Path(__file__).resolve().parents[1] / "launch_children.py")
 EVENTS_QOS = QoSProfile(
     depth=100, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE
 )

@@ -11,15 +11,15 @@ from pathlib import Path
 import pytest
 from repo_layout import PACKAGES
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 README_MAX_BYTES = 12 * 1024
 TEXT_SUFFIXES = {".py", ".md", ".msg", ".srv", ".action", ".sh", ".toml", ".txt", ".cjs"}
 #: The trial-id format is the experiment runner's own interface: its usage text and its tests
 #: may show examples.
 TRIAL_ID_EXAMPLES = {
     "rrg_experiments/experiment_cli.py",
-    "tests/test_experiment.py",
-    "tests/test_docs.py",
+    "tests/rrg_experiments/test_experiment.py",
+    "tests/repo/test_docs.py",
 }
 
 

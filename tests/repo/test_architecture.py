@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from repo_layout import NODE_MODULES, PACKAGES
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 #: The packages each package may import besides itself, from the bottom up: the robot's models;
 #: the plumbing every node shares; the simulators, and the bridge that stands in for them on a
 #: real robot (it knows the robot's models, never a simulator); the belief; the search over the

@@ -3,7 +3,7 @@ asserted."""
 
 import numpy as np
 import pytest
-from test_update import synthetic_table
+from synthetic_tables import synthetic_table
 
 from rrg_bringup.benchmarks.update_roofline import (
     _read_all,

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from ros_testing import RosClient, exclusive_domain_id, ros_env
 
-HERE = Path(__file__).resolve().parent
+TESTS = Path(__file__).resolve().parents[1]  # where ros_testing.py is
 HOLD = """
 import sys
 from ros_testing import exclusive_domain_id
@@ -24,7 +24,7 @@ def test_a_domain_id_is_held_by_one_test_process_at_a_time():
     with exclusive_domain_id() as mine:
         other = subprocess.Popen(
             [sys.executable, "-c", HOLD],
-            cwd=HERE,
+            cwd=TESTS,
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             text=True,

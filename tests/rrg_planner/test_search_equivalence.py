@@ -16,7 +16,7 @@ from rrg_estimator.belief import Belief
 from rrg_estimator.transition import change_frame
 from rrg_planner.search import ForwardSearch, SparseBelief
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 _spec = importlib.util.spec_from_file_location(
     "make_search_fixture", ROOT / "scripts" / "make_search_fixture.py"
 )

@@ -5,12 +5,12 @@ parameters, the simulation-only reset)."""
 
 from __future__ import annotations
 
-import socket
 import threading
 import time
 
 import numpy as np
 import pytest
+from fake_hw_testing import BOX_POSE, HOSTS, free_udp_port
 
 from rrg_fake_hw.emulated_robot import (
     JOINT_LIMIT_GLITCH,
@@ -22,7 +22,6 @@ from rrg_models import wam
 from rrg_models.config import HAND, PHYSICS, SENSING
 from rrg_sim.physics.world import PhysicsWorld
 
-BOX_POSE = np.array([0.625, 0.004, 0.05])
 GOAL_ESTIMATE = np.array([0.62, 0.0, 0.0])
 #: An arm target near home, reached in TARGET_TIME [s].
 TARGET = wam.HOME_Q + np.array([0.15, -0.1, 0.1, 0.2, 0.0, 0.1, 0.0])
@@ -188,23 +187,6 @@ def test_the_thread_steps_the_world_in_real_time(robot):
 
 
 # ---------------------------------------------------------------------- the node over ROS
-def free_udp_port(hosts: list[str]) -> int:
-    """A UDP port free on every host."""
-    for _ in range(50):
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-            s.bind((hosts[0], 0))
-            port = s.getsockname()[1]
-        try:
-            for h in hosts:
-                with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-                    s.bind((h, port))
-            return port
-        except OSError:
-            continue
-    raise RuntimeError("no free UDP port")
-
-
-HOSTS = ["127.0.0.2", "127.0.0.3", "127.0.0.4"]
 DRIVER_ARM = tuple(f"wam_j{i}_joint" for i in range(1, 8))
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 LAYOUT = ROOT / "docs" / "foxglove" / "rrg_layout.json"
 RVIZ = ROOT / "docs" / "rviz" / "rrg.rviz"
 

@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 import pytest
-from test_fake_hw import BOX_POSE, HOSTS, free_udp_port
+from fake_hw_testing import BOX_POSE, HOSTS, free_udp_port
 
 from rrg_common.ros.msg_conversions import ARM_JOINT_NAMES
 from rrg_models import wam
