@@ -52,6 +52,7 @@ from rrg_models.objects.catalogue import USER_DIR_ENV
 from rrg_models.objects.composites import turn_about_z
 from rrg_models.objects.mesh_import import (
     MeshError,
+    MeshRepair,
     check_mesh,
     convex_parts,
     import_mesh,
@@ -168,6 +169,7 @@ class AddReport:
     folder: Path
     stage_s: dict[str, float] = field(default_factory=dict)
     choices: list[str] = field(default_factory=list)
+    repair: MeshRepair | None = None  # what the mesh check repaired
 
 
 def check_name(name: str) -> None:
@@ -421,7 +423,10 @@ def add_object(opts: AddOptions, say: Callable[[str], None] = print) -> AddRepor
     try:
         with stage("mesh"):
             raw = import_mesh(opts.mesh, opts.units, opts.up)
-            mesh = stand_on_table(check_mesh(raw, allow_size=opts.allow_size))
+            checked, repair = check_mesh(raw, allow_size=opts.allow_size)
+            report.repair = repair
+            choose(f"mesh {repair.describe()}")
+            mesh = stand_on_table(checked)
             mesh.export(folder / "mesh.stl")
             choose(
                 f"{len(mesh.faces)} faces, {mesh.extents[0] * 100:.1f} x "

@@ -1,9 +1,11 @@
 """A rigid object from a mesh file: load, check, stand on the table, decompose into convex parts.
 
 ``import_mesh(path, units, up)`` reads an STL, OBJ or PLY file with trimesh, scales it to
-metres and turns its declared up axis to +z; ``check_mesh`` repairs what trimesh can (merged
-vertices, consistent normals, small holes) and refuses a mesh that is empty, not a closed
-manifold, or of an implausible size; ``stand_on_table`` puts its lowest face on z = 0 with
+metres and turns its declared up axis to +z; ``check_mesh`` repairs what a lab's mesh needs
+(merged vertices, consistent normals, small holes filled, several closed shells, overlapping
+or touching as CAD assemblies and merged parts are, united into one with manifold3d) and says
+what it repaired, and refuses a mesh that is empty, open, without volume, or of an
+implausible size; ``stand_on_table`` puts its lowest face on z = 0 with
 the origin at the centre of its footprint, and refuses a mesh whose centre of mass falls
 outside that footprint; ``convex_parts`` decomposes it with CoACD so that MuJoCo, which
 collides every mesh as its convex hull, keeps its concavities. Every refusal is a
@@ -13,6 +15,7 @@ collides every mesh as its convex hull, keeps its concavities. Every refusal is 
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -53,6 +56,31 @@ class MeshError(ValueError):
     """A mesh that cannot become an object: what is wrong, and what to do."""
 
 
+@dataclass(frozen=True)
+class MeshRepair:
+    """What check_mesh repaired: faces added to close holes, closed shells united into one
+    (0: none), and the volume [m³] before (the shells' volumes summed, overlaps counted as
+    often as they overlap) and after."""
+
+    holes_filled: int
+    shells_united: int
+    volume_before_m3: float
+    volume_after_m3: float
+
+    def describe(self) -> str:
+        """One line for people."""
+        done = []
+        if self.shells_united:
+            done.append(f"{self.shells_united} closed shells united into one")
+        if self.holes_filled:
+            done.append(f"{self.holes_filled} faces added to close holes")
+        if not done:
+            return "no repair needed"
+        cm3 = lambda v: f"{v * 1e6:.1f} cm³"
+        volumes = f"{cm3(self.volume_before_m3)} → {cm3(self.volume_after_m3)}"
+        return f"repaired: {'; '.join(done)} (volume {volumes})"
+
+
 def import_mesh(path: Path | str, units: str = "m", up: str = "z") -> trimesh.Trimesh:
     """The mesh in ``path`` in metres with its ``up`` axis turned to +z (MeshError if it
     cannot be read or has no faces)."""
@@ -75,10 +103,14 @@ def import_mesh(path: Path | str, units: str = "m", up: str = "z") -> trimesh.Tr
     return mesh
 
 
-def check_mesh(mesh: trimesh.Trimesh, allow_size: bool = False) -> trimesh.Trimesh:
-    """A repaired copy of ``mesh``: merged vertices, consistent outward normals, small holes
-    filled. MeshError if it is not then a closed manifold with a volume, or (unless
-    ``allow_size``) if its largest extent is outside [MIN_SIZE_M, MAX_SIZE_M]."""
+def check_mesh(
+    mesh: trimesh.Trimesh, allow_size: bool = False
+) -> tuple[trimesh.Trimesh, MeshRepair]:
+    """A repaired copy of ``mesh`` and what was repaired: merged vertices, consistent outward
+    normals, small holes filled, and its closed shells (bodies that overlap or touch, as in a
+    CAD assembly or at a shared edge) united into one. MeshError if it is then not a closed
+    manifold with a volume (an open sheet), or (unless ``allow_size``) if its largest extent
+    is outside [MIN_SIZE_M, MAX_SIZE_M]."""
     mesh = mesh.copy()
     mesh.merge_vertices()
     mesh.update_faces(mesh.nondegenerate_faces())
@@ -87,16 +119,32 @@ def check_mesh(mesh: trimesh.Trimesh, allow_size: bool = False) -> trimesh.Trime
     if len(mesh.faces) == 0:
         raise MeshError("the mesh is empty (no faces left after removing degenerate ones)")
     trimesh.repair.fix_normals(mesh)
+    faces = len(mesh.faces)
     trimesh.repair.fill_holes(mesh)
-    if not mesh.is_watertight:
-        edges = trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)
+    holes_filled = len(mesh.faces) - faces
+    shells = mesh.split(only_watertight=False)
+    open_edges = sum(
+        len(trimesh.grouping.group_rows(s.edges_sorted, require_count=1)) for s in shells
+    )
+    if open_edges:
         raise MeshError(
-            f"the mesh is not a closed manifold ({len(edges)} edges bound a single face, "
-            "or some edge bounds more than two): a rigid object needs a closed surface "
-            "(repair it, e.g. in MeshLab, and export it again)"
+            f"the mesh is open: {open_edges} edges bound a single face, and its holes are too "
+            "large to fill (an open sheet, or a surface with a missing side): a rigid object "
+            "needs a closed surface (close it, e.g. in MeshLab, and export it again)"
+        )
+    for shell in shells:
+        trimesh.repair.fix_normals(shell)
+    volume_before = float(sum(shell.volume for shell in shells))
+    united = 0
+    if len(shells) > 1 or not mesh.is_watertight:
+        mesh, united = _united(shells), len(shells)
+    if not mesh.is_watertight:
+        raise MeshError(
+            "the mesh is not a closed manifold even after uniting its closed shells: "
+            "repair it (e.g. in MeshLab) and export it again"
         )
     if not mesh.is_volume or mesh.volume <= 0.0:
-        raise MeshError("the mesh encloses no volume (inconsistent or inward faces)")
+        raise MeshError("the mesh encloses no volume (a flat or inside-out surface)")
     size = float(mesh.extents.max())
     if not allow_size and not MIN_SIZE_M <= size <= MAX_SIZE_M:
         hint = "mm or cm" if size > MAX_SIZE_M else "m"
@@ -105,7 +153,19 @@ def check_mesh(mesh: trimesh.Trimesh, allow_size: bool = False) -> trimesh.Trime
             f"object on a table has: are its units really as declared? (try --units {hint}, "
             "or --allow-size if it really is that size)"
         )
-    return mesh
+    repair = MeshRepair(holes_filled, united, volume_before, float(mesh.volume))
+    return mesh, repair
+
+
+def _united(shells: list[trimesh.Trimesh]) -> trimesh.Trimesh:
+    """The union of closed shells (manifold3d through trimesh): one closed surface."""
+    try:
+        return trimesh.boolean.union(shells, engine="manifold")
+    except Exception as exc:  # manifold3d raises its own types for inputs it cannot use
+        raise MeshError(
+            f"the mesh's {len(shells)} closed shells could not be united ({exc}): repair it "
+            "(e.g. in MeshLab) and export it again"
+        ) from exc
 
 
 def stand_on_table(mesh: trimesh.Trimesh) -> trimesh.Trimesh:

@@ -117,20 +117,71 @@ def test_an_empty_or_unreadable_file_is_refused(tmp_path):
         import_mesh(tmp_path / "junk.ply")
 
 
-def test_an_open_or_non_manifold_mesh_is_refused_and_a_small_hole_is_filled():
+def box_at(extents, centre) -> trimesh.Trimesh:
+    """A closed box of ``extents`` [m] centred at ``centre`` [m]."""
+    return trimesh.creation.box(extents=extents).apply_translation(centre)
+
+
+def test_a_small_hole_is_filled_and_said():
     box = trimesh.creation.box(extents=(0.05, 0.05, 0.05))
     pierced = trimesh.Trimesh(box.vertices, box.faces[1:], process=False)  # one triangle gone
     assert not pierced.is_watertight
-    assert check_mesh(pierced).volume == pytest.approx(box.volume)
+    mesh, repair = check_mesh(pierced)
+    assert mesh.volume == pytest.approx(box.volume)
+    assert (repair.holes_filled, repair.shells_united) == (1, 0)
+    assert "1 faces added to close holes" in repair.describe()
+    assert check_mesh(box)[1].describe() == "no repair needed"
+
+
+@pytest.mark.parametrize(
+    "case, shells, volume_m3",
+    [
+        # a bracket exported as two overlapping boxes: the overlap counts once
+        (
+            "overlapping boxes",
+            [
+                box_at((0.06, 0.04, 0.04), (0, 0, 0.02)),
+                box_at((0.04, 0.06, 0.04), (0.01, 0.01, 0.03)),
+            ],
+            0.06 * 0.04 * 0.04 + 0.04 * 0.06 * 0.04 - 0.04 * 0.04 * 0.03,
+        ),
+        # a vessel whose handle is a box touching its body
+        (
+            "body and touching handle",
+            [box_at((0.08, 0.08, 0.1), (0, 0, 0.05)), box_at((0.01, 0.02, 0.06), (0.045, 0, 0.05))],
+            0.08 * 0.08 * 0.1 + 0.01 * 0.02 * 0.06,
+        ),
+        # two cubes that share one edge: after merging vertices, that edge bounds four faces
+        (
+            "a non-manifold edge",
+            [box_at((0.05,) * 3, (0, 0, 0)), box_at((0.05,) * 3, (0.05, 0.05, 0))],
+            2 * 0.05**3,
+        ),
+    ],
+)
+def test_closed_shells_are_united_into_one_closed_surface(case, shells, volume_m3):
+    mesh, repair = check_mesh(trimesh.util.concatenate(shells))
+    assert mesh.is_watertight and mesh.is_volume
+    assert mesh.volume == pytest.approx(volume_m3, rel=1e-6)
+    assert repair.shells_united == len(shells)
+    assert repair.volume_before_m3 == pytest.approx(sum(s.volume for s in shells))
+    assert repair.volume_after_m3 == pytest.approx(volume_m3, rel=1e-6)
+    assert f"{len(shells)} closed shells united into one" in repair.describe()
+
+
+def test_an_open_sheet_or_a_flat_mesh_is_refused_with_its_reason():
     sphere = trimesh.creation.icosphere(radius=0.03)
     cut = sphere.faces[sphere.triangles_center[:, 2] < 0.02]  # its cap above 2 cm gone
-    open_box = trimesh.Trimesh(sphere.vertices, cut, process=False)
-    with pytest.raises(MeshError, match="not a closed manifold"):
-        check_mesh(open_box)
-    a = trimesh.creation.box(extents=(0.05, 0.05, 0.05))
-    b = a.copy().apply_translation((0.05, 0.05, 0.0))  # the two cubes share one edge
-    with pytest.raises(MeshError, match="not a closed manifold|encloses no volume"):
-        check_mesh(trimesh.util.concatenate([a, b]))
+    with pytest.raises(MeshError, match=r"the mesh is open: \d+ edges bound a single face"):
+        check_mesh(trimesh.Trimesh(sphere.vertices, cut, process=False))
+    sheet = trimesh.creation.box(extents=(0.05, 0.05, 0.05))
+    top = sheet.faces[sheet.triangles_center[:, 2] > 0.02]  # one square face: a flat sheet
+    with pytest.raises(MeshError, match="the mesh is open"):
+        check_mesh(trimesh.Trimesh(sheet.vertices, top, process=False))
+    flat = trimesh.creation.box(extents=(0.05, 0.05, 0.05))
+    flat.vertices[:, 2] = 0.0  # a closed surface squashed flat: no volume
+    with pytest.raises(MeshError, match="empty|no volume"):
+        check_mesh(flat)
 
 
 def test_a_mesh_in_millimetres_declared_as_metres_is_refused_unless_told(tmp_path):
@@ -138,7 +189,7 @@ def test_a_mesh_in_millimetres_declared_as_metres_is_refused_unless_told(tmp_pat
     mesh = import_mesh(write(mug_mm, tmp_path / "mug.stl"), units="m")
     with pytest.raises(MeshError, match=r"95 m across.*--units mm"):
         check_mesh(mesh)
-    assert check_mesh(mesh, allow_size=True).extents.max() == pytest.approx(95.0)
+    assert check_mesh(mesh, allow_size=True)[0].extents.max() == pytest.approx(95.0)
 
 
 def test_stand_on_table_centres_the_footprint_and_refuses_what_would_fall():

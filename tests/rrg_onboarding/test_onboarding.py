@@ -48,12 +48,15 @@ def test_a_name_that_clashes_or_is_malformed_is_refused(user_dir, tmp_path):
     refused(user_dir, r"invalid name", mesh=mesh, name="Tin Can")
 
 
-def test_an_empty_or_non_manifold_mesh_is_refused(user_dir, tmp_path):
+def test_an_empty_open_or_flat_mesh_is_refused(user_dir, tmp_path):
     (tmp_path / "empty.stl").write_text("solid empty\nendsolid empty\n")
     refused(user_dir, "empty", mesh=tmp_path / "empty.stl", name="tin")
     sphere = trimesh.creation.icosphere(radius=0.03)
     cut = trimesh.Trimesh(sphere.vertices, sphere.faces[sphere.triangles_center[:, 2] < 0.02])
-    refused(user_dir, "not a closed manifold", mesh=write(cut, tmp_path / "c.ply"), name="tin")
+    refused(user_dir, "the mesh is open", mesh=write(cut, tmp_path / "c.ply"), name="tin")
+    flat = trimesh.creation.box(extents=(0.05, 0.05, 0.05))
+    flat.vertices[:, 2] = 0.0
+    refused(user_dir, "empty|no volume", mesh=write(flat, tmp_path / "f.stl"), name="tin")
 
 
 def test_a_mesh_in_millimetres_declared_as_metres_is_refused(user_dir, tmp_path):
@@ -90,7 +93,7 @@ def _parts(mesh: trimesh.Trimesh, max_parts: int = 12):
     from rrg_models.objects import Primitive
     from rrg_models.objects.mesh_import import check_mesh, convex_parts, stand_on_table
 
-    mesh = stand_on_table(check_mesh(mesh))
+    mesh = stand_on_table(check_mesh(mesh)[0])
     return tuple(Primitive("mesh", (), vertices=v) for v in convex_parts(mesh, max_parts=max_parts))
 
 
@@ -162,15 +165,20 @@ def test_check_runs_rrg_info_and_open_loop_at_both_levels_and_refuses_bad_input(
 
 @pytest.mark.slow
 def test_a_mesh_is_onboarded_end_to_end_and_removed(user_dir, tmp_path, capsys):
-    """rrg-object add on a box mesh: every stage runs (goal proposed and ranked in physics,
+    """rrg-object add on a box mesh exported as two overlapping boxes: the mesh is repaired
+    into one closed 5 x 7 x 9 cm box, every stage runs (goal proposed and ranked in physics,
     studies, tables, picture), the object loads by name with its region centred on the
     measured settling, a grasp trial runs on it, and remove leaves nothing."""
     from rrg_models.objects import get_object
     from rrg_onboarding.object_cli import cached_tables
 
-    mesh = write(trimesh.creation.box(extents=(0.05, 0.07, 0.09)), tmp_path / "tin.stl")
+    lower = trimesh.creation.box(extents=(0.05, 0.07, 0.06)).apply_translation((0, 0, 0.03))
+    upper = trimesh.creation.box(extents=(0.05, 0.07, 0.06)).apply_translation((0, 0, 0.06))
+    mesh = write(trimesh.util.concatenate([lower, upper]), tmp_path / "tin.stl")
     report = add_object(AddOptions(mesh, "tin", mass_kg=0.2, settle_grasps=12), say=print)
     out = capsys.readouterr().out
+    assert "repaired: 2 closed shells united into one (volume 420.0 cm³ → 315.0 cm³)" in out
+    assert report.repair.shells_united == 2
     assert "chose the goal grasp that held most" in out and "goal region centred" in out
     assert list(report.stage_s)[:2] == ["mesh", "decompose"] and "tables" in report.stage_s
     folder = user_dir / "tin"
