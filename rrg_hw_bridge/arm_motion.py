@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rrg_models.config import SENSING
-from rrg_models.trajectory import GOAL_START_TOLERANCE, client_fraction
+from rrg_models.trajectory import GOAL_START_TOLERANCE, GoalError, client_fraction
 
 from .bridge_core import ActiveMove, BridgeCore
 from .config import BRIDGE
@@ -29,16 +29,8 @@ from .safety import (
 )
 
 #: via_points(q0) → (q (M,7) [rad], t (M,) [s]) of a goal, the arm's configuration q0 first;
-#: raises ValueError with a ``code`` (a GuardedMove result code) for a goal it refuses.
+#: raises GoalError for a goal it refuses.
 ViaPoints = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
-
-
-class _Refused(ValueError):
-    """A goal the plan refuses, with its result code."""
-
-    def __init__(self, message: str, code: int = SafetyCode.INVALID_TRAJECTORY):
-        super().__init__(message)
-        self.code = code
 
 
 @dataclass(frozen=True)
@@ -76,7 +68,7 @@ class ArmMotion:
 
     def plan(self, request: MoveRequest) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
         """(q (K,7), t (K,) [s, speed-scaled], the kept points' indices into the followed
-        points, the client's point count) of a goal, refusing it (ValueError with a code)."""
+        points, the client's point count) of a goal, refusing it (GoalError)."""
         q, t = request.via_points(self.core.measured().arm_q)
         keep = [0]
         for k in range(1, len(t)):
@@ -85,12 +77,13 @@ class ArmMotion:
             if t[k] - t[keep[-1]] >= BRIDGE.min_segment_time:
                 keep.append(k)
             elif np.abs(q[k] - q[keep[-1]]).max() > GOAL_START_TOLERANCE:
-                raise _Refused(
+                raise GoalError(
                     f"points {keep[-1]} and {k} are {np.abs(q[k] - q[keep[-1]]).max():.3f} rad "
-                    f"apart within {BRIDGE.min_segment_time * 1e3:.0f} ms"
+                    f"apart within {BRIDGE.min_segment_time * 1e3:.0f} ms",
+                    SafetyCode.INVALID_TRAJECTORY,
                 )
         if len(keep) < 2:
-            raise _Refused("the trajectory does not move the arm")
+            raise GoalError("the trajectory does not move the arm", SafetyCode.INVALID_TRAJECTORY)
         keep = np.asarray(keep)
         return q[keep], scale_time(t[keep], self.core.speed_scale), keep, len(t) - 1
 
@@ -139,9 +132,8 @@ class ArmMotion:
             return self._refuse(refusal.code, refusal.message, refusal.check)
         try:
             q, t, keep, n_client = self.plan(request)
-        except ValueError as exc:
-            code = getattr(exc, "code", SafetyCode.INVALID_TRAJECTORY)
-            return self._refuse(code, str(exc), "goal")
+        except GoalError as exc:
+            return self._refuse(exc.code, str(exc), "goal")
         if recovery:
             refusal = check_recovery(q, t, core.limits)
             if refusal is not None:

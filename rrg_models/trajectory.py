@@ -430,6 +430,15 @@ def timed_controls(
     return TimedPath(path, ctrl, index)
 
 
+class GoalError(ValueError):
+    """A guarded-move goal the arm/hand interface refuses (in the simulator or the bridge):
+    ``message`` and the GuardedMove result ``code``."""
+
+    def __init__(self, message: str, code: int):
+        super().__init__(message)
+        self.code = code
+
+
 #: Largest distance [rad] between the arm and a guarded move's first via-point at time 0 (the
 #: arm/hand interface's check of a goal, in the simulator and in the bridge).
 GOAL_START_TOLERANCE = 0.05

@@ -21,21 +21,13 @@ from rrg_common.ros.qos import RESULT_TIMEOUT_S
 from rrg_models import wam
 from rrg_models.config import HAND
 from rrg_models.description.urdf_robot import robot_urdf
-from rrg_models.trajectory import GOAL_START_TOLERANCE, DensePath, sample_times
+from rrg_models.trajectory import GOAL_START_TOLERANCE, DensePath, GoalError, sample_times
 from rrg_msgs.action import GuardedMove
 from rrg_msgs.msg import ContactPads
 from rrg_msgs.srv import HandCommand
 
 #: The name the arm/hand interface (the simulator, or the bridge) announces itself under.
 INTERFACE_PEER = "arm_hand_interface"
-
-
-class GoalError(ValueError):
-    """A goal the interface refuses: ``message`` and the GuardedMove result ``code``."""
-
-    def __init__(self, message: str, code: int):
-        super().__init__(message)
-        self.code = code
 
 
 def goal_via_points(goal: GuardedMove.Goal, q0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

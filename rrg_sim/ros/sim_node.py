@@ -41,7 +41,6 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from rrg_common.ros.arm_hand_interface import (
-    GoalError,
     StatePublishers,
     check_hand_command,
     goal_via_points,
@@ -55,7 +54,7 @@ from rrg_models import wam
 from rrg_models.config import SENSING
 from rrg_models.description.mjcf_robot import TIP_BODIES
 from rrg_models.description.urdf_robot import ros_name
-from rrg_models.trajectory import client_fraction
+from rrg_models.trajectory import GoalError, client_fraction
 from rrg_msgs.action import GuardedMove
 from rrg_msgs.msg import ContactPads
 from rrg_msgs.srv import HandCommand
