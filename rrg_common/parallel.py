@@ -3,16 +3,18 @@ table builds and the campaigns.
 
 The workers are forked, so they inherit what this process has loaded (compiled models, caches,
 the object search path). A worker that dies (killed for memory, or crashed) raises
-``BrokenProcessPool`` in the caller instead of leaving it waiting for ever, as
-``multiprocessing.Pool`` does. A process that has started DDS must not fork (its threads' locks
-are copied held): build before any node starts.
+``BrokenProcessPool`` in the caller, naming how each dead worker ended, instead of leaving it
+waiting for ever, as ``multiprocessing.Pool`` does. A process that has started DDS must not
+fork (its threads' locks are copied held): build before any node starts.
 """
 
 from __future__ import annotations
 
 import multiprocessing as mp
+import signal
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from typing import TypeVar
 
 T = TypeVar("T")
@@ -36,5 +38,22 @@ def fork_map(
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for f in done:
                     yield f.result()
+    except BrokenProcessPool as exc:
+        raise BrokenProcessPool(f"{exc} ({worker_deaths(pool)})") from exc
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+def worker_deaths(pool: ProcessPoolExecutor) -> str:
+    """How the pool's dead workers ended: the signal that killed each (SIGKILL: often the
+    kernel's out-of-memory killer; SIGSEGV: a crash in compiled code) or its exit code."""
+    processes = getattr(pool, "_processes", None) or {}  # the executor's own table of workers
+    deaths = []
+    for pid, process in list(processes.items()):
+        process.join(timeout=1.0)
+        code = process.exitcode
+        if code is None or code == 0:
+            continue
+        how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exit code {code}"
+        deaths.append(f"worker {pid} {how}")
+    return "; ".join(deaths) or "no worker exit recorded"

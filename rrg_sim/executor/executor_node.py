@@ -45,7 +45,8 @@ from rrg_msgs.msg import Observation as ObservationMsg
 from rrg_msgs.msg import Retreated
 from rrg_msgs.srv import Retreat
 from rrg_sim.config import WORLD_PROFILES, world_profile
-from rrg_sim.executor.robot_client import MotionCanceled, MotionFailed, RobotFault, RosRobot
+from rrg_sim.executor.robot_client import RosRobot
+from rrg_sim.executor.robot_errors import MotionCanceled, MotionFailed, RobotFault
 from rrg_sim.executor.wrt_executor import WrtExecutor
 
 NODE_NAME = "executor"

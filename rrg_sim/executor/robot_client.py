@@ -34,19 +34,13 @@ from rrg_models.config import HAND, N_SENSORS
 from rrg_models.hand_sensing import Reading
 from rrg_msgs.action import GuardedMove
 from rrg_msgs.srv import HandCommand
-
-
-class MotionFailed(RuntimeError):
-    """The arm/hand interface refused or failed a command, or did not answer in time."""
-
-
-class MotionCanceled(RuntimeError):
-    """The motion was interrupted (the caller's cancel request, or shutdown)."""
-
-
-class HandStopped(MotionFailed):
-    """The bridge's safety layer stopped a hand command midway (HandCommand STOPPED)."""
-
+from rrg_sim.executor.robot_errors import (
+    ForceCeilingStop,
+    HandStopped,
+    MotionCanceled,
+    MotionFailed,
+    RobotFault,
+)
 
 #: An opening of the hand that the safety layer stopped midway is sent again, at most
 #: OPEN_RETRIES times, each after OPEN_RETRY_PAUSE_S [s] (chosen): an opening finger that
@@ -57,10 +51,6 @@ class HandStopped(MotionFailed):
 #: stale stream refuses it, and the last stop is the caller's.
 OPEN_RETRIES = 3
 OPEN_RETRY_PAUSE_S = 0.5
-
-
-class RobotFault(MotionFailed):
-    """The arm/hand interface went away (its process died): nothing moves until it is back."""
 
 
 def duration(seconds: float) -> Duration:
@@ -184,6 +174,8 @@ class RosRobot:
                 f"guarded move stopped by the force ceiling ({res.error_msg}): taken as its "
                 "stop on contact"
             )
+        elif res.error_code == R.FORCE_LIMIT:
+            raise ForceCeilingStop(f"guarded_move failed ({res.error_code}): {res.error_msg}")
         elif res.error_code != R.NONE:
             raise MotionFailed(f"guarded_move failed ({res.error_code}): {res.error_msg}")
         self._sensed(res.final_joint_state, res.sensors, res.tip_contacts)

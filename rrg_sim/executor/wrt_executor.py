@@ -40,6 +40,7 @@ from rrg_models.trajectory import (
     solve_path,
 )
 from rrg_models.wrt import WRT
+from rrg_sim.executor.robot_errors import ForceCeilingStop
 
 log = logging.getLogger(__name__)
 
@@ -536,6 +537,10 @@ class WrtExecutor:
         )
         if progress is not None:
             progress("retreat", PHASES["retreat"])
+        self._withdraw_home()
+
+    def _withdraw_home(self) -> None:
+        """Withdraw (open fully, back out, rise), then move home in joint space."""
         self._withdraw()
         self._follow(joint_path(self.robot.arm_q(), wam.HOME_Q), speeds={0: FREE_SPEEDS})
 
@@ -543,9 +548,11 @@ class WrtExecutor:
         """Open the hand and retrace the executed path back to home. After a reorientation the
         WRT's part of the path is retraced turned with the object (where that is out of reach,
         the open hand backs out along its approach axis and rises instead), then the arm moves
-        home in joint space. If the arm is no longer where the WRT left it (e.g. the simulator was
-        reset), the retreat is dropped. With no WRT to retreat from (this executor was restarted
-        while the arm was out), the arm is brought home by ``recover``."""
+        home in joint space. A retrace the safety layer stops at the force ceiling (an opened
+        finger catching on the object) gives way to the same withdrawal, then home. If the arm
+        is no longer where the WRT left it (e.g. the simulator was reset), the retreat is
+        dropped. With no WRT to retreat from (this executor was restarted while the arm was
+        out), the arm is brought home by ``recover``."""
         if self.last is None:
             self.recover(progress)
             return
@@ -558,6 +565,21 @@ class WrtExecutor:
         if progress is not None:
             progress("retreat", PHASES["retreat"])
         self._open(last.wrt.preclose)
+        try:
+            self._retrace(last)
+        except ForceCeilingStop as exc:
+            log.warning(
+                "retreat from %s stopped at the force ceiling (%s): opening the hand, backing "
+                "out along its approach axis and rising, then moving home",
+                last.wrt.name,
+                exc,
+            )
+            self._withdraw_home()
+        self._open(0.0)
+
+    def _retrace(self, last: Execution) -> None:
+        """Retrace the executed path from where the arm stands to its start (after a
+        reorientation: the approach turned with the object, then joint space to its start)."""
         q0 = self.robot.arm_q()
         if np.allclose(last.moved, np.eye(4)):
             back = last.path.reversed()
@@ -582,4 +604,3 @@ class WrtExecutor:
                     )
                     self._withdraw()
             self._follow(joint_path(self.robot.arm_q(), last.path.q[0]), speeds={0: FREE_SPEEDS})
-        self._open(0.0)

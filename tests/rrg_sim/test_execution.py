@@ -348,3 +348,46 @@ def test_a_goal_grasp_is_lifted_along_the_lift_its_plan_chose():
     robot.q, executor.last = LIFT_PLANNED, None
     executor.lift()
     assert np.abs(robot.sent[-1][0] - LIFT_PLANNED).max() < 1e-6
+
+
+def test_a_retreat_stopped_at_the_force_ceiling_withdraws_and_goes_home():
+    """The hardware bridge stops any arm move whose fingertip load passes its ceiling and holds
+    the arm there (GuardedMove FORCE_LIMIT): an emulated drill grasp's retrace read 20.1 N on
+    fingertip 2 as it left, and the whole robust grasp ended in an error. The retreat now
+    opens the hand, backs out, rises and goes home from where the retrace was stopped."""
+    from rrg_sim.executor.robot_errors import ForceCeilingStop
+
+    world = PhysicsWorld("box", sensor_noise=0.0)
+    e = world.true_object_pose()
+    world.execute_wrt(world.obj.goal_wrt, e)
+    follow, stops = world.follow, []
+
+    def stopped_once(q, t, guard):
+        if not stops:  # the retrace: the arm moves a few via-points, then the ceiling holds it
+            stops.append(len(q))
+            follow(q[:4], t[:4], guard)
+            raise ForceCeilingStop("guarded_move failed (108): fingertip 2: force 20.1 N")
+        return follow(q, t, guard)
+
+    world.follow = stopped_once
+    world.retreat()
+    assert stops and stops[0] > 4
+    np.testing.assert_allclose(world.arm_q(), wam.HOME_Q, atol=0.05)  # servo lag [rad]
+    np.testing.assert_allclose(world.hand_angles()[1], 0.0, atol=0.02)  # open [rad]
+    assert world.executor.last is None
+
+
+def test_a_retreat_stopped_by_anything_else_fails():
+    """Only the ceiling's hold is worked around: any other failure of the retrace is the
+    caller's (the executor node answers it as MOTION_FAILED or ROBOT_FAULT)."""
+    from rrg_sim.executor.robot_errors import MotionFailed
+
+    world = PhysicsWorld("box", sensor_noise=0.0)
+    world.execute_wrt(world.obj.goal_wrt, world.true_object_pose())
+
+    def refused(q, t, guard):
+        raise MotionFailed("guarded_move failed (107): outside the workspace")
+
+    world.follow = refused
+    with pytest.raises(MotionFailed, match="107"):
+        world.retreat()
