@@ -39,21 +39,25 @@ def fork_map(
                 for f in done:
                     yield f.result()
     except BrokenProcessPool as exc:
-        raise BrokenProcessPool(f"{exc} ({worker_deaths(pool)})") from exc
+        workers = list((getattr(pool, "_processes", None) or {}).values())  # the pool's own
+        pool.shutdown(wait=True, cancel_futures=True)  # every worker reaped: its exit is known
+        raise BrokenProcessPool(f"{exc} ({worker_deaths(workers)})") from exc
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
 
 
-def worker_deaths(pool: ProcessPoolExecutor) -> str:
-    """How the pool's dead workers ended: the signal that killed each (SIGKILL: often the
-    kernel's out-of-memory killer; SIGSEGV: a crash in compiled code) or its exit code."""
-    processes = getattr(pool, "_processes", None) or {}  # the executor's own table of workers
-    deaths = []
-    for pid, process in list(processes.items()):
-        process.join(timeout=1.0)
+def worker_deaths(workers: list[mp.Process]) -> str:
+    """How a broken pool's workers ended: the signal that killed each (SIGKILL: often the
+    kernel's out-of-memory killer; SIGSEGV: a crash in compiled code) or its exit code; the
+    survivors the pool then stopped (SIGTERM) are counted apart."""
+    deaths, stopped = [], 0
+    for process in workers:
         code = process.exitcode
-        if code is None or code == 0:
-            continue
-        how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exit code {code}"
-        deaths.append(f"worker {pid} {how}")
+        if code == -signal.SIGTERM:
+            stopped += 1
+        elif code is not None and code != 0:
+            how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exit code {code}"
+            deaths.append(f"worker {process.pid} {how}")
+    if stopped:
+        deaths.append(f"{stopped} more stopped by the pool")
     return "; ".join(deaths) or "no worker exit recorded"

@@ -65,8 +65,10 @@ from rrg_models.objects.surface_pairs import (
     finger_gap,
     pinch_candidates,
 )
+from rrg_models.objects.symmetry import Symmetry, rotational_symmetry
 from rrg_models.objects.wrt_generation import (
     line_grasp_wrt,
+    reorient_wrts,
     side_rotation,
     top_down_poses,
     top_down_rotation,
@@ -140,6 +142,15 @@ class GoalSpec:
     placement_yaw_rad: float = 0.0
     #: the goal region's centre (Δx [m], Δy [m], Δθ [rad]; rrg_models.objects.GoalRegion)
     centre: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: the object's rotational symmetry [rad]: its goal region takes θ modulo it
+    theta_period_rad: float = 2 * np.pi
+
+    def with_symmetry(self, symmetry: Symmetry) -> GoalSpec:
+        """This grasp's goal region for an object of that symmetry: θ ignored for a
+        continuous one, taken modulo 2π/n for an n-fold one."""
+        if symmetry.continuous:
+            return replace(self, tol=(self.tol[0], self.tol[1], float("inf")))
+        return replace(self, theta_period_rad=symmetry.theta_period_rad)
 
 
 @dataclass
@@ -359,6 +370,11 @@ def object_file_text(
         f"tol = {_toml(goal.tol)}  # |dx| [m], |dy| [m], |dθ| [rad] (inf: θ ignored)",
         f"centre = {_toml(goal.centre)}  # where the grasp leaves it: Δx, Δy [m], Δθ [rad]",
         "min_fingers = 3",
+        *(
+            [f"theta_period_rad = {_toml(goal.theta_period_rad)}  # its rotational symmetry"]
+            if goal.theta_period_rad != 2 * np.pi
+            else []
+        ),
         "",
         "[goal_grasp]",
         f"approach = {_toml(goal.approach)}",
@@ -433,6 +449,8 @@ def add_object(opts: AddOptions, say: Callable[[str], None] = print) -> AddRepor
                 f"{mesh.extents[1] * 100:.1f} x {mesh.extents[2] * 100:.1f} cm, "
                 f"{mesh.volume * 1e6:.0f} cm³, standing on its footprint"
             )
+            symmetry = rotational_symmetry(mesh, seed=opts.seed)
+            choose(symmetry.describe())
         with stage("decompose"):
             part_files = []
             for k, vertices in enumerate(convex_parts(mesh, seed=opts.seed)):
@@ -451,12 +469,13 @@ def add_object(opts: AddOptions, say: Callable[[str], None] = print) -> AddRepor
         with stage("goal grasp"):
             if opts.goal is None:
                 args = (staging, folder, opts, mesh, part_files, mass, source)
-                goal = _best_goal(parts, args, choose)
+                goal = _best_goal(parts, symmetry, args, choose)
             else:
-                goal = opts.goal
+                goal = opts.goal.with_symmetry(symmetry)
                 choose(f"the given goal grasp through {goal.through_m}")
         with stage("object file"):
-            reorient = _write_object(folder, opts, mesh, part_files, mass, goal, source, choose)
+            args = (folder, opts, mesh, part_files, mass, goal, source)
+            reorient = _write_object(*args, symmetry, choose)
 
         def rewrite(goal: GoalSpec, reorientation: bool) -> None:
             _write_and_load(folder, opts, mesh, part_files, mass, goal, source, reorientation)
@@ -472,11 +491,14 @@ def add_object(opts: AddOptions, say: Callable[[str], None] = print) -> AddRepor
         shutil.rmtree(staging, ignore_errors=True)
 
 
-def _best_goal(parts, rank_args: tuple, choose: Callable[[str], None]) -> GoalSpec:
+def _best_goal(
+    parts, symmetry: Symmetry, rank_args: tuple, choose: Callable[[str], None]
+) -> GoalSpec:
     """The proposed goal grasp that held the object most often in physics (_rank's arguments
-    but the candidates: ``rank_args``); OnboardError when none held it."""
+    but the candidates: ``rank_args``), its region as the object's symmetry allows;
+    OnboardError when none held it."""
     opts = rank_args[2]
-    candidates = goal_candidates(parts, opts.goal_tol)
+    candidates = [g.with_symmetry(symmetry) for g in goal_candidates(parts, opts.goal_tol)]
     scores = _rank(*rank_args, candidates)
     for goal, score in zip(candidates, scores):
         choose(f"{score:4.0%} held of {RANKING_GRASPS}: {goal.description}")
@@ -491,10 +513,13 @@ def _best_goal(parts, rank_args: tuple, choose: Callable[[str], None]) -> GoalSp
     return goal
 
 
-def _write_object(folder, opts, mesh, part_files, mass, goal, source, choose) -> bool:
+def _write_object(
+    folder, opts, mesh, part_files, mass, goal, source, symmetry: Symmetry, choose
+) -> bool:
     """Place the object for its goal grasp and write its object file, with reorientation WRTs
-    when the goal grasp cannot run at every heading (returned); OnboardError when the WAM
-    cannot reach the goal grasp at the nominal pose."""
+    when the goal grasp cannot run at every heading its symmetry leaves distinct and a
+    top-down pinch can turn it (returned); OnboardError when the WAM cannot reach the goal
+    grasp at the nominal pose."""
     place(folder, ["mesh.stl", *part_files], goal.placement_yaw_rad)
     if goal.placement_yaw_rad:
         choose(f"placed turned by {goal.placement_yaw_rad:+.2f} rad for the goal grasp")
@@ -505,13 +530,48 @@ def _write_object(folder, opts, mesh, part_files, mass, goal, source, choose) ->
             "the WAM cannot reach the goal grasp at the nominal pose "
             f"{WORLD.nominal_pose}; give another (--goal-through, --goal-yaw, ...)"
         )
-    headings = [(nominal[0], nominal[1], t) for t in HEADINGS]
-    reorient = not all(wam.feasible_path(obj.goal_wrt.with_home(e)) for e in headings)
+    reorient = _needs_reorientation(obj, symmetry, choose)
     if reorient:
         obj = _write_and_load(folder, opts, mesh, part_files, mass, goal, source, True)
-        choose("reorientation WRTs: the goal grasp cannot run at every heading")
     choose(f"{len(obj.wrts())} WRTs: " + ", ".join(w.name for w in obj.wrts()))
     return reorient
+
+
+def _needs_reorientation(obj, symmetry: Symmetry, choose: Callable[[str], None]) -> bool:
+    """Whether the object gets reorientation WRTs, with the reason said either way: not for
+    an object the same at every heading, nor when no top-down pinch is free to turn it; yes
+    when the goal grasp cannot run at some of HEADINGS (within half the symmetry's turn)."""
+    if symmetry.continuous:
+        choose(
+            "no reorientation WRTs: turned about its vertical axis the object is the same "
+            "object, so the goal grasp runs at the heading the WAM reaches"
+        )
+        return False
+    half = symmetry.theta_period_rad / 2
+    headings = HEADINGS[np.abs(HEADINGS) <= half + 1e-9]
+    nominal = np.asarray(WORLD.nominal_pose)
+    reached = [wam.feasible_path(obj.goal_wrt.with_home(nominal + (0, 0, t))) for t in headings]
+    if all(reached):
+        choose(
+            "no reorientation WRTs: the WAM reaches the goal grasp at every heading from "
+            f"{headings[0]:+.1f} to {headings[-1]:+.1f} rad"
+        )
+        return False
+    where = ", ".join(f"{t:+.1f}" for t, ok in zip(headings, reached) if ok)
+    try:
+        reorient_wrts(obj.parts)
+    except ValueError:
+        choose(
+            "no reorientation WRTs: the goal grasp cannot run at every heading, but no "
+            "top-down pinch of the object is free of collisions to turn it with; the goal "
+            f"grasp runs only at the headings the WAM reaches ({where} rad)"
+        )
+        return False
+    choose(
+        f"reorientation WRTs: the WAM reaches the goal grasp only at headings {where} rad of "
+        f"{', '.join(f'{t:+.1f}' for t in headings)}"
+    )
+    return True
 
 
 def _rank(staging, folder, opts, mesh, part_files, mass, source, candidates) -> list[float]:

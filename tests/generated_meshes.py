@@ -1,5 +1,6 @@
-"""Meshes of three everyday objects, generated with trimesh, for onboarding tests and the
-onboarding benchmark (docs/objects.md, "Measured").
+"""Meshes of everyday objects, generated with trimesh, for onboarding tests and the
+onboarding benchmark (docs/objects.md, "Measured"). The pitcher, the flared bowl and the
+spatula are their raw parts, overlapping and not united, as CAD assemblies export them.
 
     python tests/generated_meshes.py OUT_DIR   # writes <name>.stl; prints "name path mass_kg"
 
@@ -42,12 +43,65 @@ def l_bracket() -> trimesh.Trimesh:
     return foot.union(upright)
 
 
+def tin_can(sections: int = 64) -> trimesh.Trimesh:
+    """A closed cylinder 8 cm across and 12 cm tall."""
+    return trimesh.creation.cylinder(radius=0.04, height=0.12, sections=sections)
+
+
+def pitcher(sections: int = 64) -> trimesh.Trimesh:
+    """A 10 cm pitcher 15 cm tall with a 5 mm wall and a 6 mm floor, and a handle built from
+    three 1.5 cm bars that overlap the wall and each other: its raw parts, not united (as a
+    CAD assembly exports them)."""
+    body = trimesh.creation.cylinder(radius=0.05, height=0.15, sections=sections)
+    cavity = trimesh.creation.cylinder(radius=0.045, height=0.15, sections=sections)
+    shell = body.difference(cavity.apply_translation((0, 0, 0.006))).apply_translation(
+        (0, 0, 0.075)
+    )
+    bars = [
+        trimesh.creation.box(extents=extents).apply_translation(centre)
+        for extents, centre in [
+            ((0.05, 0.015, 0.015), (0.07, 0.0, 0.13)),  # from the wall, near the top
+            ((0.015, 0.015, 0.105), (0.09, 0.0, 0.085)),  # down, clear of the wall
+            ((0.05, 0.015, 0.015), (0.07, 0.0, 0.04)),  # back into the wall
+        ]
+    ]
+    return trimesh.util.concatenate([shell, *bars])
+
+
+def flared_bowl(sections: int = 64) -> trimesh.Trimesh:
+    """A bowl 14 cm across and 6 cm tall with a 3 mm wall and a 4 mm floor, and a thin rim
+    flaring out to 17 cm: its raw parts, the rim a ring that overlaps the wall's top."""
+    wall = np.array(
+        [[0.0, 0.0], [0.04, 0.0], [0.07, 0.058], [0.067, 0.058], [0.0375, 0.004], [0.0, 0.004]]
+    )
+    rim = np.array(  # closed: it does not reach the axis
+        [[0.066, 0.054], [0.085, 0.062], [0.085, 0.0645], [0.066, 0.057], [0.066, 0.054]]
+    )
+    return trimesh.util.concatenate(
+        [trimesh.creation.revolve(profile, sections=sections) for profile in (wall, rim)]
+    )
+
+
+def spatula() -> trimesh.Trimesh:
+    """A spatula lying on the table: a 6 x 9 cm blade 3 mm thick and a chunky 14 cm handle,
+    2.2 cm wide and 2.8 cm tall, that overlaps the blade's end: its raw parts, not united."""
+    blade = trimesh.creation.box(extents=(0.09, 0.06, 0.003)).apply_translation((-0.06, 0, 0.0015))
+    handle = trimesh.creation.box(extents=(0.14, 0.022, 0.028)).apply_translation((0.075, 0, 0.014))
+    return trimesh.util.concatenate([blade, handle])
+
+
 #: The generated objects by name, with the mass [kg] they are onboarded with (chosen: about
-#: a ceramic mug's and a half-full bottle's; the bracket's 48 cm³ of aluminium, 2.7 g/cm³).
+#: a ceramic mug's and a half-full bottle's; the bracket's 48 cm³ of aluminium, 2.7 g/cm³; a
+#: full 400 g tin; the pitcher's 300 cm³ and the bowl's 110 cm³ of material at 1.2 g/cm³
+#: (plastic) and 2.4 g/cm³ (ceramic); the spatula's 102 cm³ at 0.8 g/cm³, wood and nylon).
 GENERATED = {
     "mug": (mug, 0.3),
     "spray_bottle": (spray_bottle, 0.25),
     "l_bracket": (l_bracket, 0.13),
+    "tin_can": (tin_can, 0.4),
+    "pitcher": (pitcher, 0.36),
+    "flared_bowl": (flared_bowl, 0.26),
+    "spatula": (spatula, 0.08),
 }
 
 

@@ -196,3 +196,64 @@ def test_a_mesh_is_onboarded_end_to_end_and_removed(user_dir, tmp_path, capsys):
     assert "| tin |" in capsys.readouterr().out
     assert object_cli.main(["remove", "tin"]) == 0
     assert "tin" not in object_names() and not cached_tables("tin") and leftovers(user_dir) == []
+
+
+def _staged(tmp_path, mesh: trimesh.Trimesh, name: str = "tin"):
+    """(folder, options, mesh, part files) of ``mesh`` staged as its own single convex part."""
+    from rrg_models.objects.mesh_import import stand_on_table
+
+    mesh = stand_on_table(mesh)
+    folder = tmp_path / name
+    (folder / "collision").mkdir(parents=True)
+    mesh.export(folder / "collision" / "part_01.stl")
+    return folder, AddOptions(folder / "mesh.stl", name), mesh, ["collision/part_01.stl"]
+
+
+def test_a_symmetric_objects_goal_region_ignores_theta_or_takes_it_modulo_its_turn(tmp_path):
+    from rrg_models.objects.symmetry import Symmetry
+    from rrg_onboarding.onboard import _write_and_load
+
+    folder, opts, mesh, parts = _staged(tmp_path, trimesh.creation.box(extents=(0.05, 0.07, 0.09)))
+    goal = GoalSpec(through_m=(0.0, 0.0, 0.09), yaw_rad=np.pi / 2)
+    for symmetry, tol, period in [
+        (Symmetry(0, 0.0), np.inf, 2 * np.pi),
+        (Symmetry(2, 0.0), goal.tol[2], np.pi),
+        (Symmetry(1, 0.03), goal.tol[2], 2 * np.pi),
+    ]:
+        spec = goal.with_symmetry(symmetry)
+        obj = _write_and_load(folder, opts, mesh, parts, 0.2, spec, "a box", False)
+        assert obj.goal.tol[2] == tol and obj.goal.theta_period == pytest.approx(period)
+        assert obj.symmetric == (symmetry.folds == 0)
+
+
+def test_no_reorientation_for_an_object_the_same_at_every_heading_nor_one_no_pinch_can_turn(
+    tmp_path,
+):
+    """An 8 cm can needs no reorientation: turned, it is the same can. An oval tin 8 x 9.2 cm
+    (2-fold) has side envelopes the WAM reaches at some headings only, and no top-down pinch
+    free to turn it: it is installed without reorientation, and the log says why in words (it
+    used to end onboarding with an object file error naming [reorientation] away_from)."""
+    from rrg_models.objects.symmetry import rotational_symmetry
+    from rrg_onboarding.onboard import (
+        _needs_reorientation,
+        _write_and_load,
+        goal_candidates,
+        place,
+    )
+
+    said = []
+    for radii, name in [((1.0, 1.0), "can"), ((1.0, 1.15), "oval")]:
+        raw = trimesh.creation.cylinder(0.04, 0.12, sections=64)
+        raw.apply_scale((*radii, 1.0))
+        folder, opts, mesh, parts = _staged(tmp_path, raw, name)
+        symmetry = rotational_symmetry(mesh)
+        assert symmetry.folds == (0 if name == "can" else 2)
+        goal = goal_candidates(_parts(raw))[0].with_symmetry(symmetry)
+        assert goal.approach == "side"
+        place(folder, parts, goal.placement_yaw_rad)
+        obj = _write_and_load(folder, opts, mesh, parts, 0.3, goal, "a tin", False)
+        said.append([])
+        assert not _needs_reorientation(obj, symmetry, said[-1].append)
+    assert "the same object" in said[0][0]
+    assert "no top-down pinch" in said[1][0] and "headings the WAM reaches" in said[1][0]
+    assert "away_from" not in " ".join(said[1])
