@@ -435,9 +435,10 @@ class Graph(Supervisor):
             if fb.step == 1 and on_first_action is not None:
                 on_first_action()
             if verbose:
+                goal = f" of {fb.goal_wrt_name}" if fb.goal_wrt_name not in ("", "goal") else ""
                 print(
                     f"[rrg-launch] step {fb.step}: {fb.wrt_name} "
-                    f"(P(goal) = {fb.p_goal:.3f}, value = {fb.value:.3f})",
+                    f"(P(goal) = {fb.p_goal:.3f}{goal}, value = {fb.value:.3f})",
                     flush=True,
                 )
 

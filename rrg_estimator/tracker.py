@@ -82,11 +82,12 @@ def wrt_posterior(
 
 def settle_after_grasp(belief: Belief, obj: ObjectModel, wrt: WRT, e, contact: bool) -> Belief:
     """The belief after retreating from ``wrt`` run at e: a goal grasp that arrived (no early
-    contact, so it closed firmly) moved the object as the object's measured settling says;
-    anything else leaves it (the bump of an early contact is part of the update)."""
-    if wrt.kind != "goal" or contact or obj.settling is None:
+    contact, so it closed firmly) moved the object as that goal grasp's measured settling
+    says; anything else leaves it (the bump of an early contact is part of the update)."""
+    settling = obj.tracked_settling(wrt.name) if wrt.kind == "goal" else None
+    if settling is None or contact:
         return belief
-    return settle(belief, obj.settling, e)
+    return settle(belief, settling, e)
 
 
 class WrtTables(Protocol):

@@ -55,5 +55,5 @@ class PhysicsEnvironment:
         self.world.retreat()
 
     def judge(self, wrt: WRT, e: np.ndarray) -> bool:
-        ok, self.last_judgement = judge_grasp(self.world, self.world.obj, e)
+        ok, self.last_judgement = judge_grasp(self.world, self.world.obj, e, goal=wrt.name)
         return bool(ok)

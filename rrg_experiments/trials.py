@@ -167,7 +167,8 @@ def _model(obj: str, level: str, world: str, without: tuple[str, ...] = ()):
     def build() -> PlanningModel:
         names = None
         if "probe" in without:
-            names = tuple(w.name for w in get_object(obj).wrts() if w.name != "goal_probe")
+            wrts = get_object(obj).wrts()
+            names = tuple(w.name for w in wrts if "probe_of" not in w.meta)  # every goal probe
         return PlanningModel(
             obj,
             levels=model_levels(level),

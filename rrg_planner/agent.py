@@ -55,54 +55,74 @@ class RobustGraspAgent:
         self.delta = delta
         self.max_actions = max_actions
         self.verify = verify
-        self.goal = model.goal_actions[0]
 
     # --------------------------------------------------------------- choice
-    def _goal_or_reorient(self, e: np.ndarray) -> int:
-        """RRG-Goal's choice: the goal WRT, or a reorientation that makes it feasible."""
-        if self.search.feasible(self.goal, e):
-            return self.goal
+    def _goal_or_reorient(self, belief: Belief) -> int:
+        """RRG-Goal's choice: the goal grasp that can run at w*(b) with the highest P_b(G)
+        there, or a reorientation that makes one feasible."""
+        e = belief.w_star()
+        feasible = [g for g in self.model.goal_actions if self.search.feasible(g, e)]
+        if feasible:
+            return max(feasible, key=lambda g: self.grasp_probability(belief, g, e))
         best, best_gap = -1, np.inf
         for i, act in enumerate(self.model.actions):
             if act.kind != "reorient" or not self.search.feasible(i, e):
                 continue
             turned = e + np.array([0.0, 0.0, act.wrt.reorient_angle])
-            gap = 0.0 if self.search.feasible(self.goal, turned) else abs(act.wrt.reorient_angle)
+            reaches = any(self.search.feasible(g, turned) for g in self.model.goal_actions)
+            gap = 0.0 if reaches else abs(act.wrt.reorient_angle)
             if gap < best_gap:
                 best, best_gap = i, gap
         return best
 
     def choose(self, belief: Belief) -> tuple[int, SearchResult | None]:
         """The next action index (-1 if nothing is feasible) and the search result, if any."""
-        e = belief.w_star()
         if self.strategy != "rrg-info":
-            return self._goal_or_reorient(e), None
+            return self._goal_or_reorient(belief), None
         res = self.search.select(belief, self.horizon, self.delta)
         if res.p_goal >= 1.0 - self.delta and res.goal_action >= 0:
             return res.goal_action, res
         # goal_action < 0: no goal grasp can run at w*(b) or its aim, or where one can, its
         # P_b(G) is 0 (then the most likely feasible state may be w*(b) itself)
-        if res.goal_action < 0 and self.goal_beyond_w_star(belief) >= min(
-            1.0 - self.delta, res.value
-        ):
-            return self.goal, res  # plan_step runs it at the most likely state where it can run
+        if res.goal_action < 0:
+            goal, _, p = self.goal_beyond_w_star(belief)
+            if p >= min(1.0 - self.delta, res.value):
+                return goal, res  # plan_step runs it at the most likely state where it can run
         return res.action, res
 
-    def goal_beyond_w_star(self, belief: Belief) -> float:
-        """P_b(G) of the goal grasp at the most likely state where it is feasible (0 if none):
-        the root's value of grasping now when it cannot run at w*(b) or its aim. The search
-        values a goal grasp only there, so without this it keeps gathering information, or
-        turns the object, while a grasp a cell or two away would already succeed (MuJoCo: without
-        this rule a pitcher run at high uncertainty read the pitcher six more times and never
-        grasped it; with it, the same run grasps at θ 0.25 rad from w* and succeeds)."""
-        alt = self.most_likely_feasible(belief, self.goal)
-        return 0.0 if alt is None else self.grasp_probability(belief, self.goal, alt)
+    def goal_beyond_w_star(self, belief: Belief) -> tuple[int, np.ndarray | None, float]:
+        """Of the goal grasps, the one with the highest P_b(G) at the most likely state where
+        it is feasible: (goal action, that state or None, P_b(G), 0 if none is feasible); the
+        root's value of grasping now when no goal grasp can run at w*(b) or its aim. The
+        search values a goal grasp only there, so without this it keeps gathering information,
+        or turns the object, while a grasp a cell or two away would already succeed (MuJoCo:
+        without this rule a pitcher run at high uncertainty read the pitcher six more times
+        and never grasped it; with it, the same run grasps at θ 0.25 rad from w* and
+        succeeds)."""
+        best = (self.model.goal_actions[0], None, 0.0)
+        for g in self.model.goal_actions:
+            alt = self.most_likely_feasible(belief, g)
+            if alt is not None:
+                p = self.grasp_probability(belief, g, alt)
+                if best[1] is None or p > best[2]:
+                    best = (g, alt, p)
+        return best
+
+    def best_goal_now(self, belief: Belief) -> int:
+        """The goal grasp with the highest P_b(G) at its best estimate (goal_estimate), the
+        object's first where none can run: an open-loop run's grasp, and a run's last."""
+        goals = self.model.goal_actions
+        if len(goals) == 1:
+            return goals[0]
+        sb = SparseBelief.from_belief(belief, self.model.level_of(belief.grid), self.search.params)
+        _, g, _ = self.search.best_goal(sb)
+        return g if g >= 0 else goals[0]
 
     def next_action(self, belief: Belief, step: int) -> tuple[int, SearchResult | None, bool]:
         """The step-th action of a run (1-based): (action index or -1, the search result if
-        any, whether it is the last); the last is the goal grasp, executed open-loop."""
+        any, whether it is the last); the last is a goal grasp, executed open-loop."""
         if step >= self.max_actions or self.strategy == "open-loop":
-            return self.goal, None, True
+            return self.best_goal_now(belief), None, True
         action, res = self.choose(belief)
         return action, res, False
 
@@ -118,16 +138,17 @@ class RobustGraspAgent:
             e = self.goal_estimate(belief, action, res)
         if action >= 0 and self.search.feasible(action, e):
             return action, e, res, last
-        alt = self.most_likely_feasible(belief, self.goal)
+        goal, alt, _ = self.goal_beyond_w_star(belief)
         if alt is None:
             return -1, e, res, last
         log.info(
-            "%s infeasible at w*=%s: goal grasp at %s instead",
+            "%s infeasible at w*=%s: goal grasp %s at %s instead",
             self.model.names[action] if action >= 0 else "every action",
             np.round(e, 3).tolist(),
+            self.model.names[goal],
             np.round(alt, 3).tolist(),
         )
-        return self.goal, alt, res, last
+        return goal, alt, res, last
 
     def goal_estimate(
         self, belief: Belief, action: int, res: SearchResult | None = None
@@ -170,17 +191,25 @@ class RobustGraspAgent:
         the hand and plans again."""
         if not self.verify or self.model.actions[action].kind != "goal":
             return []
-        return goal_grasp_mismatches(obs.contact, obs.sensors, self.model.obj.goal)
+        region = self.model.obj.goal_region(self.model.names[action])
+        return goal_grasp_mismatches(obs.contact, obs.sensors, region)
+
+    def static_goal(self, belief: Belief) -> tuple[int, float]:
+        """The goal grasp with the highest P_b(G) at its best estimate (goal_estimate; 0 where
+        it cannot run, or an execution found it could not run near there), and that P_b(G); the
+        object's first goal grasp when none is above 0."""
+        best = (self.model.goal_actions[0], 0.0)
+        for g in self.model.goal_actions:
+            e = self.goal_estimate(belief, g)
+            if self.search.feasible(g, e):
+                p = self.grasp_probability(belief, g, e)
+                if p > best[1]:
+                    best = (g, p)
+        return best
 
     def static_value(self, belief: Belief) -> float:
-        """v(b) without a search: P_b(G) of the goal WRT at its best estimate (goal_estimate; 0
-        where it is infeasible)."""
-        e = self.goal_estimate(belief, self.goal)
-        return (
-            self.grasp_probability(belief, self.goal, e)
-            if self.model.feasible(self.goal, e)
-            else 0.0
-        )
+        """v(b) without a search: static_goal's P_b(G)."""
+        return self.static_goal(belief)[1]
 
     def finished(self, action: int, p_exec: float, last: bool) -> bool:
         """Whether a run stops after this action: a goal grasp believed to hold, or the last one."""

@@ -143,6 +143,7 @@ class GraspFeedback:
     value: float  # its value V_H(b)
     p_goal: float  # P_b(goal) of the belief it was chosen on
     belief_msg: BeliefGrid = field(repr=False)
+    goal_wrt_name: str = ""  # the goal grasp p_goal is of (an object may have several)
 
     @property
     def belief(self) -> Belief:
@@ -422,7 +423,11 @@ class RRGClient:
 
         def feedback(msg) -> None:
             fb = msg.feedback
-            on_feedback(GraspFeedback(fb.step, fb.wrt_name, fb.value, fb.p_goal, fb.belief))
+            on_feedback(
+                GraspFeedback(
+                    fb.step, fb.wrt_name, fb.value, fb.p_goal, fb.belief, fb.goal_wrt_name
+                )
+            )
 
         sent = self._grasp.send_goal_async(
             goal, feedback_callback=feedback if on_feedback is not None else None

@@ -105,6 +105,8 @@ class Decision:
     search: SearchResult | None = None
     #: the value of every action the search weighed, by WRT name (empty without a search)
     action_values: dict[str, float] = field(default_factory=dict)
+    #: the goal grasp p_goal is of: the chosen one, else the best under the belief ("" if none)
+    goal_wrt: str = ""
 
 
 @dataclass
@@ -154,13 +156,26 @@ def decide(agent: RobustGraspAgent, belief: Belief, number: int) -> Decision:
         return Decision(number, -1, "", "", e, last, float("nan"), float("nan"), planning_time, res)
     act = agent.model.actions[action]
     if res is None:
-        p_goal = value = agent.static_value(belief)
+        goal, p_goal = agent.static_goal(belief)
+        value = p_goal
         values = {}
     else:
-        p_goal, value = res.p_goal, float(res.action_values[action])
+        goal, p_goal, value = res.goal_action, res.p_goal, float(res.action_values[action])
         values = {name: float(v) for name, v in zip(agent.model.names, res.action_values)}
+    goal_wrt = act.name if act.kind == "goal" else agent.model.names[goal] if goal >= 0 else ""
     return Decision(
-        number, action, act.name, act.kind, e, last, value, p_goal, planning_time, res, values
+        number,
+        action,
+        act.name,
+        act.kind,
+        e,
+        last,
+        value,
+        p_goal,
+        planning_time,
+        res,
+        values,
+        goal_wrt,
     )
 
 

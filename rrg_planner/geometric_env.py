@@ -68,9 +68,8 @@ class GeometricEnvironment:
         """Nothing moves in the geometric world when the hand retreats."""
 
     def judge(self, wrt: WRT, e: np.ndarray) -> bool:
-        """The goal holds for the true pose (noise-free geometric outcome of the grasp)."""
+        """Goal grasp ``wrt``'s region holds the true pose (noise-free geometric outcome)."""
         obs = self._sim(wrt).simulate(self.true_pose, e)
         delta = relative_planar(e, self.true_pose)
-        return bool(
-            goal_holds(self.obj.goal, delta[None], np.array([obs.contact]), obs.sensors[None])[0]
-        )
+        region = self.obj.goal_region(wrt.name)
+        return bool(goal_holds(region, delta[None], np.array([obs.contact]), obs.sensors[None])[0])

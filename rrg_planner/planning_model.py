@@ -35,19 +35,21 @@ def goal_indicator(
     table: ObservationTable,
     start_sigma: np.ndarray | None = None,
     settling: Settling | None = None,
+    goal: str = "goal",
 ) -> np.ndarray:
-    """P(G | Δ) over the goal WRT's table offsets (the static evaluation's precomputed weights),
-    for a belief held ``start_sigma`` away from the goal's frame (goal_weights; None: in it).
-    The table's outermost entries stand for every offset beyond them (indices are clamped), so
+    """P(G | Δ) over goal grasp ``goal``'s table offsets (the static evaluation's precomputed
+    weights), for a belief held ``start_sigma`` away from the goal's frame (goal_weights; None:
+    in it), with its region and its settling (default: measured in the nominal world). The
+    table's outermost entries stand for every offset beyond them (indices are clamped), so
     they get 0, except along a θ the goal ignores."""
     p = goal_weights(
-        obj.goal,
+        obj.goal_region(goal),
         table.grid.points(),
         table.contact,
         table.sensors,
         cell=table.grid.spacing,
         start_sigma=start_sigma,
-        settling=obj.grasp_settling if settling is None else settling,
+        settling=obj.settling_for(goal) if settling is None else settling,
     )
     shape = table.grid.shape
     edge = np.zeros(shape, dtype=bool)
@@ -130,9 +132,6 @@ class PlanningModel:
         self.world = world_profile(world)
         self.calibration = PostureCalibration.for_object(self.obj, self.world)
         frames = sorted(set(self.calibration.frames.values()) | {""})
-        #: the goal grasp's settling and hold, as measured in this world (the nominal world's
-        #: where its own study is missing)
-        settling = self.obj.settling_in(self.world.name)
         resolved = [LEVELS[n] if isinstance(n, str) else n for n in levels]
         self.levels: dict[str, UncertaintyLevel] = {lv.name: lv for lv in resolved}
         wrts = [
@@ -152,12 +151,18 @@ class PlanningModel:
                     table, level, params=likelihood_params(wrt, likelihood)
                 )
                 if wrt.kind == "goal":
-                    act.goal[name] = goal_indicator(self.obj, table, settling=settling)
+                    # the grasp's settling and hold as measured in this world (the nominal
+                    # world's where its own study is missing)
+                    settling = self.obj.settling_for(wrt.name, self.world.name)
+                    act.goal[name] = goal_indicator(
+                        self.obj, table, settling=settling, goal=wrt.name
+                    )
                     own = self.calibration.frame_of(wrt.name)
                     for frame in frames:
                         if self.calibration.distinct(frame, own):
+                            sigma = self.calibration.sigma(frame, own)
                             act.goal_from.setdefault(frame, {})[name] = goal_indicator(
-                                self.obj, table, self.calibration.sigma(frame, own), settling
+                                self.obj, table, sigma, settling, goal=wrt.name
                             )
                 if wrt.kind == "reorient":
                     rep = act.clusters[name].representatives

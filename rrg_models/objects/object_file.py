@@ -3,11 +3,13 @@
 An object folder holds:
 
 * ``object.toml``: name, mass, friction, sizes, source, the goal region with its required
-  contacts, the goal grasp, optional hand-designed info grasps and reorientation, and the
+  contacts, the goal grasp (and optionally further ones, ``[[goal_grasps]]``, each named and
+  with its region's centre), optional hand-designed info grasps and reorientation, and the
   shape as named collision parts (``[[parts]]``: MuJoCo primitives, or convex mesh parts
   whose files the folder keeps, ``kind = "mesh"`` and ``file``);
 * the artefacts measured or planned for it: ``settling.json`` and
-  ``settling.realistic.json`` (rrg_sim.physics.settle), ``reorientation.json``
+  ``settling.realistic.json`` (rrg_sim.physics.settle; ``<goal>.settling.json`` for a
+  further goal grasp), ``reorientation.json``
   (rrg_sim.physics.reorient_study) and ``table_touch.json`` (rrg_sim.table_touch), loaded
   when present.
 
@@ -18,7 +20,9 @@ and the key (``ObjectFileError``).
 from __future__ import annotations
 
 import math
+import re
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +30,7 @@ import numpy as np
 import trimesh
 
 from rrg_models.goal import GoalRegion, RequiredContact
-from rrg_models.objects.object_model import ObjectModel
+from rrg_models.objects.object_model import GoalGrasp, ObjectModel
 from rrg_models.objects.primitives import SIZE_LENGTHS, Primitive
 from rrg_models.objects.surface_pairs import Pinch
 from rrg_models.objects.wrt_generation import (
@@ -157,7 +161,7 @@ def _goal_region(t: _Table, part_index: dict[str, int]) -> GoalRegion:
         raise t.error("min_fingers", str(exc)) from exc
 
 
-def _goal_grasp(t: _Table, parts: tuple[Primitive, ...]):
+def _goal_grasp(t: _Table, parts: tuple[Primitive, ...], name: str = "goal"):
     approach = t.text("approach")
     if approach not in APPROACHES:
         raise t.error("approach", f"unknown approach {approach!r}; valid: {', '.join(APPROACHES)}")
@@ -172,7 +176,36 @@ def _goal_grasp(t: _Table, parts: tuple[Primitive, ...]):
         preclose=t.number("preclose_rad", 0.0),
         standoff=t.number("standoff_m", 0.0),
         description=t.text("description", ""),
+        name=name,
     )
+
+
+#: A further goal grasp's name: "goal" and a suffix (goal2, goal_rim, ...).
+GOAL_NAME_PATTERN = re.compile(r"goal[a-z0-9_]+")
+
+
+def _more_goals(
+    top: _Table, parts: tuple[Primitive, ...], goal: GoalRegion
+) -> tuple[GoalGrasp, ...]:
+    """The object's further goal grasps, ``[[goal_grasps]]``: each a ``[goal_grasp]`` with
+    its ``name`` and the ``centre`` of its region (the object's tolerances about it)."""
+    grasps = []
+    for t in top.tables("goal_grasps"):
+        name = t.text("name")
+        if not GOAL_NAME_PATTERN.fullmatch(name) or name.endswith("_probe"):
+            raise t.error("name", f"{name!r}: a goal grasp's name is goal and a suffix, as goal2")
+        try:
+            wrt = _goal_grasp(t, parts, name)
+        except ValueError as exc:
+            if isinstance(exc, ObjectFileError):
+                raise
+            raise t.error("through_m", str(exc)) from exc
+        centre = tuple(t.vector("centre", 3, [0.0, 0.0, 0.0]))
+        grasps.append(GoalGrasp(wrt, replace(goal, centre=centre)))
+    names = ["goal", *(g.name for g in grasps)]
+    if len(set(names)) != len(names):
+        raise top.error("goal_grasps", f"goal grasp names must be unique: {names}")
+    return tuple(grasps)
 
 
 def _info_grasp(t: _Table, parts: tuple[Primitive, ...]):
@@ -246,6 +279,7 @@ def load_object_folder(folder: Path | str) -> ObjectModel:
             source=top.text("source"),
             goal=goal,
             goal_wrt=goal_wrt,
+            more_goals=_more_goals(top, parts, goal),
             reorient_wrts=reorient_grasps,
             designed_info_wrts=tuple(_info_grasp(t, parts) for t in top.tables("info_grasps")),
             symmetric=goal.ignores_theta,

@@ -24,10 +24,13 @@ TABLE_TOUCH_FILE = "table_touch.json"
 SETTLING_FILE = "settling.json"
 
 
-def settling_file(profile: str = "nominal") -> str:
-    """The file of the settling study measured in world ``profile`` (the nominal world's is
-    SETTLING_FILE; another's, e.g. settling.realistic.json)."""
-    return SETTLING_FILE if profile == "nominal" else f"settling.{profile}.json"
+def settling_file(profile: str = "nominal", goal: str = "goal") -> str:
+    """The file of the settling study of goal grasp ``goal`` measured in world ``profile``:
+    the goal grasp "goal"'s is SETTLING_FILE in the nominal world, settling.<profile>.json in
+    another (e.g. settling.realistic.json); another goal grasp's is prefixed with its name
+    (goal2.settling.json)."""
+    name = SETTLING_FILE if profile == "nominal" else f"settling.{profile}.json"
+    return name if goal == "goal" else f"{goal}.{name}"
 
 
 #: An object folder's measured reorientation outcomes (rrg_sim.physics.reorient_study).
@@ -54,6 +57,19 @@ def measured_reorientation(wrts: tuple[WRT, ...], path: Path | None) -> tuple[WR
     )
 
 
+@dataclass(frozen=True)
+class GoalGrasp:
+    """One of an object's goal grasps: its WRT (kind "goal") and its goal region (the
+    object's tolerances about the grasp's own centre)."""
+
+    wrt: WRT
+    region: GoalRegion
+
+    @property
+    def name(self) -> str:
+        return self.wrt.name
+
+
 @dataclass(frozen=True, eq=False)
 class ObjectModel:
     """One object of the catalogue (object frame: origin at the centre of the part resting on
@@ -63,7 +79,10 @@ class ObjectModel:
     mass [kg]; friction: sliding friction coefficient.
     dimensions: documented sizes [m]; ``size_x``, ``size_y``, ``size_z`` are the bounding-box
     extents, other keys name features (e.g. a handle's opening). source: where they come from.
-    goal / goal_wrt: the goal region and the hand-designed goal WRT.
+    goal / goal_wrt: the goal region and the goal WRT of the goal grasp "goal".
+    more_goals: the object's other goal grasps (``goal_grasps`` lists them all): the planner
+    runs whichever has the highest P(goal) under its belief, and the judge judges the one
+    that ran against its own region.
     reorient_wrts: reorientation WRTs (empty when the goal grasp stays feasible at any θ).
     designed_info_wrts: hand-designed information-gathering WRTs, added to the generated ones
     (the paper's WRTs were mostly demonstrated by hand).
@@ -83,6 +102,7 @@ class ObjectModel:
     source: str
     goal: GoalRegion
     goal_wrt: WRT
+    more_goals: tuple[GoalGrasp, ...] = ()
     reorient_wrts: tuple[WRT, ...] = ()
     designed_info_wrts: tuple[WRT, ...] = ()
     symmetric: bool = False
@@ -95,9 +115,29 @@ class ObjectModel:
     def __post_init__(self) -> None:
         if self.symmetric != self.goal.ignores_theta:
             raise ValueError(f"{self.name}: symmetric must match a goal region that ignores θ")
-        for rc in self.goal.required_contacts:
-            if max(rc.parts) >= len(self.parts) or min(rc.parts) < 0:
-                raise ValueError(f"{self.name}: required contact {rc.name!r} names a missing part")
+        for grasp in self.goal_grasps:
+            if grasp.wrt.kind != "goal":
+                raise ValueError(f"{self.name}: goal grasp {grasp.name!r} is not of kind goal")
+            if grasp.region.ignores_theta != self.goal.ignores_theta:
+                raise ValueError(f"{self.name}: every goal region must ignore θ, or none")
+            for rc in grasp.region.required_contacts:
+                if max(rc.parts) >= len(self.parts) or min(rc.parts) < 0:
+                    raise ValueError(
+                        f"{self.name}: required contact {rc.name!r} names a missing part"
+                    )
+
+    @cached_property
+    def goal_grasps(self) -> tuple[GoalGrasp, ...]:
+        """Every goal grasp: "goal" first, then ``more_goals``."""
+        return (GoalGrasp(self.goal_wrt, self.goal), *self.more_goals)
+
+    def goal_region(self, goal: str = "goal") -> GoalRegion:
+        """The goal region of the goal grasp called ``goal`` (KeyError if it has none)."""
+        for grasp in self.goal_grasps:
+            if grasp.name == goal:
+                return grasp.region
+        names = [g.name for g in self.goal_grasps]
+        raise KeyError(f"{self.name} has no goal grasp {goal!r}; valid: {names}")
 
     def bounds(self) -> np.ndarray:
         """(2,3) axis-aligned bounds [m] of the parts in the object frame."""
@@ -118,19 +158,19 @@ class ObjectModel:
     @cached_property
     def info_wrts(self) -> tuple[WRT, ...]:
         """Information-gathering WRTs: generated from the primitives (pinches, then the sweep),
-        then the hand-designed ones, then for a side goal grasp its probe (goal_probe_wrt)."""
-        probe = goal_probe_wrt(self.goal_wrt)
+        then the hand-designed ones, then for each side goal grasp its probe (goal_probe_wrt)."""
+        probes = (goal_probe_wrt(g.wrt) for g in self.goal_grasps)
         return (
             info_wrts(self.parts)
             + (sweep_wrt(self.parts),)
             + self.designed_info_wrts
-            + (() if probe is None else (probe,))
+            + tuple(p for p in probes if p is not None)
         )
 
     @cached_property
     def _wrts(self) -> tuple[WRT, ...]:
         wrts = (
-            (self.goal_wrt,)
+            tuple(g.wrt for g in self.goal_grasps)
             + self.info_wrts
             + measured_reorientation(self.reorient_wrts, self._artefact(REORIENTATION_FILE))
         )
@@ -139,35 +179,44 @@ class ObjectModel:
             raise ValueError(f"{self.name}: WRT names are not unique: {names}")
         return wrts
 
-    @cached_property
+    @property
     def grasp_settling(self) -> Settling | None:
-        """How the firm goal grasp moves the object (measured), or None if not measured."""
-        path = self._artefact(SETTLING_FILE)
-        return None if path is None else self._load_settling(path)
+        """How the firm goal grasp "goal" moves the object (measured), or None if not
+        measured."""
+        return self.settling_for("goal")
 
     def _load_settling(self, path: Path) -> Settling | None:
-        """A settling study of this object's goal grasp (load_settling, with its kernel
-        bandwidth of SETTLING_KERNEL_BANDWIDTH goal tolerances)."""
+        """A settling study of one of this object's goal grasps (load_settling, with its
+        kernel bandwidth of SETTLING_KERNEL_BANDWIDTH goal tolerances)."""
         return load_settling(
             path, bandwidth=SETTLING_KERNEL_BANDWIDTH * np.asarray(self.goal.tol, dtype=float)
         )
 
     @cached_property
-    def _settling_by_profile(self) -> dict[str, Settling]:
-        """The settling studies of other world profiles, loaded on first use."""
+    def _settlings(self) -> dict[tuple[str, str], Settling | None]:
+        """The settling studies loaded so far, by goal grasp and world profile."""
         return {}
 
-    def settling_in(self, profile: str) -> Settling | None:
-        """How the firm goal grasp moves the object and holds it in world ``profile`` (a
-        profile spec's base name, config.world_profile): its own study where one was measured
-        (settling_file), else the nominal world's."""
+    def settling_for(self, goal: str = "goal", profile: str = "nominal") -> Settling | None:
+        """How the firm goal grasp ``goal`` moves the object and holds it in world
+        ``profile`` (a profile spec's base name, config.world_profile): its own study where
+        one was measured (settling_file), else the nominal world's; None if neither was."""
         base = profile.partition(":")[0]
-        path = self._artefact(settling_file(base))
-        if base == "nominal" or path is None or not path.exists():
-            return self.grasp_settling
-        if base not in self._settling_by_profile:
-            self._settling_by_profile[base] = self._load_settling(path)
-        return self._settling_by_profile[base]
+        key = (goal, base)
+        if key not in self._settlings:
+            path = self._artefact(settling_file(base, goal))
+            if path is None:  # an object built in code
+                self._settlings[key] = None
+            elif base != "nominal" and not path.exists():
+                self._settlings[key] = self.settling_for(goal)
+            else:
+                self._settlings[key] = self._load_settling(path)
+        return self._settlings[key]
+
+    def settling_in(self, profile: str) -> Settling | None:
+        """How the firm goal grasp "goal" moves the object and holds it in world ``profile``
+        (settling_for)."""
+        return self.settling_for("goal", profile)
 
     def _artefact(self, filename: str) -> Path | None:
         """Where the object's measured ``filename`` lives (None: the object has no folder)."""
@@ -175,9 +224,14 @@ class ObjectModel:
 
     @property
     def settling(self) -> Settling | None:
-        """The measured settling if the belief tracks it after a retreat (``track_settling``),
-        else None."""
-        return self.grasp_settling if self.track_settling else None
+        """The measured settling of the goal grasp "goal" if the belief tracks it after a
+        retreat (``track_settling``), else None."""
+        return self.tracked_settling("goal")
+
+    def tracked_settling(self, goal: str, profile: str = "nominal") -> Settling | None:
+        """The settling the belief applies after goal grasp ``goal`` retreats in world
+        ``profile`` (settling_for), or None when the object's settling is not tracked."""
+        return self.settling_for(goal, profile) if self.track_settling else None
 
     def wrts(self) -> tuple[WRT, ...]:
         """The goal WRT, the generated info WRTs, the sweep and the reorientation WRTs (cached)."""

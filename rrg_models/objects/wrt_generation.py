@@ -105,8 +105,9 @@ def line_grasp_wrt(
     preclose: float = 0.0,
     standoff: float = 0.0,
     description: str = "",
+    name: str = "goal",
 ) -> WRT:
-    """The goal WRT of a hand-designed grasp along a line (see ``line_grasp_poses``).
+    """The goal WRT ``name`` of a hand-designed grasp along a line (see ``line_grasp_poses``).
 
     Its closure angles are not informative (WRT.closure_informative False): a firm grasp
     closing on a light object pulls it to where the fingers balance, so physics reads nearly
@@ -122,7 +123,7 @@ def line_grasp_wrt(
     poses = line_grasp_poses(parts, rotation, through, spread, preclose, standoff)
     meta = {"through": tuple(float(v) for v in through), "standoff": standoff}
     return WRT(
-        "goal",
+        name,
         "goal",
         poses,
         spread=spread,
@@ -311,6 +312,12 @@ def sweep_wrt(parts: Sequence[Primitive]) -> WRT:
 SIDE_GRASP_COS = np.cos(np.pi / 4)
 
 
+def probe_name(goal_name: str) -> str:
+    """The name of a goal grasp's probe: goal_probe for the goal grasp "goal", <name>_probe
+    for another of the object's goal grasps."""
+    return "goal_probe" if goal_name == "goal" else f"{goal_name}_probe"
+
+
 def goal_probe_wrt(goal: WRT) -> WRT | None:
     """For a side goal grasp, an information-gathering WRT in its own posture: the goal grasp's
     path, closing carefully (each finger stops at its first touch) instead of firmly. Its
@@ -323,9 +330,9 @@ def goal_probe_wrt(goal: WRT) -> WRT | None:
         return None
     return replace(
         goal,
-        name="goal_probe",
+        name=probe_name(goal.name),
         kind="info",
         closure_informative=True,
         description="the goal grasp's path, closing carefully: a reading in its posture",
-        meta={},
+        meta={"probe_of": goal.name},
     )

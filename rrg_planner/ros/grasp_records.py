@@ -36,6 +36,7 @@ def _with_decision(msg: GraspStep, d: Decision) -> GraspStep:
         float(d.p_goal),
         float(d.planning_time),
     )
+    msg.goal_wrt_name = d.goal_wrt
     msg.action_names = list(d.action_values)
     msg.action_values = [
         float(v) if np.isfinite(v) else float("nan") for v in d.action_values.values()

@@ -152,13 +152,15 @@ class GraspRun:
                 wrt_name=d.wrt,
                 value=d.value,
                 p_goal=d.p_goal,
+                goal_wrt_name=d.goal_wrt,
                 belief=node.graph.belief_msg,
             )
         )
         node.step_pub.publish(decision_record(goal, d, node.now()))
         self.log.info(
             f"step {d.number}: {d.wrt} ({d.kind}) at e = {np.round(d.estimate, 3).tolist()}, "
-            f"P(goal) = {d.p_goal:.3f}, planned in {d.planning_time * 1e3:.0f} ms"
+            f"P(goal) = {d.p_goal:.3f} ({d.goal_wrt or 'no goal grasp can run'}), planned in "
+            f"{d.planning_time * 1e3:.0f} ms"
         )
 
     def on_infeasible(self, d: Decision, reason: str) -> None:

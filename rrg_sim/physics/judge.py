@@ -53,37 +53,48 @@ def _object_in_hand_frame(world: PhysicsWorld) -> np.ndarray:
 
 
 def judge_grasp(
-    world: PhysicsWorld, obj: ObjectModel, e_used, observation: Observation | None = None
+    world: PhysicsWorld,
+    obj: ObjectModel,
+    e_used,
+    observation: Observation | None = None,
+    goal: str | None = None,
 ) -> tuple[bool, dict]:
     """Lift and hold the grasp the last goal WRT left in ``world``; returns (success, info).
     ``observation``: that WRT's observation (default: the last one the world's own executor
-    made; the simulator node passes the one the executor node published).
+    made; the simulator node passes the one the executor node published). ``goal``: which of
+    the object's goal grasps ran, judged against its own region (default: the one the world's
+    own executor ran last, else "goal").
 
-    info: delta (Δ), in_region, touch_delta (Δ where a finger first touched), touch_in_region,
-    strict_success, fingers (truly touching the object), sensed_fingers (with a sensor fired
-    in the observation), fingers_ok (at least the goal's, truly), required_ok,
-    required (each required contact made), touching (finger → object parts touched before
-    the lift), held, lift_feasible, lift_dz [m], slip [m] (object displacement in the hand
-    frame during lift and hold), early_contact, w_true (object pose before lifting),
-    hand_error (the planar calibration error at the grasp, PhysicsWorld.hand_pose_error).
+    info: goal (the goal grasp judged), delta (Δ), in_region, touch_delta (Δ where a finger
+    first touched), touch_in_region, strict_success, fingers (truly touching the object),
+    sensed_fingers (with a sensor fired in the observation), fingers_ok (at least the
+    goal's, truly), required_ok, required (each required contact made), touching (finger →
+    object parts touched before the lift), held, lift_feasible, lift_dz [m], slip [m]
+    (object displacement in the hand frame during lift and hold), early_contact, w_true
+    (object pose before lifting), hand_error (the planar calibration error at the grasp,
+    PhysicsWorld.hand_pose_error).
     """
     obs = world.last_observation if observation is None else observation
     if obs is None:
         raise RuntimeError("judge_grasp needs a WRT execution first")
+    if goal is None:
+        last = world.executor.last
+        goal = last.wrt.name if last is not None and last.wrt.kind == "goal" else "goal"
+    region = obj.goal_region(goal)
     touching = world.touching_while_held(TOUCH_WINDOW)
     w_true = world.true_object_pose()
     hand_error = world.hand_pose_error()
     e_hand = compose_planar(hand_error, np.asarray(e_used, dtype=float))
     delta = relative_planar(e_hand, w_true)
-    in_region = bool(obj.goal.contains(delta))
+    in_region = bool(region.contains(delta))
     fingers = sum(1 for f in (1, 2, 3) if touching.get(f))
-    required = {rc.name: rc.met(touching) for rc in obj.goal.required_contacts}
+    required = {rc.name: rc.met(touching) for rc in region.required_contacts}
     required_ok = all(required.values())
     touch_pose = (
         world.true_object_pose() if world.first_touch_pose is None else world.first_touch_pose
     )
     touch_delta = relative_planar(e_hand, touch_pose)
-    touch_in_region = bool(replace(obj.goal, centre=(0.0, 0.0, 0.0)).contains(touch_delta))
+    touch_in_region = bool(replace(region, centre=(0.0, 0.0, 0.0)).contains(touch_delta))
     z0, grip0 = world.object_height(), _object_in_hand_frame(world)
     try:
         world.executor.lift()
@@ -96,9 +107,10 @@ def judge_grasp(
         lift_feasible and world.object_in_hand() and lift_dz >= HELD_FRACTION * PHYSICS.lift_height
     )
     slip = float(np.linalg.norm(_object_in_hand_frame(world)[:3, 3] - grip0[:3, 3]))
-    fingers_ok = fingers >= obj.goal.min_fingers
+    fingers_ok = fingers >= region.min_fingers
     success = held and in_region and fingers_ok and required_ok
     info = dict(
+        goal=goal,
         delta=delta.tolist(),
         in_region=in_region,
         touch_delta=touch_delta.tolist(),

@@ -59,7 +59,7 @@ def run_wrt(world: PhysicsWorld, wrt: WRT, e, judge: bool = False, retreat: bool
         run.feasible = False
         return run
     if judge:
-        run.success, run.judge = judge_grasp(world, world.obj, e)
+        run.success, run.judge = judge_grasp(world, world.obj, e, goal=wrt.name)
     elif retreat:
         world.retreat()
     run.wall_s, run.sim_s = time.perf_counter() - wall, world.sim_time - sim

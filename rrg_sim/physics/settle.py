@@ -64,10 +64,13 @@ def start_box(object_name: str) -> np.ndarray:
     return np.array([BOX_TOLERANCES * goal.tol[0], BOX_TOLERANCES * goal.tol[1], theta])
 
 
-def measure(object_name: str, grasps: int, seed: int = 0, profile: str = "nominal") -> list[dict]:
-    """Run the goal WRT from ``grasps`` seeded starts in world ``profile``; one record per
-    start (see module doc)."""
+def measure(
+    object_name: str, grasps: int, seed: int = 0, profile: str = "nominal", goal: str = "goal"
+) -> list[dict]:
+    """Run goal grasp ``goal`` from ``grasps`` seeded starts in world ``profile``; one record
+    per start (see module doc)."""
     world = PhysicsWorld(object_name, seed=seed, profile=profile)
+    wrt = world.obj.wrt(goal)
     rng = np.random.default_rng(seed)
     e = np.asarray(WORLD.nominal_pose, dtype=float)
     box = start_box(object_name)
@@ -78,14 +81,14 @@ def measure(object_name: str, grasps: int, seed: int = 0, profile: str = "nomina
         w = compose_planar(e, delta)
         world.reset(w)
         try:
-            obs = world.execute_wrt(world.obj.goal_wrt, e)
+            obs = world.execute_wrt(wrt, e)
         except InfeasiblePath:
             continue
         e_hand = compose_planar(world.hand_pose_error(), e)  # e itself in the nominal world
         start = relative_planar(e_hand, w)
         closed = relative_planar(e_hand, world.true_object_pose())
         state = copy.copy(world.data)
-        _, judged = judge_grasp(world, world.obj, e, obs)
+        _, judged = judge_grasp(world, world.obj, e, obs, goal=goal)
         mujoco.mj_copyData(world.data, world.model, state)  # back to the closed hand
         world.retreat()
         after = relative_planar(e_hand, world.true_object_pose())
@@ -159,9 +162,9 @@ def _dumps(fits: dict) -> str:
     )
 
 
-def _measure_job(args: tuple[str, int, int, str]) -> tuple[str, list[dict]]:
-    name, grasps, seed, profile = args
-    return name, measure(name, grasps, seed, profile)
+def _measure_job(args: tuple[str, int, int, str, str]) -> tuple[str, list[dict]]:
+    name, grasps, seed, profile, goal = args
+    return name, measure(name, grasps, seed, profile, goal)
 
 
 def run_study(
@@ -214,9 +217,11 @@ def study_args(
     count_default: int,
     count_help: str,
     worlds: tuple[str, ...] = (),
+    goals: bool = False,
 ) -> argparse.Namespace:
-    """The command line of a study: objects, --<count>, --seed, --workers, --out-dir, and
-    --world when ``worlds`` names the profiles it can run in."""
+    """The command line of a study: objects, --<count>, --seed, --workers, --out-dir,
+    --world when ``worlds`` names the profiles it can run in, and --goal (the goal grasp
+    measured) with ``goals``."""
     parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     parser.add_argument(
         "objects", nargs="*", default=objects, help="objects (default: %(default)s)"
@@ -231,6 +236,10 @@ def study_args(
     )
     if worlds:
         parser.add_argument("--world", choices=worlds, default="nominal", help="world profile")
+    if goals:
+        parser.add_argument(
+            "--goal", default="goal", help="the goal grasp measured (default: %(default)s)"
+        )
     return parser.parse_args(argv)
 
 
@@ -241,23 +250,26 @@ def study(
     workers: int = 2,
     out_dir: Path | None = None,
     profile: str = "nominal",
+    goal: str = "goal",
 ) -> None:
-    """Measure and write each object's settling fit (settling_file(profile) in its folder)."""
+    """Measure and write the settling fit of each object's goal grasp ``goal``
+    (settling_file(profile, goal) in its folder)."""
     run_study(
         objects,
         grasps,
         seed,
         workers,
-        settling_file(profile),
+        settling_file(profile, goal),
         _measure_job,
         fit,
         _report,
         "settling",
         f"python -m rrg_sim.physics.settle --grasps {grasps} --seed {seed}"
         + ("" if profile == "nominal" else f" --world {profile}")
-        + " (MuJoCo, goal WRT at the nominal pose)",
+        + ("" if goal == "goal" else f" --goal {goal}")
+        + f" (MuJoCo, goal grasp {goal} at the nominal pose)",
         out_dir,
-        extra=(profile,),
+        extra=(profile, goal),
     )
 
 
@@ -270,8 +282,9 @@ def main(argv: list[str] | None = None) -> None:
         60,
         "goal grasps per object",
         worlds=tuple(WORLD_PROFILES),
+        goals=True,
     )
-    study(args.objects, args.grasps, args.seed, args.workers, args.out_dir, args.world)
+    study(args.objects, args.grasps, args.seed, args.workers, args.out_dir, args.world, args.goal)
 
 
 if __name__ == "__main__":

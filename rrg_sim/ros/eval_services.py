@@ -147,12 +147,17 @@ class EvalServices:
         else:
             with self.exclusive():
                 ok, info = judge_grasp(
-                    self.world(), obj, planar_from_msg(obs.estimate), observation_from_msg(obs)
+                    self.world(),
+                    obj,
+                    planar_from_msg(obs.estimate),
+                    observation_from_msg(obs),
+                    goal=obs.wrt_name,
                 )
                 self._changed()
             resp.success = bool(ok)
             resp.message = (
-                f"{'SUCCESS' if ok else 'FAILURE'}: in goal region {info['in_region']} "
+                f"{'SUCCESS' if ok else 'FAILURE'}: {obs.wrt_name}, in goal region "
+                f"{info['in_region']} "
                 f"(offset {np.round(info['delta'], 4).tolist()}), {info['fingers']} fingers in "
                 f"contact, required contacts {info['required'] or 'none'}, "
                 f"held {info['held']} "

@@ -200,3 +200,63 @@ def test_rrg_objects_dir_is_a_search_path_whose_first_folder_wins(tmp_path, monk
         0.08
     )
     assert object_cli.user_objects_dir() == first  # where rrg-object add installs
+
+
+#: A second goal grasp of the box, across its width 6 cm along its length.
+GOAL_END = """
+[[goal_grasps]]
+name = "goal_end"
+approach = "top_down"
+yaw_rad = 1.5707963267948966
+through_m = [0.0, 0.06, 0.1]
+description = "from above, across the width 6 cm along"
+"""
+
+
+def test_an_object_file_may_hold_several_goal_grasps(user_dir):
+    """[[goal_grasps]]: each a named goal grasp with the object's tolerances about its own
+    centre (default 0), its own settling study, and, for a side grasp, its own probe."""
+    from rrg_models.objects.object_model import settling_file
+
+    folder = copy_builtin("box", "shoebox", user_dir)
+    path = folder / "object.toml"
+    path.write_text(path.read_text() + GOAL_END + "centre = [0.0, 0.004, 0.0]\n")
+    obj = get_object("shoebox")
+    assert [g.name for g in obj.goal_grasps] == ["goal", "goal_end"]
+    assert [w.name for w in obj.wrts()[:2]] == ["goal", "goal_end"]
+    assert obj.wrt("goal_end").kind == "goal"
+    end = obj.goal_region("goal_end")
+    assert end.centre == (0.0, 0.004, 0.0) and end.tol == obj.goal.tol
+    assert end.theta_period == obj.goal.theta_period == pytest.approx(np.pi)
+    assert obj.grasp_settling is not None and obj.settling_for("goal_end") is None
+    assert settling_file("realistic", "goal_end") == "goal_end.settling.realistic.json"
+    assert settling_file("realistic") == "settling.realistic.json"
+    with pytest.raises(KeyError, match="valid: \\['goal', 'goal_end'\\]"):
+        obj.goal_region("goal3")
+
+    side = copy_builtin("can", "soup", user_dir) / "object.toml"
+    grasp = side.read_text().split("[goal_grasp]")[1].split("\n\n")[0]
+    side.write_text(side.read_text() + '\n[[goal_grasps]]\nname = "goal2"' + grasp + "\n")
+    probes = [w for w in get_object("soup").info_wrts if "probe_of" in w.meta]
+    assert [(w.name, w.meta["probe_of"]) for w in probes] == [
+        ("goal_probe", "goal"),
+        ("goal2_probe", "goal2"),
+    ]
+
+
+@pytest.mark.parametrize(
+    ("name", "message"),
+    [
+        ("grasp2", "a goal grasp's name is goal and a suffix"),
+        ("goal2_probe", "a goal grasp's name is goal and a suffix"),
+        ("goal", "a goal grasp's name is goal and a suffix"),
+        ("goal_end", "goal grasp names must be unique"),
+    ],
+)
+def test_a_goal_grasp_with_a_bad_or_repeated_name_is_refused(tmp_path, name, message):
+    folder = tmp_path / "box"
+    shutil.copytree(BUILTIN_DIR / "box", folder)
+    path = folder / "object.toml"
+    path.write_text(path.read_text() + GOAL_END + GOAL_END.replace('"goal_end"', f'"{name}"'))
+    with pytest.raises(ObjectFileError, match=message):
+        load_object_folder(folder)

@@ -100,16 +100,15 @@ def test_open_loop_runs_the_goal_once_and_max_actions_ends_with_the_goal(model):
 
 def test_goal_grasp_falls_back_to_the_most_likely_state_where_it_is_feasible(model):
     agent = RobustGraspAgent(model, strategy="rrg-goal")
+    goal = model.goal_actions[0]
     belief = Belief.for_level(SMALL, WORLD.nominal_pose)
     e = belief.w_star()
-    assert np.array_equal(agent.most_likely_feasible(belief, agent.goal), e)  # feasible at w*
-    agent.search.block(
-        agent.goal, e
-    )  # now it is not, nor near it: the most likely state beyond is used
-    alt = agent.most_likely_feasible(belief, agent.goal)
+    assert np.array_equal(agent.most_likely_feasible(belief, goal), e)  # feasible at w*
+    agent.search.block(goal, e)  # now it is not, nor near it: the most likely state beyond is used
+    alt = agent.most_likely_feasible(belief, goal)
     points = belief.grid.points()
     beyond = ~np.all(np.abs(points - e) <= np.asarray(agent.search.params.block_box) + 1e-9, axis=1)
-    feasible = np.array([model.feasible(agent.goal, p) for p in points])
+    feasible = np.array([model.feasible(goal, p) for p in points])
     i = int(np.flatnonzero(np.all(points == alt, axis=1))[0])
     assert beyond[i] and belief.weights[i] == belief.weights[beyond & feasible].max(), (alt, e)
 
@@ -124,20 +123,21 @@ def test_a_goal_grasp_that_cannot_run_at_w_star_runs_beside_it_when_that_is_wort
     would gather information. A concentrated belief is better served by the grasp one cell
     away (P_b(G) > 1 - δ there); a broad one still gathers information."""
     agent = RobustGraspAgent(model, strategy="rrg-info", horizon=1)
+    goal = model.goal_actions[0]
     agent.search = ForwardSearch(
         model, replace(SEARCH, block_box=(0.009, 0.009, 0.09))
     )  # within a cell
     belief = Belief.for_level(replace(SMALL, name="b", sigma=sigma), WORLD.nominal_pose)
     e = belief.w_star()
-    agent.search.block(agent.goal, e)
+    agent.search.block(goal, e)
     res = agent.search.select(belief, agent.horizon)
-    assert res.goal_action == -1 and res.action not in (-1, agent.goal)
-    alt = agent.most_likely_feasible(belief, agent.goal)
-    p_alt = agent.grasp_probability(belief, agent.goal, alt)
+    assert res.goal_action == -1 and res.action not in (-1, goal)
+    alt = agent.most_likely_feasible(belief, goal)
+    p_alt = agent.grasp_probability(belief, goal, alt)
     action, e_run, _, _ = agent.plan_step(belief, step=1)
     if grasps:
         assert p_alt > 1.0 - agent.delta and not np.allclose(alt, e)
-        assert action == agent.goal and np.array_equal(e_run, alt)
+        assert action == goal and np.array_equal(e_run, alt)
     else:
         assert p_alt < res.value and action == res.action and np.array_equal(e_run, e)
 
@@ -146,23 +146,22 @@ def test_an_infeasible_execution_rules_the_action_out_around_its_estimate(model)
     """Where the executor finds no continuous IK chain, nearby estimates have none either
     (SearchParams.block_box); beyond the box the feasibility map answers again."""
     agent = RobustGraspAgent(model, strategy="rrg-info")
+    goal = model.goal_actions[0]
     e = np.asarray(WORLD.nominal_pose)
     box = np.asarray(agent.search.params.block_box)
-    assert agent.search.feasible(agent.goal, e + box) and agent.search.feasible(
-        agent.goal, e + 2 * box
-    )
-    agent.search.block(agent.goal, e)
-    assert not agent.search.feasible(agent.goal, e + 0.9 * box)
-    assert not agent.search.feasible(agent.goal, e - 0.9 * box)
-    assert agent.search.feasible(agent.goal, e + [2 * box[0], 0.0, 0.0])
-    assert agent.search.feasible(agent.goal, e + [0.0, 0.0, 2 * box[2]])
+    assert agent.search.feasible(goal, e + box) and agent.search.feasible(goal, e + 2 * box)
+    agent.search.block(goal, e)
+    assert not agent.search.feasible(goal, e + 0.9 * box)
+    assert not agent.search.feasible(goal, e - 0.9 * box)
+    assert agent.search.feasible(goal, e + [2 * box[0], 0.0, 0.0])
+    assert agent.search.feasible(goal, e + [0.0, 0.0, 2 * box[2]])
     assert all(
         agent.search.feasible(i, e)
         for i in range(len(model.actions))
-        if i != agent.goal and model.feasible(i, e)
+        if i != goal and model.feasible(i, e)
     )
     agent.search.clear()
-    assert agent.search.feasible(agent.goal, e)
+    assert agent.search.feasible(goal, e)
 
 
 def test_the_goal_grasp_runs_where_the_measured_closing_leaves_the_drill_best_placed():
@@ -174,7 +173,8 @@ def test_the_goal_grasp_runs_where_the_measured_closing_leaves_the_drill_best_pl
     )
     drill = PlanningModel("powerdrill", levels=(fine,), progress=False, wrt_names=("goal",))
     agent = RobustGraspAgent(drill, strategy="rrg-goal")
-    aim = drill.actions[agent.goal].aim["fine"]
+    goal = drill.goal_actions[0]
+    aim = drill.actions[goal].aim["fine"]
     assert aim[2] > 0.02
     w_star = np.asarray(WORLD.nominal_pose)
     belief = Belief.for_level(
@@ -183,12 +183,12 @@ def test_the_goal_grasp_runs_where_the_measured_closing_leaves_the_drill_best_pl
         ),
         w_star,
     )
-    e = agent.goal_estimate(belief, agent.goal)
+    e = agent.goal_estimate(belief, goal)
     np.testing.assert_allclose(relative_planar(e, w_star), aim, atol=1e-9)
-    p_aimed, p_w_star = (agent.grasp_probability(belief, agent.goal, x) for x in (e, w_star))
+    p_aimed, p_w_star = (agent.grasp_probability(belief, goal, x) for x in (e, w_star))
     assert p_aimed > p_w_star, (p_aimed, p_w_star)
     action, e_run, _, _ = agent.plan_step(belief, step=1)
-    assert action == agent.goal and np.allclose(e_run, e)
+    assert action == goal and np.allclose(e_run, e)
 
 
 class SilentFinger3(GeometricEnvironment):
