@@ -58,7 +58,7 @@ from rrg_models.objects.mesh_import import (
     import_mesh,
     stand_on_table,
 )
-from rrg_models.objects.object_file import OBJECT_FILE
+from rrg_models.objects.object_file import APPROACHES, OBJECT_FILE
 from rrg_models.objects.surface_pairs import (
     MIN_FINGER_CLEARANCE,
     Pinch,
@@ -100,6 +100,14 @@ RANKED_CANDIDATES = 8
 RANKED_ENVELOPES = 3
 RANKING_GRASPS = 12
 CANDIDATE_SPACING_M = 0.02
+#: The goal grasp set: with the candidate that held most, the others that held at least
+#: SET_MIN_HELD of their ranking grasps and within SET_MARGIN of it, in its placement (a
+#: top-down pinch is the same grasp of the object turned with it; an envelope is placed for
+#: its own face), at most MAX_GOAL_GRASPS (chosen: 3 of 4 ranking grasps, within 2 of 12 of
+#: the best; the planner weighs each of them at every step).
+SET_MIN_HELD = 0.75
+SET_MARGIN = 0.17
+MAX_GOAL_GRASPS = 4
 #: Side envelope grasps: the hand comes level with the object's top, palm against a face,
 #: finger 3 over the top and fingers 1 and 2 (spread π/2) closing round the face's width, as
 #: the can's goal grasp (builtin/can/object.toml). Every paper side grasp approaches at world
@@ -144,6 +152,8 @@ class GoalSpec:
     centre: tuple[float, float, float] = (0.0, 0.0, 0.0)
     #: the object's rotational symmetry [rad]: its goal region takes θ modulo it
     theta_period_rad: float = 2 * np.pi
+    #: its name in the object file: "goal", or goal2, goal3, … for the set's others
+    name: str = "goal"
 
     def with_symmetry(self, symmetry: Symmetry) -> GoalSpec:
         """This grasp's goal region for an object of that symmetry: θ ignored for a
@@ -151,6 +161,23 @@ class GoalSpec:
         if symmetry.continuous:
             return replace(self, tol=(self.tol[0], self.tol[1], float("inf")))
         return replace(self, theta_period_rad=symmetry.theta_period_rad)
+
+    def placed(self, yaw: float) -> GoalSpec | None:
+        """This grasp of the object placed turned by ``yaw`` [rad] instead: a top-down pinch
+        turns with the object; None for a side envelope placed otherwise (its approach
+        heading is fixed, SIDE_APPROACH_YAW)."""
+        turn = float(wrap_angle(yaw - self.placement_yaw_rad))
+        if abs(turn) < 1e-9:
+            return self
+        if self.approach != "top_down":
+            return None
+        through = Rotation.from_euler("z", turn).apply(self.through_m)
+        return replace(
+            self,
+            through_m=tuple(float(v) for v in through),
+            yaw_rad=float(wrap_angle(self.yaw_rad + turn)),
+            placement_yaw_rad=yaw,
+        )
 
 
 @dataclass
@@ -350,8 +377,10 @@ def object_file_text(
     goal: GoalSpec,
     source: str,
     reorientation: bool,
+    more_goals: tuple[GoalSpec, ...] = (),
 ) -> str:
-    """The ``object.toml`` of an onboarded mesh object."""
+    """The ``object.toml`` of an onboarded mesh object: its goal grasp ``goal`` and, as
+    ``[[goal_grasps]]``, the others of its set."""
     lines = [
         f"# Onboarded by rrg-object add from {source}.",
         "",
@@ -377,17 +406,18 @@ def object_file_text(
         ),
         "",
         "[goal_grasp]",
-        f"approach = {_toml(goal.approach)}",
-        f"yaw_rad = {_toml(goal.yaw_rad)}",
-        f"pitch_rad = {_toml(goal.pitch_rad)}",
-        f"roll_rad = {_toml(goal.roll_rad)}",
-        f"through_m = {_toml(goal.through_m)}",
-        f"standoff_m = {_toml(goal.standoff_m)}",
-        f"spread_rad = {_toml(goal.spread_rad)}",
-        f"description = {_toml(goal.description)}",
+        *_grasp_lines(goal),
     ]
+    for more in more_goals:
+        lines += [
+            "",
+            "[[goal_grasps]]",
+            f"name = {_toml(more.name)}",
+            *_grasp_lines(more),
+            f"centre = {_toml(more.centre)}  # where the grasp leaves it: Δx, Δy [m], Δθ [rad]",
+        ]
     if reorientation:
-        lines += ["", "[reorientation]  # the goal grasp cannot run at every heading"]
+        lines += ["", "[reorientation]  # no goal grasp can run at every heading"]
     for k, path in enumerate(part_files):
         lines += [
             "",
@@ -397,6 +427,20 @@ def object_file_text(
             f"file = {_toml(path)}",
         ]
     return "\n".join(lines) + "\n"
+
+
+def _grasp_lines(goal: GoalSpec) -> list[str]:
+    """A goal grasp's keys in an object file."""
+    return [
+        f"approach = {_toml(goal.approach)}",
+        f"yaw_rad = {_toml(goal.yaw_rad)}",
+        f"pitch_rad = {_toml(goal.pitch_rad)}",
+        f"roll_rad = {_toml(goal.roll_rad)}",
+        f"through_m = {_toml(goal.through_m)}",
+        f"standoff_m = {_toml(goal.standoff_m)}",
+        f"spread_rad = {_toml(goal.spread_rad)}",
+        f"description = {_toml(goal.description)}",
+    ]
 
 
 @contextmanager
@@ -469,19 +513,21 @@ def add_object(opts: AddOptions, say: Callable[[str], None] = print) -> AddRepor
         with stage("goal grasp"):
             if opts.goal is None:
                 args = (staging, folder, opts, mesh, part_files, mass, source)
-                goal = _best_goal(parts, symmetry, args, choose)
+                goals = _goal_set(parts, symmetry, args, choose)
             else:
-                goal = opts.goal.with_symmetry(symmetry)
-                choose(f"the given goal grasp through {goal.through_m}")
+                goals = (opts.goal.with_symmetry(symmetry),)
+                choose(f"the given goal grasp through {goals[0].through_m}")
         with stage("object file"):
-            args = (folder, opts, mesh, part_files, mass, goal, source)
+            args = (folder, opts, mesh, part_files, mass, goals, source)
             reorient = _write_object(*args, symmetry, choose)
 
-        def rewrite(goal: GoalSpec, reorientation: bool) -> None:
-            _write_and_load(folder, opts, mesh, part_files, mass, goal, source, reorientation)
+        def rewrite(goals: tuple[GoalSpec, ...], reorientation: bool) -> None:
+            first, *more = goals
+            args = (folder, opts, mesh, part_files, mass, first, source)
+            _write_and_load(*args, reorientation, tuple(more))
 
         with _searched_first(staging):
-            _measure_and_build(opts, goal, reorient, rewrite, stage, choose)
+            _measure_and_build(opts, goals, reorient, rewrite, stage, choose)
         os.replace(folder, report.folder)
         say(f"installed {opts.name} in {report.folder}")
         return report
@@ -491,12 +537,13 @@ def add_object(opts: AddOptions, say: Callable[[str], None] = print) -> AddRepor
         shutil.rmtree(staging, ignore_errors=True)
 
 
-def _best_goal(
+def _goal_set(
     parts, symmetry: Symmetry, rank_args: tuple, choose: Callable[[str], None]
-) -> GoalSpec:
-    """The proposed goal grasp that held the object most often in physics (_rank's arguments
-    but the candidates: ``rank_args``), its region as the object's symmetry allows;
-    OnboardError when none held it."""
+) -> tuple[GoalSpec, ...]:
+    """The proposed goal grasps (_rank's arguments but the candidates: ``rank_args``), their
+    regions as the object's symmetry allows: the one that held the object most often in
+    physics, named "goal", and the others of its set (_set_members); OnboardError when none
+    held it."""
     opts = rank_args[2]
     candidates = [g.with_symmetry(symmetry) for g in goal_candidates(parts, opts.goal_tol)]
     scores = _rank(*rank_args, candidates)
@@ -510,20 +557,63 @@ def _best_goal(
         )
     goal = candidates[best]
     choose(f"chose the goal grasp that held most: {goal.description}")
-    return goal
+    if symmetry.continuous:
+        choose("one goal grasp: the object is the same at every heading, so every other is it")
+        return (goal,)
+    members = _set_members(goal, scores[best], candidates, scores, parts)
+    if not members:
+        choose(
+            f"one goal grasp: no other held in {SET_MIN_HELD:.0%} of its grasps and within "
+            f"{SET_MARGIN:.0%} of it in its placement"
+        )
+    for more in members:
+        choose(f"with {more.name}: {more.description}")
+    return (goal, *members)
+
+
+def _set_members(
+    goal: GoalSpec, held: float, candidates: list[GoalSpec], scores: list[float], parts
+) -> list[GoalSpec]:
+    """The other goal grasps of ``goal``'s set (see SET_MIN_HELD): in its placement, reachable
+    there at the nominal pose, best held first, named goal2, goal3, …"""
+    floor = max(SET_MIN_HELD, held - SET_MARGIN)
+    nominal = np.asarray(WORLD.nominal_pose)
+    members: list[GoalSpec] = []
+    for k in sorted(range(len(scores)), key=lambda k: -scores[k]):  # ties: the candidates' order
+        other = candidates[k].placed(goal.placement_yaw_rad)
+        if other is None or other == goal or scores[k] < floor:
+            continue
+        if len(members) == MAX_GOAL_GRASPS - 1:
+            break
+        if other is not candidates[k]:  # turned with the object: is it still reachable?
+            if not wam.feasible_path(_spec_wrt(other, parts).with_home(nominal)):
+                continue
+        members.append(replace(other, name=f"goal{len(members) + 2}"))
+    return members
+
+
+def _spec_wrt(spec: GoalSpec, parts):
+    """The goal WRT of ``spec`` on ``parts`` (in the mesh's frame), placed as it says."""
+    rotation = APPROACHES[spec.approach](spec.yaw_rad, spec.pitch_rad, spec.roll_rad)
+    placed = turn_about_z(parts, spec.placement_yaw_rad)
+    return line_grasp_wrt(
+        placed, rotation, spec.through_m, spread=spec.spread_rad, standoff=spec.standoff_m
+    )
 
 
 def _write_object(
-    folder, opts, mesh, part_files, mass, goal, source, symmetry: Symmetry, choose
+    folder, opts, mesh, part_files, mass, goals, source, symmetry: Symmetry, choose
 ) -> bool:
-    """Place the object for its goal grasp and write its object file, with reorientation WRTs
-    when the goal grasp cannot run at every heading its symmetry leaves distinct and a
+    """Place the object for its goal grasps and write its object file, with reorientation
+    WRTs when no goal grasp can run at every heading its symmetry leaves distinct and a
     top-down pinch can turn it (returned); OnboardError when the WAM cannot reach the goal
     grasp at the nominal pose."""
+    goal, *more = goals
     place(folder, ["mesh.stl", *part_files], goal.placement_yaw_rad)
     if goal.placement_yaw_rad:
         choose(f"placed turned by {goal.placement_yaw_rad:+.2f} rad for the goal grasp")
-    obj = _write_and_load(folder, opts, mesh, part_files, mass, goal, source, False)
+    args = (folder, opts, mesh, part_files, mass, goal, source)
+    obj = _write_and_load(*args, False, tuple(more))
     nominal = np.asarray(WORLD.nominal_pose)
     if not wam.feasible_path(obj.goal_wrt.with_home(nominal)):
         raise OnboardError(
@@ -532,7 +622,7 @@ def _write_object(
         )
     reorient = _needs_reorientation(obj, symmetry, choose)
     if reorient:
-        obj = _write_and_load(folder, opts, mesh, part_files, mass, goal, source, True)
+        obj = _write_and_load(*args, True, tuple(more))
     choose(f"{len(obj.wrts())} WRTs: " + ", ".join(w.name for w in obj.wrts()))
     return reorient
 
@@ -540,7 +630,7 @@ def _write_object(
 def _needs_reorientation(obj, symmetry: Symmetry, choose: Callable[[str], None]) -> bool:
     """Whether the object gets reorientation WRTs, with the reason said either way: not for
     an object the same at every heading, nor when no top-down pinch is free to turn it; yes
-    when the goal grasp cannot run at some of HEADINGS (within half the symmetry's turn)."""
+    when at some of HEADINGS (within half the symmetry's turn) no goal grasp can run."""
     if symmetry.continuous:
         choose(
             "no reorientation WRTs: turned about its vertical axis the object is the same "
@@ -550,10 +640,14 @@ def _needs_reorientation(obj, symmetry: Symmetry, choose: Callable[[str], None])
     half = symmetry.theta_period_rad / 2
     headings = HEADINGS[np.abs(HEADINGS) <= half + 1e-9]
     nominal = np.asarray(WORLD.nominal_pose)
-    reached = [wam.feasible_path(obj.goal_wrt.with_home(nominal + (0, 0, t))) for t in headings]
+    reached = [
+        any(wam.feasible_path(g.wrt.with_home(nominal + (0, 0, t))) for g in obj.goal_grasps)
+        for t in headings
+    ]
+    grasp = "the goal grasp" if len(obj.goal_grasps) == 1 else "one of the goal grasps"
     if all(reached):
         choose(
-            "no reorientation WRTs: the WAM reaches the goal grasp at every heading from "
+            f"no reorientation WRTs: the WAM reaches {grasp} at every heading from "
             f"{headings[0]:+.1f} to {headings[-1]:+.1f} rad"
         )
         return False
@@ -568,7 +662,7 @@ def _needs_reorientation(obj, symmetry: Symmetry, choose: Callable[[str], None])
         )
         return False
     choose(
-        f"reorientation WRTs: the WAM reaches the goal grasp only at headings {where} rad of "
+        f"reorientation WRTs: the WAM reaches {grasp} only at headings {where} rad of "
         f"{', '.join(f'{t:+.1f}' for t in headings)}"
     )
     return True
@@ -604,10 +698,20 @@ def place(folder: Path, files: list[str], yaw: float) -> None:
         trimesh.load_mesh(folder / path).apply_transform(turn).export(folder / path)
 
 
-def _write_and_load(folder, opts, mesh, part_files, mass, goal, source, reorientation):
+def _write_and_load(
+    folder, opts, mesh, part_files, mass, goal, source, reorientation, more_goals=()
+):
     (folder / OBJECT_FILE).write_text(
         object_file_text(
-            opts.name, mesh, part_files, mass, opts.friction, goal, source, reorientation
+            opts.name,
+            mesh,
+            part_files,
+            mass,
+            opts.friction,
+            goal,
+            source,
+            reorientation,
+            more_goals,
         )
     )
     return load_object_folder(folder)
@@ -615,16 +719,16 @@ def _write_and_load(folder, opts, mesh, part_files, mass, goal, source, reorient
 
 def _measure_and_build(
     opts: AddOptions,
-    goal: GoalSpec,
+    goals: tuple[GoalSpec, ...],
     reorient: bool,
-    rewrite: Callable[[GoalSpec, bool], None],
+    rewrite: Callable[[tuple[GoalSpec, ...], bool], None],
     stage,
     choose: Callable[[str], None],
 ) -> None:
     """The physics studies, the tables and the picture of the staged object.
 
-    The goal region is centred where the goal grasp leaves the object from a perfect start
-    (the settling study's intercept): a grasp that pulls the object into the hand meets its
+    Each goal grasp's region is centred where it leaves the object from a perfect start (its
+    settling study's intercept): a grasp that pulls the object into the hand meets its
     region about there, not where the estimate put the object. Reorientation WRTs that turn
     the object fully too rarely to fit are dropped: the goal grasp then runs only at the
     headings the WAM reaches."""
@@ -634,22 +738,26 @@ def _measure_and_build(
     from rrg_sim.physics.render import render_goal_grasps
 
     with stage("settling study"):
-        settle.study([opts.name], opts.settle_grasps, opts.seed, opts.workers)
-        b = get_object(opts.name).grasp_settling.closed.b
-        theta = 0.0 if np.isinf(goal.tol[2]) else round(float(b[2]), 4)
-        goal = replace(goal, centre=(round(float(b[0]), 4), round(float(b[1]), 4), theta))
-        rewrite(goal, reorient)
-        choose(
-            "goal region centred where the grasp leaves the object from a perfect start: "
-            f"Δ = ({goal.centre[0] * 100:+.1f} cm, {goal.centre[1] * 100:+.1f} cm, "
-            f"{np.degrees(goal.centre[2]):+.1f}°)"
-        )
+        centred = []
+        for goal in goals:
+            settle.study([opts.name], opts.settle_grasps, opts.seed, opts.workers, goal=goal.name)
+            b = get_object(opts.name).settling_for(goal.name).closed.b
+            theta = 0.0 if np.isinf(goal.tol[2]) else round(float(b[2]), 4)
+            centre = (round(float(b[0]), 4), round(float(b[1]), 4), theta)
+            centred.append(replace(goal, centre=centre))
+            choose(
+                f"{goal.name} region centred where the grasp leaves the object from a perfect "
+                f"start: Δ = ({centre[0] * 100:+.1f} cm, {centre[1] * 100:+.1f} cm, "
+                f"{np.degrees(centre[2]):+.1f}°)"
+            )
+        goals = tuple(centred)
+        rewrite(goals, reorient)
     if reorient:
         with stage("reorientation study"):
             try:
                 reorient_study.study([opts.name], opts.reorient_runs, opts.seed, opts.workers)
             except reorient_study.TooFewTurns as exc:
-                rewrite(goal, False)
+                rewrite(goals, False)
                 choose(
                     f"no reorientation WRTs: {exc}; the goal grasp runs only at headings "
                     "the WAM reaches"

@@ -9,6 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from goal_set_objects import GOAL_END, box_with_goal_end
 
 from rrg_models.objects import (
     PAPER_OBJECTS,
@@ -202,25 +203,12 @@ def test_rrg_objects_dir_is_a_search_path_whose_first_folder_wins(tmp_path, monk
     assert object_cli.user_objects_dir() == first  # where rrg-object add installs
 
 
-#: A second goal grasp of the box, across its width 6 cm along its length.
-GOAL_END = """
-[[goal_grasps]]
-name = "goal_end"
-approach = "top_down"
-yaw_rad = 1.5707963267948966
-through_m = [0.0, 0.06, 0.1]
-description = "from above, across the width 6 cm along"
-"""
-
-
 def test_an_object_file_may_hold_several_goal_grasps(user_dir):
     """[[goal_grasps]]: each a named goal grasp with the object's tolerances about its own
     centre (default 0), its own settling study, and, for a side grasp, its own probe."""
     from rrg_models.objects.object_model import settling_file
 
-    folder = copy_builtin("box", "shoebox", user_dir)
-    path = folder / "object.toml"
-    path.write_text(path.read_text() + GOAL_END + "centre = [0.0, 0.004, 0.0]\n")
+    box_with_goal_end(user_dir, "shoebox", "centre = [0.0, 0.004, 0.0]\n")
     obj = get_object("shoebox")
     assert [g.name for g in obj.goal_grasps] == ["goal", "goal_end"]
     assert [w.name for w in obj.wrts()[:2]] == ["goal", "goal_end"]
@@ -254,9 +242,6 @@ def test_an_object_file_may_hold_several_goal_grasps(user_dir):
     ],
 )
 def test_a_goal_grasp_with_a_bad_or_repeated_name_is_refused(tmp_path, name, message):
-    folder = tmp_path / "box"
-    shutil.copytree(BUILTIN_DIR / "box", folder)
-    path = folder / "object.toml"
-    path.write_text(path.read_text() + GOAL_END + GOAL_END.replace('"goal_end"', f'"{name}"'))
+    folder = box_with_goal_end(tmp_path, "box", GOAL_END.replace('"goal_end"', f'"{name}"'))
     with pytest.raises(ObjectFileError, match=message):
         load_object_folder(folder)

@@ -3,15 +3,14 @@ can run, names it in its decision, and the judge judges it against its own regio
 
 from __future__ import annotations
 
-import shutil
-
 import numpy as np
 import pytest
+from goal_set_objects import box_with_goal_end
 
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import UncertaintyLevel
 from rrg_models.config import WORLD
-from rrg_models.objects.catalogue import BUILTIN_DIR, USER_DIR_ENV
+from rrg_models.objects.catalogue import USER_DIR_ENV
 from rrg_planner.agent import RobustGraspAgent
 from rrg_planner.closed_loop import decide
 from rrg_planner.geometric_env import GeometricEnvironment
@@ -20,15 +19,6 @@ from rrg_planner.planning_model import PlanningModel
 SMALL = UncertaintyLevel(
     "small", sigma=(0.02, 0.02, 0.2), spacing=(0.01, 0.01, 0.1), shape=(9, 9, 5)
 )
-#: The box's goal grasp, and the same grasp 6 cm along its length.
-GOAL_END = """
-[[goal_grasps]]
-name = "goal_end"
-approach = "top_down"
-yaw_rad = 1.5707963267948966
-through_m = [0.0, 0.06, 0.1]
-description = "from above, across the width 6 cm along"
-"""
 
 
 @pytest.fixture
@@ -37,10 +27,7 @@ def shoebox(tmp_path, monkeypatch):
     cached tables are removed after the test."""
     from rrg_onboarding.object_cli import remove_object
 
-    folder = tmp_path / "objects" / "shoebox"
-    shutil.copytree(BUILTIN_DIR / "box", folder)
-    text = (folder / "object.toml").read_text().replace('name = "box"', 'name = "shoebox"')
-    (folder / "object.toml").write_text(text + GOAL_END)
+    folder = box_with_goal_end(tmp_path / "objects", "shoebox")
     monkeypatch.setenv(USER_DIR_ENV, str(folder.parent))
     try:
         yield PlanningModel("shoebox", levels=(SMALL,), progress=False)
