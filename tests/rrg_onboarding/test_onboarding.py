@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -122,15 +123,16 @@ def test_the_goal_candidates_of_a_mug_are_distinct_pinches_of_its_rim_and_handle
 def test_a_plate_too_wide_to_pinch_well_gets_side_envelopes_facing_the_reachable_heading():
     """The bracket's upright (4 cm wide, 6 mm thick) is enveloped from either face: the object
     is placed turned so that the face meets the hand at SIDE_APPROACH_YAW, finger 3 over the
-    top, fingers 1 and 2 round its 4 cm."""
+    top, fingers 1 and 2 round its 4 cm, the hand's axis 1 cm or 3 cm below the top (both in
+    the upper half of its 8 cm)."""
     from generated_meshes import l_bracket
 
     from rrg_onboarding import onboard
 
     goals = onboard.goal_candidates(_parts(l_bracket()))
     sides = [g for g in goals if g.approach == "side"]
-    assert len(sides) == 2 and len(goals) == 4
-    placements = sorted(g.placement_yaw_rad for g in sides)
+    assert len(sides) == 4 and len(goals) == 6
+    placements = sorted({round(g.placement_yaw_rad, 6) for g in sides})
     # the upright's faces look along -x and +x of the mesh: turned so each meets the hand
     expected = sorted(
         float(np.angle(np.exp(1j * (onboard.SIDE_APPROACH_YAW - a)))) for a in (0.0, np.pi)
@@ -139,7 +141,40 @@ def test_a_plate_too_wide_to_pinch_well_gets_side_envelopes_facing_the_reachable
     for g in sides:
         assert g.yaw_rad == onboard.SIDE_APPROACH_YAW and g.spread_rad == np.pi / 2
         assert "round 4.0 cm" in g.description
-        assert g.through_m[2] == pytest.approx(0.08 - onboard.ENVELOPE_DEPTH_M, abs=1e-3)
+    depths = sorted(0.08 - g.through_m[2] for g in sides)
+    np.testing.assert_allclose(depths, np.repeat(onboard.ENVELOPE_DEPTHS_M, 2), atol=1e-3)
+
+
+def test_the_goal_grasp_is_of_those_near_the_most_held_the_one_reached_at_most_headings(
+    monkeypatch,
+):
+    """The bracket's pinches are reached at all 9 of the prior's headings, its envelopes at
+    4: a pinch within one ranking grasp of the best-held envelope is chosen, one further
+    below is not."""
+    from generated_meshes import l_bracket
+
+    from rrg_models.objects.symmetry import Symmetry
+    from rrg_onboarding import onboard
+
+    parts = _parts(l_bracket())
+    goals = onboard.goal_candidates(parts)
+    headings = onboard._prior_headings(Symmetry(folds=1, deviation_m=0.05))
+    reach = [onboard._reach(g, parts, headings) for g in goals]
+    pinch = next(k for k, g in enumerate(goals) if g.approach == "top_down")
+    side = next(k for k, g in enumerate(goals) if g.approach == "side")
+    assert reach[pinch] == len(headings) == 9 and reach[side] < reach[pinch]
+    opts = AddOptions(mesh=Path("bracket.stl"), name="bracket")
+
+    def chosen(pinch_held: float) -> GoalSpec:
+        scores = [0.0] * len(goals)
+        scores[pinch], scores[side] = pinch_held, 1.0
+        monkeypatch.setattr(onboard, "_rank", lambda *args: scores)
+        said: list[str] = []
+        rank_args = (None, None, opts, None, None, None, None)
+        return onboard._goal_set(parts, Symmetry(1, 0.05), rank_args, said.append)[0]
+
+    assert chosen(1.0 - 1 / onboard.RANKING_GRASPS).through_m == goals[pinch].through_m
+    assert chosen(1.0 - 2 / onboard.RANKING_GRASPS).through_m == goals[side].through_m
 
 
 def test_the_paper_column_is_empty_for_an_object_not_in_the_paper():
