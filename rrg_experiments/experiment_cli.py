@@ -32,6 +32,7 @@ from rrg_experiments.trials import (
     CampaignMismatch,
     Cell,
     TrialSpec,
+    added_fields,
     imap_trials,
     load_records,
     prepare_models,
@@ -272,14 +273,17 @@ def replay_check(path: Path, version: str, workers: int) -> int:
         print(f"error: no trial records in {path}", file=sys.stderr)
         return 2
     specs = [spec_of(r) for r in old.values()]
-    differing = 0
+    differing, added = 0, set()
     for record in run_records(specs, version, workers):
         changes = record_differences(old[key(record)], record)
+        added.update(added_fields(old[key(record)], record))
         if changes:
             differing += 1
             print(f"DIFFERS {record['id']} ({record['world']}, base seed {record['base_seed']})")
             print("\n".join(f"  {c}" for c in changes), flush=True)
     print(f"{len(old) - differing}/{len(old)} trials gave the same records (code {version})")
+    if added:
+        print(f"fields the old records do not have: {', '.join(sorted(added))}")
     return 1 if differing else 0
 
 

@@ -300,17 +300,29 @@ def outcome(record: dict) -> dict:
     return {k: v for k, v in record.items() if k not in TIMING_FIELDS}
 
 
+def _fields(value, path: str = "") -> dict[str, str]:
+    """A record's leaves by dotted path (judge.held), each as JSON text."""
+    if isinstance(value, dict) and value:
+        leaves: dict[str, str] = {}
+        for k, v in value.items():
+            leaves.update(_fields(v, f"{path}.{k}" if path else str(k)))
+        return leaves
+    return {path: json.dumps(value, sort_keys=True)}
+
+
 def record_differences(old: dict, new: dict) -> list[str]:
-    """The fields in which two records of one trial differ, beyond timing and the code
-    version, as 'field: old -> new' lines (none: the same behaviour). Compared as JSON text,
-    so that NaN fields (the P(goal) of a failed run) are equal."""
-    a = {k: json.dumps(v, sort_keys=True) for k, v in outcome(old).items() if k != "commit"}
-    b = {k: json.dumps(v, sort_keys=True) for k, v in outcome(new).items() if k != "commit"}
-    return [
-        f"{k}: {old.get(k)!r} -> {new.get(k)!r}"
-        for k in sorted(a.keys() | b.keys())
-        if a.get(k) != b.get(k)
-    ]
+    """The fields of ``old`` whose value in ``new``, a record of the same trial, differs or
+    is gone, beyond timing and the code version, as 'field: old -> new' lines (none: the same
+    behaviour; a field only ``new`` has is a new output, not a difference). Compared as JSON
+    text, so that NaN fields (the P(goal) of a failed run) are equal."""
+    a = _fields({k: v for k, v in outcome(old).items() if k != "commit"})
+    b = _fields({k: v for k, v in outcome(new).items() if k != "commit"})
+    return [f"{k}: {a[k]} -> {b.get(k, '(gone)')}" for k in sorted(a) if a[k] != b.get(k)]
+
+
+def added_fields(old: dict, new: dict) -> list[str]:
+    """The fields a newer record of the same trial has and ``old`` has not (dotted paths)."""
+    return sorted(_fields(outcome(new)).keys() - _fields(outcome(old)).keys())
 
 
 def spec_of(record: dict) -> TrialSpec:

@@ -36,6 +36,7 @@ from rrg_models.objects.object_model import REORIENTATION_FILE, SETTLING_FILE
 from .onboard import (
     DEFAULT_FRICTION,
     DEFAULT_TOL,
+    RANKING_GRASPS,
     SETTLE_GRASPS,
     AddOptions,
     GoalSpec,
@@ -120,6 +121,7 @@ def cmd_add(args: argparse.Namespace) -> int:
         goal_tol=tuple(args.goal_tol),
         allow_size=args.allow_size,
         settle_grasps=args.settle_grasps,
+        ranking_grasps=args.ranking_grasps,
         workers=args.workers,
         seed=args.seed,
     )
@@ -211,6 +213,9 @@ def _add_parser(sub) -> None:
     )
     add.add_argument(
         "--settle-grasps", type=int, default=SETTLE_GRASPS, help="settling study grasps"
+    )
+    add.add_argument(
+        "--ranking-grasps", type=int, default=RANKING_GRASPS, help="grasps per goal candidate"
     )
     add.add_argument("--workers", type=int, default=2)
     add.add_argument("--seed", type=int, default=0, help="seeds CoACD and the studies")

@@ -59,7 +59,7 @@ from rrg_models.objects.mesh_import import (
     import_mesh,
     stand_on_table,
 )
-from rrg_models.objects.object_file import APPROACHES, OBJECT_FILE
+from rrg_models.objects.object_file import OBJECT_FILE, goal_grasp_wrt
 from rrg_models.objects.surface_pairs import (
     MIN_FINGER_CLEARANCE,
     Pinch,
@@ -200,6 +200,7 @@ class AddOptions:
     goal_tol: tuple[float, float, float] = DEFAULT_TOL
     allow_size: bool = False
     settle_grasps: int = SETTLE_GRASPS
+    ranking_grasps: int = RANKING_GRASPS
     reorient_runs: int = REORIENT_RUNS
     workers: int = 2
     seed: int = 0
@@ -471,6 +472,11 @@ def _searched_first(folder: Path) -> Iterator[None]:
 def add_object(opts: AddOptions, say: Callable[[str], None] = print) -> AddReport:
     """Onboard ``opts.mesh`` as the user object ``opts.name`` (see the module doc)."""
     check_name(opts.name)
+    counts = ("settle_grasps", "ranking_grasps", "reorient_runs", "workers")
+    for count in counts:
+        if getattr(opts, count) < 1:
+            flag = count.replace("_", "-")
+            raise OnboardError(f"--{flag} must be at least 1, got {getattr(opts, count)}")
     user = user_objects_dir()
     user.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".rrg-staging-{opts.name}-", dir=user.parent))
@@ -562,7 +568,7 @@ def _goal_set(
     reach = [_reach(g, parts, headings) for g in candidates]
     for goal, score, r in zip(candidates, scores, reach):
         choose(
-            f"{score:4.0%} held of {RANKING_GRASPS}, reached at {r} of {len(headings)} "
+            f"{score:4.0%} held of {opts.ranking_grasps}, reached at {r} of {len(headings)} "
             f"headings: {goal.description}"
         )
     if max(scores) == 0.0:
@@ -570,7 +576,7 @@ def _goal_set(
             f"none of the {len(candidates)} proposed goal grasps held the object in "
             "physics; give a goal grasp (--goal-through ...)"
         )
-    near_best = [k for k, v in enumerate(scores) if v >= max(scores) - 1 / RANKING_GRASPS]
+    near_best = [k for k, v in enumerate(scores) if v >= max(scores) - 1 / opts.ranking_grasps]
     best = max(near_best, key=lambda k: (reach[k], scores[k], -k))
     goal = candidates[best]
     choose(f"chose the goal grasp that held most and reaches widest: {goal.description}")
@@ -626,10 +632,13 @@ def _set_members(
 
 def _spec_wrt(spec: GoalSpec, parts):
     """The goal WRT of ``spec`` on ``parts`` (in the mesh's frame), placed as it says."""
-    rotation = APPROACHES[spec.approach](spec.yaw_rad, spec.pitch_rad, spec.roll_rad)
-    placed = turn_about_z(parts, spec.placement_yaw_rad)
-    return line_grasp_wrt(
-        placed, rotation, spec.through_m, spread=spec.spread_rad, standoff=spec.standoff_m
+    return goal_grasp_wrt(
+        turn_about_z(parts, spec.placement_yaw_rad),
+        spec.approach,
+        spec.through_m,
+        (spec.yaw_rad, spec.pitch_rad, spec.roll_rad),
+        spread_rad=spec.spread_rad,
+        standoff_m=spec.standoff_m,
     )
 
 
@@ -711,7 +720,7 @@ def _rank(staging, folder, opts, mesh, part_files, mass, source, candidates) -> 
             staging / name, replace(opts, name=name), mesh, part_files, mass, goal, source, False
         )
         names.append(name)
-    jobs = [(name, RANKING_GRASPS, opts.seed) for name in names]
+    jobs = [(name, opts.ranking_grasps, opts.seed) for name in names]
     try:
         with _searched_first(staging):
             return list(fork_map(_score_job, jobs, opts.workers))

@@ -108,21 +108,11 @@ class RobustGraspAgent:
                     best = (g, alt, p)
         return best
 
-    def best_goal_now(self, belief: Belief) -> int:
-        """The goal grasp with the highest P_b(G) at its best estimate (goal_estimate), the
-        object's first where none can run: an open-loop run's grasp, and a run's last."""
-        goals = self.model.goal_actions
-        if len(goals) == 1:
-            return goals[0]
-        sb = SparseBelief.from_belief(belief, self.model.level_of(belief.grid), self.search.params)
-        _, g, _ = self.search.best_goal(sb)
-        return g if g >= 0 else goals[0]
-
     def next_action(self, belief: Belief, step: int) -> tuple[int, SearchResult | None, bool]:
         """The step-th action of a run (1-based): (action index or -1, the search result if
         any, whether it is the last); the last is a goal grasp, executed open-loop."""
         if step >= self.max_actions or self.strategy == "open-loop":
-            return self.best_goal_now(belief), None, True
+            return self.static_goal(belief)[0], None, True
         action, res = self.choose(belief)
         return action, res, False
 
@@ -197,7 +187,8 @@ class RobustGraspAgent:
     def static_goal(self, belief: Belief) -> tuple[int, float]:
         """The goal grasp with the highest P_b(G) at its best estimate (goal_estimate; 0 where
         it cannot run, or an execution found it could not run near there), and that P_b(G); the
-        object's first goal grasp when none is above 0."""
+        object's first goal grasp when none is above 0. The grasp of an open-loop run, and of a
+        run's last action."""
         best = (self.model.goal_actions[0], 0.0)
         for g in self.model.goal_actions:
             e = self.goal_estimate(belief, g)

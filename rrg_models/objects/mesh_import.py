@@ -3,9 +3,11 @@
 ``import_mesh(path, units, up)`` reads an STL, OBJ or PLY file with trimesh, scales it to
 metres and turns its declared up axis to +z; ``check_mesh`` repairs what a lab's mesh needs
 (merged vertices, consistent normals, small holes filled, several closed shells, overlapping
-or touching as CAD assemblies and merged parts are, united into one with manifold3d) and says
-what it repaired, and refuses a mesh that is empty, open, without volume, or of an
-implausible size; ``stand_on_table`` puts its lowest face on z = 0 with
+or touching as CAD assemblies and merged parts are, united into one with manifold3d, and a
+closed surface that is still not a manifold rebuilt from CoACD's manifold pre-processing) and
+says what it repaired, and refuses a mesh that is empty, open, without volume, of an
+implausible size, or whose rebuild changed its volume by more than
+MAX_REBUILD_VOLUME_CHANGE; ``stand_on_table`` puts its lowest face on z = 0 with
 the origin at the centre of its footprint, and refuses a mesh whose centre of mass falls
 outside that footprint; ``convex_parts`` decomposes it with CoACD so that MuJoCo, which
 collides every mesh as its convex hull, keeps its concavities. Every refusal is a
@@ -50,6 +52,13 @@ MIN_TIP_ANGLE = np.radians(10.0)
 #: paper objects have 1-24 primitives; each part is a MuJoCo collision geom).
 COACD_THRESHOLD = 0.05
 MAX_PARTS = 24
+#: The most a rebuild from CoACD's manifold pre-processing may change the volume the mesh
+#: encloses, as a share of it (chosen: 10 %; the pre-processing's voxel remesh thickens a
+#: surface by about one voxel, +5.5 % on a 4 x 4 x 8 cm block at its default resolution).
+MAX_REBUILD_VOLUME_CHANGE = 0.10
+#: Voxels across a mesh's largest extent when measuring the volume a non-manifold surface
+#: encloses (chosen: within 1 % of the exact volume of the generated mug and a sphere).
+ENCLOSED_VOXELS = 100
 
 
 class MeshError(ValueError):
@@ -59,13 +68,15 @@ class MeshError(ValueError):
 @dataclass(frozen=True)
 class MeshRepair:
     """What check_mesh repaired: faces added to close holes, closed shells united into one
-    (0: none), and the volume [m³] before (the shells' volumes summed, overlaps counted as
-    often as they overlap) and after."""
+    (0: none), convex parts the surface was rebuilt from (0: not rebuilt), and the volume
+    [m³] before (the shells' volumes summed, overlaps counted as often as they overlap; for
+    a rebuilt surface, what it enclosed, measured on voxels) and after."""
 
     holes_filled: int
     shells_united: int
     volume_before_m3: float
     volume_after_m3: float
+    rebuilt_parts: int = 0
 
     def describe(self) -> str:
         """One line for people."""
@@ -74,6 +85,12 @@ class MeshRepair:
             done.append(f"{self.shells_united} closed shells united into one")
         if self.holes_filled:
             done.append(f"{self.holes_filled} faces added to close holes")
+        if self.rebuilt_parts:
+            done.append(
+                "not a manifold (edges shared by more than two faces): rebuilt as one closed "
+                "surface from CoACD's manifold pre-processing, its convex parts united "
+                f"({self.rebuilt_parts})"
+            )
         if not done:
             return "no repair needed"
         cm3 = lambda v: f"{v * 1e6:.1f} cm³"
@@ -107,10 +124,12 @@ def check_mesh(
     mesh: trimesh.Trimesh, allow_size: bool = False
 ) -> tuple[trimesh.Trimesh, MeshRepair]:
     """A repaired copy of ``mesh`` and what was repaired: merged vertices, consistent outward
-    normals, small holes filled, and its closed shells (bodies that overlap or touch, as in a
-    CAD assembly or at a shared edge) united into one. MeshError if it is then not a closed
-    manifold with a volume (an open sheet), or (unless ``allow_size``) if its largest extent
-    is outside [MIN_SIZE_M, MAX_SIZE_M]."""
+    normals, small holes filled, its closed shells (bodies that overlap or touch, as in a CAD
+    assembly or at a shared edge) united into one, and a closed surface that is still not a
+    manifold (bodies glued by a face kept once, a scan's merged parts) rebuilt from CoACD's
+    manifold pre-processing. MeshError if it is open (an open sheet), encloses no volume, was
+    rebuilt with a volume more than MAX_REBUILD_VOLUME_CHANGE off what it enclosed, or (unless
+    ``allow_size``) if its largest extent is outside [MIN_SIZE_M, MAX_SIZE_M]."""
     mesh = mesh.copy()
     mesh.merge_vertices()
     mesh.update_faces(mesh.nondegenerate_faces())
@@ -122,27 +141,36 @@ def check_mesh(
     faces = len(mesh.faces)
     trimesh.repair.fill_holes(mesh)
     holes_filled = len(mesh.faces) - faces
-    shells = mesh.split(only_watertight=False)
-    open_edges = sum(
-        len(trimesh.grouping.group_rows(s.edges_sorted, require_count=1)) for s in shells
-    )
+    open_edges = len(trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1))
     if open_edges:
         raise MeshError(
             f"the mesh is open: {open_edges} edges bound a single face, and its holes are too "
             "large to fill (an open sheet, or a surface with a missing side): a rigid object "
             "needs a closed surface (close it, e.g. in MeshLab, and export it again)"
         )
+    shells = mesh.split(only_watertight=False)
     for shell in shells:
         trimesh.repair.fix_normals(shell)
     volume_before = float(sum(shell.volume for shell in shells))
-    united = 0
-    if len(shells) > 1 or not mesh.is_watertight:
-        mesh, united = _united(shells), len(shells)
+    united = rebuilt = 0
+    if all(s.is_watertight for s in shells) and (len(shells) > 1 or not mesh.is_watertight):
+        try:
+            mesh, united = _united(shells), len(shells)
+        except MeshError as exc:
+            log.info("%s; rebuilding it", exc)
     if not mesh.is_watertight:
-        raise MeshError(
-            "the mesh is not a closed manifold even after uniting its closed shells: "
-            "repair it (e.g. in MeshLab) and export it again"
-        )
+        volume_before = enclosed_volume(mesh)
+        if volume_before <= 0.0:
+            raise MeshError("the mesh encloses no volume (a flat or inside-out surface)")
+        mesh, rebuilt = _rebuilt(mesh)
+        change = mesh.volume / volume_before - 1.0
+        if abs(change) > MAX_REBUILD_VOLUME_CHANGE:
+            raise MeshError(
+                "the mesh is not a manifold, and rebuilding it as one closed surface changed "
+                f"its volume by {change:+.0%} ({volume_before * 1e6:.1f} → "
+                f"{mesh.volume * 1e6:.1f} cm³; at most {MAX_REBUILD_VOLUME_CHANGE:.0%}): repair "
+                "it (e.g. in MeshLab) and export it again"
+            )
     if not mesh.is_volume or mesh.volume <= 0.0:
         raise MeshError("the mesh encloses no volume (a flat or inside-out surface)")
     size = float(mesh.extents.max())
@@ -153,7 +181,7 @@ def check_mesh(
             f"object on a table has: are its units really as declared? (try --units {hint}, "
             "or --allow-size if it really is that size)"
         )
-    repair = MeshRepair(holes_filled, united, volume_before, float(mesh.volume))
+    repair = MeshRepair(holes_filled, united, volume_before, float(mesh.volume), rebuilt)
     return mesh, repair
 
 
@@ -166,6 +194,45 @@ def _united(shells: list[trimesh.Trimesh]) -> trimesh.Trimesh:
             f"the mesh's {len(shells)} closed shells could not be united ({exc}): repair it "
             "(e.g. in MeshLab) and export it again"
         ) from exc
+
+
+def enclosed_volume(mesh: trimesh.Trimesh, cells: int = ENCLOSED_VOXELS) -> float:
+    """The volume [m³] a closed surface encloses, manifold or not: its voxels (``cells``
+    across its largest extent) inside it, those it passes through counted half."""
+    pitch = float(mesh.extents.max()) / cells
+    grid = mesh.voxelized(pitch)
+    surface = int(grid.matrix.sum())
+    return (int(grid.fill().matrix.sum()) - surface / 2) * pitch**3
+
+
+def _rebuilt(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, int]:
+    """A closed surface that is not a manifold, rebuilt as one: CoACD's manifold
+    pre-processing (a voxel remesh) decomposed into convex parts, which manifold3d unites →
+    (the mesh, its parts)."""
+    import coacd
+
+    coacd.set_log_level("error")
+    try:
+        parts = coacd.run_coacd(
+            coacd.Mesh(np.asarray(mesh.vertices), np.asarray(mesh.faces)),
+            threshold=COACD_THRESHOLD,
+            max_convex_hull=MAX_PARTS,
+            preprocess_mode="on",
+            seed=0,
+        )
+    except Exception as exc:  # CoACD raises RuntimeError and its own types
+        raise MeshError(
+            f"the mesh is not a manifold, and CoACD could not rebuild it ({exc}): repair it "
+            "(e.g. in MeshLab) and export it again"
+        ) from exc
+    hulls = [trimesh.convex.convex_hull(vertices) for vertices, _ in parts]
+    rebuilt = _united(hulls) if len(hulls) > 1 else hulls[0] if hulls else None
+    if rebuilt is None or not rebuilt.is_watertight:
+        raise MeshError(
+            "the mesh is not a manifold, and its rebuild is not one closed surface either: "
+            "repair it (e.g. in MeshLab) and export it again"
+        )
+    return rebuilt, len(hulls)
 
 
 def stand_on_table(mesh: trimesh.Trimesh) -> trimesh.Trimesh:

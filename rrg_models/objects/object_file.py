@@ -161,20 +161,45 @@ def _goal_region(t: _Table, part_index: dict[str, int]) -> GoalRegion:
         raise t.error("min_fingers", str(exc)) from exc
 
 
+def goal_grasp_wrt(
+    parts: tuple[Primitive, ...],
+    approach: str,
+    through_m,
+    angles_rad: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    spread_rad: float = 0.0,
+    preclose_rad: float = 0.0,
+    standoff_m: float = 0.0,
+    description: str = "",
+    name: str = "goal",
+):
+    """The goal grasp WRT a ``[goal_grasp]`` table states: the hand turned as ``approach``
+    by (yaw, pitch, roll) ``angles_rad``, along its approach through ``through_m`` [m]."""
+    rotation = APPROACHES[approach](*angles_rad)
+    return line_grasp_wrt(
+        parts,
+        rotation,
+        through_m,
+        spread=spread_rad,
+        preclose=preclose_rad,
+        standoff=standoff_m,
+        description=description,
+        name=name,
+    )
+
+
 def _goal_grasp(t: _Table, parts: tuple[Primitive, ...], name: str = "goal"):
     approach = t.text("approach")
     if approach not in APPROACHES:
         raise t.error("approach", f"unknown approach {approach!r}; valid: {', '.join(APPROACHES)}")
-    rotation = APPROACHES[approach](
-        t.number("yaw_rad", 0.0), t.number("pitch_rad", 0.0), t.number("roll_rad", 0.0)
-    )
-    return line_grasp_wrt(
+    angles = tuple(t.number(k, 0.0) for k in ("yaw_rad", "pitch_rad", "roll_rad"))
+    return goal_grasp_wrt(
         parts,
-        rotation,
+        approach,
         t.vector("through_m", 3),
-        spread=t.number("spread_rad", 0.0),
-        preclose=t.number("preclose_rad", 0.0),
-        standoff=t.number("standoff_m", 0.0),
+        angles,
+        spread_rad=t.number("spread_rad", 0.0),
+        preclose_rad=t.number("preclose_rad", 0.0),
+        standoff_m=t.number("standoff_m", 0.0),
         description=t.text("description", ""),
         name=name,
     )

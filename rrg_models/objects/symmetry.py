@@ -87,10 +87,15 @@ def rotational_symmetry(mesh: trimesh.Trimesh, seed: int = 0) -> Symmetry:
     tree = cKDTree(reference)
     baseline = tree.query(points)[0].max()
 
+    deviations: dict[float, float] = {}  # by turn [rad]: the same turn recurs across folds
+
     def deviation(turn: float) -> float:
-        c, s = np.cos(turn), np.sin(turn)
-        turned = points @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-        return max(0.0, float(tree.query(turned)[0].max() - baseline))
+        key = round(turn, 9)
+        if key not in deviations:
+            c, s = np.cos(turn), np.sin(turn)
+            turned = points @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+            deviations[key] = max(0.0, float(tree.query(turned)[0].max() - baseline))
+        return deviations[key]
 
     # each candidate's deviation at its turns (every multiple, so that 7-fold is not 6-fold)
     candidates = {0: max(deviation(t) for t in CONTINUOUS_TURNS)}

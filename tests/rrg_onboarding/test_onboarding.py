@@ -212,7 +212,10 @@ def test_a_mesh_is_onboarded_end_to_end_and_removed(user_dir, tmp_path, capsys):
     lower = trimesh.creation.box(extents=(0.05, 0.07, 0.06)).apply_translation((0, 0, 0.03))
     upper = trimesh.creation.box(extents=(0.05, 0.07, 0.06)).apply_translation((0, 0, 0.06))
     mesh = write(trimesh.util.concatenate([lower, upper]), tmp_path / "tin.stl")
-    report = add_object(AddOptions(mesh, "tin", mass_kg=0.2, settle_grasps=12), say=print)
+    with pytest.raises(OnboardError, match="--ranking-grasps must be at least 1, got 0"):
+        add_object(AddOptions(mesh, "tin", ranking_grasps=0))
+    options = AddOptions(mesh, "tin", mass_kg=0.2, settle_grasps=12, ranking_grasps=8)
+    report = add_object(options, say=print)
     out = capsys.readouterr().out
     assert "repaired: 2 closed shells united into one (volume 420.0 cm³ → 315.0 cm³)" in out
     assert report.repair.shells_united == 2
