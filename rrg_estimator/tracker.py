@@ -80,11 +80,14 @@ def wrt_posterior(
     return post
 
 
-def settle_after_grasp(belief: Belief, obj: ObjectModel, wrt: WRT, e, contact: bool) -> Belief:
+def settle_after_grasp(
+    belief: Belief, obj: ObjectModel, wrt: WRT, e, contact: bool, world: str = "nominal"
+) -> Belief:
     """The belief after retreating from ``wrt`` run at e: a goal grasp that arrived (no early
-    contact, so it closed firmly) moved the object as that goal grasp's measured settling
-    says; anything else leaves it (the bump of an early contact is part of the update)."""
-    settling = obj.tracked_settling(wrt.name) if wrt.kind == "goal" else None
+    contact, so it closed firmly) moved the object as that goal grasp's settling measured in
+    world profile ``world`` says (the planner's, PlanningModel); anything else leaves it (the
+    bump of an early contact is part of the update)."""
+    settling = obj.tracked_settling(wrt.name, world) if wrt.kind == "goal" else None
     if settling is None or contact:
         return belief
     return settle(belief, settling, e)
@@ -154,9 +157,12 @@ class BeliefTracker:
         variable_resolution: bool = True,
         calibration: PostureCalibration | None = None,
         likelihood: LikelihoodParams = LIKELIHOOD,
+        world: str = "nominal",
     ):
         self.obj = obj
         self.likelihood = likelihood
+        #: the world profile whose settling studies a goal grasp's retreat applies
+        self.world = world
         self.calibration = calibration or PostureCalibration.none()
         self.belief = belief
         self.tables = tables if tables is not None else CachedTables(obj)
@@ -222,4 +228,4 @@ class BeliefTracker:
         belief = self.belief
         if self.variable_resolution:
             belief = maybe_refine(belief, self.levels) or belief
-        return settle_after_grasp(belief, self.obj, *self.pending)
+        return settle_after_grasp(belief, self.obj, *self.pending, world=self.world)

@@ -327,6 +327,7 @@ def in_process_estimator(
         levels=model.levels.values(),
         variable_resolution=variable_resolution and "low" in model.levels,
         calibration=model.calibration,
+        world=model.world.name,
     )
 
 

@@ -191,6 +191,7 @@ class EstimatorNode(Node):
                 variable_resolution=self.get_parameter("variable_resolution").value,
                 calibration=PostureCalibration.for_object(obj, self.world_profile),
                 likelihood=self.likelihood,
+                world=self.world_profile.name,
             )
         except FileNotFoundError:
             return
@@ -364,6 +365,7 @@ class EstimatorNode(Node):
                     if same_object
                     else PostureCalibration.for_object(obj, self.world_profile),
                     likelihood=self.likelihood,
+                    world=self.world_profile.name,
                 )
             except KeyError as exc:
                 resp.error_code, resp.error_msg = (

@@ -75,6 +75,25 @@ def test_a_firm_goal_grasp_moves_the_belief_and_an_early_contact_does_not():
     assert settle_after_grasp(b, obj, obj.info_wrts[0], e, contact=False) is b
 
 
+def test_the_estimator_settles_as_measured_in_the_planners_world():
+    """In the realistic world a goal grasp's retreat moves the belief as the realistic study
+    says, as the planner's goal model expects; the nominal world keeps its own study."""
+    from rrg_estimator.tracker import BeliefTracker
+    from rrg_estimator.transition import settle
+
+    obj = get_object("powerdrill")
+    e = np.array([0.62, 0.0, 0.0])
+    b = Belief.gaussian(Grid.for_level(LOW, center=e), e, (0.003, 0.003, 0.02))
+    real = settle_after_grasp(b, obj, obj.goal_wrt, e, contact=False, world="realistic")
+    expected = settle(b, obj.settling_in("realistic"), e)
+    np.testing.assert_allclose(real.weights, expected.weights, atol=1e-12)
+    nominal = settle_after_grasp(b, obj, obj.goal_wrt, e, contact=False)
+    assert not np.allclose(real.weights, nominal.weights, atol=1e-6)
+    tracker = BeliefTracker(obj, b, world="realistic", variable_resolution=False)
+    tracker.pending = (obj.goal_wrt, e, False)
+    np.testing.assert_allclose(tracker.retreated().weights, expected.weights, atol=1e-12)
+
+
 def test_the_estimator_settles_a_firm_goal_grasp_when_the_hand_retreats():
     """BeliefTracker: the belief that follows a goal grasp is the one that judged it; the
     settling is applied when the hand retreats, or, when no retreat was reported, before the
