@@ -48,8 +48,14 @@ log = logging.getLogger(__name__)
 
 
 class ExecutionLost(RuntimeError):
-    """The execution was lost with a node that died; the hand is back home, and the belief
-    holds whatever of it the estimator saw. The agent chooses again on the current belief."""
+    """The execution was lost (with a node that died, or stopped by the safety layer on a
+    transient fault); the hand is back home, and the belief holds whatever of it the estimator
+    saw. The agent chooses again on the current belief, up to MAX_LOST times in a run."""
+
+
+#: Lost executions after which a run ends with an error (chosen: a stall that recurs three
+#: times in one grasp is no passing hiccup).
+MAX_LOST = 3
 
 
 class World(Protocol):
@@ -208,6 +214,7 @@ class ClosedLoop:
         self.blocked: list[tuple[int, np.ndarray]] = []
         self.planning_time = 0.0  # s
         self.p_goal = float("nan")
+        self.lost = 0  # executions lost (ExecutionLost) in this run
 
     def run(self, resume: bool = False) -> GraspRun:
         """Step until the agent stops (a goal grasp believed to hold, or the last action).
@@ -255,6 +262,9 @@ class ClosedLoop:
             log.warning("%s at %s lost (%s): replanning", decision.wrt, np.round(e, 3), exc)
             if self.on_lost:
                 self.on_lost(decision, str(exc))
+            self.lost += 1
+            if self.lost >= MAX_LOST:
+                return self._end(False, belief, f"{self.lost} executions lost: {exc}"), belief
             return None, self.estimator.belief
         agent.executed(decision.action, e)
         posterior = self.estimator.update(decision.wrt, e, obs)

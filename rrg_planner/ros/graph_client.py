@@ -229,6 +229,8 @@ class GraphClient:
             raise InfeasibleWRT(result.error_msg)
         if result.error_code == ExecuteWrt.Result.ROBOT_FAULT:
             raise GraphError(RG.ROBOT_FAULT, f"execute_wrt {wrt.name}: {result.error_msg}")
+        if result.error_code == ExecuteWrt.Result.SAFETY_STOP:  # the executor brought it home
+            raise ExecutionLost(f"execute_wrt {wrt.name}: {result.error_msg}")
         if result.error_code != ExecuteWrt.Result.NONE:
             raise GraphError(
                 RG.EXECUTION_FAILED, f"execute_wrt {wrt.name} failed: {result.error_msg}"

@@ -13,7 +13,7 @@ from rrg_models.config import WORLD
 from rrg_msgs.action import RobustGrasp
 from rrg_planner import request_checks
 from rrg_planner.agent import RobustGraspAgent
-from rrg_planner.closed_loop import ClosedLoop, Decision
+from rrg_planner.closed_loop import MAX_LOST, ClosedLoop, Decision
 from rrg_planner.grasp_state import GraspState, load_grasp_state, save_grasp_state
 from rrg_planner.request_checks import InvalidRequest
 from rrg_planner.ros.grasp_records import (
@@ -122,7 +122,8 @@ class GraspRun:
         finally:
             self.save(active=False)
         if run.error:
-            raise RequestError(RG.PLANNING_FAILED, run.error)
+            lost = self.loop.lost >= MAX_LOST  # the executions, not the planning, failed
+            raise RequestError(RG.EXECUTION_FAILED if lost else RG.PLANNING_FAILED, run.error)
         result.final_p_goal, result.success = run.p_goal, run.declared
 
     def save(self, active: bool = True) -> None:

@@ -46,7 +46,12 @@ from rrg_msgs.msg import Retreated
 from rrg_msgs.srv import Retreat
 from rrg_sim.config import WORLD_PROFILES, world_profile
 from rrg_sim.executor.robot_client import RosRobot
-from rrg_sim.executor.robot_errors import MotionCanceled, MotionFailed, RobotFault
+from rrg_sim.executor.robot_errors import (
+    ExecutionStopped,
+    MotionCanceled,
+    MotionFailed,
+    RobotFault,
+)
 from rrg_sim.executor.wrt_executor import WrtExecutor
 
 NODE_NAME = "executor"
@@ -229,6 +234,8 @@ class ExecutorNode(Node):
             result.error_code, result.error_msg = R.CANCELED, str(exc)
         except RobotFault as exc:
             result.error_code, result.error_msg = R.ROBOT_FAULT, str(exc)
+        except ExecutionStopped as exc:
+            result.error_code, result.error_msg = R.SAFETY_STOP, str(exc)
         except MotionFailed as exc:
             result.error_code, result.error_msg = R.MOTION_FAILED, str(exc)
         except Exception as exc:

@@ -40,6 +40,7 @@ from rrg_sim.executor.robot_errors import (
     MotionCanceled,
     MotionFailed,
     RobotFault,
+    StaleDataStop,
 )
 
 #: An opening of the hand that the safety layer stopped midway is sent again, at most
@@ -176,6 +177,8 @@ class RosRobot:
             )
         elif res.error_code == R.FORCE_LIMIT:
             raise ForceCeilingStop(f"guarded_move failed ({res.error_code}): {res.error_msg}")
+        elif res.error_code == R.STALE_DATA:
+            raise StaleDataStop(f"guarded_move failed ({res.error_code}): {res.error_msg}")
         elif res.error_code != R.NONE:
             raise MotionFailed(f"guarded_move failed ({res.error_code}): {res.error_msg}")
         self._sensed(res.final_joint_state, res.sensors, res.tip_contacts)

@@ -21,5 +21,16 @@ class ForceCeilingStop(MotionFailed):
     the arm where it stopped (GuardedMove FORCE_LIMIT): nothing is latched, the next move runs."""
 
 
+class StaleDataStop(MotionFailed):
+    """The bridge's safety layer stopped an arm move because a data stream (joint states, a
+    fingertip, the pads) went stale (GuardedMove STALE_DATA): nothing is latched, and the next
+    move runs once the data is fresh again."""
+
+
+class ExecutionStopped(MotionFailed):
+    """A WRT's execution was stopped by a transient safety stop (StaleDataStop) and the hand
+    brought home: nothing was observed, and the WRT may run again."""
+
+
 class RobotFault(MotionFailed):
     """The arm/hand interface went away (its process died): nothing moves until it is back."""

@@ -16,6 +16,7 @@ directly, the executor node with action and service clients of the sim (or hardw
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Protocol
@@ -40,7 +41,7 @@ from rrg_models.trajectory import (
     solve_path,
 )
 from rrg_models.wrt import WRT
-from rrg_sim.executor.robot_errors import ForceCeilingStop
+from rrg_sim.executor.robot_errors import ExecutionStopped, ForceCeilingStop, StaleDataStop
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +74,10 @@ TOUCH_SPEED = 0.02
 #: something else, and corrects nothing (chosen: 3 σ of the vertical error at a touch, 6-7 mm
 #: at 10 mrad with the table's 2.3 mm).
 TOUCH_VALID = 0.02
+#: Tries at bringing the hand home after a stale-data stop, and the pause [s] before each
+#: (chosen: the bridge's watchdog allows 150 ms of silence; a stream that stalls for a loaded
+#: host's moment is fresh again within a few of its cycles).
+WITHDRAW_TRIES, WITHDRAW_PAUSE_S = 3, 0.5
 
 
 class Robot(Protocol):
@@ -289,7 +294,37 @@ class WrtExecutor:
         the table height it read (``touch_table``). Raises physics.trajectory's InfeasiblePath
         when no continuous IK path follows τ(e) (for a reorientation: or its lift, turn and
         put-down from τ(e)'s end); the robot has not moved then, or only to touch the table
-        and back home."""
+        and back home. A move the safety layer stops for stale data ends it: the hand is
+        brought home (withdrawn, then home in joint space) and ExecutionStopped raised."""
+        try:
+            return self._execute(wrt, e, progress, touch)
+        except StaleDataStop as exc:
+            self.last = None
+            log.warning(
+                "%s stopped by the safety layer (%s): bringing the hand home; nothing was observed",
+                wrt.name,
+                exc,
+            )
+            self._withdraw_home_when_fresh()
+            raise ExecutionStopped(f"{wrt.name} stopped by the safety layer: {exc}") from exc
+
+    def _withdraw_home_when_fresh(self) -> None:
+        """_withdraw_home, tried WITHDRAW_TRIES times while the data is still stale."""
+        for attempt in range(1, WITHDRAW_TRIES + 1):
+            if np.abs(self.robot.arm_q() - wam.HOME_Q).max() <= RETREAT_TOLERANCE:
+                return  # stopped on its way out of home: it is home
+            time.sleep(WITHDRAW_PAUSE_S)
+            try:
+                self._withdraw_home()
+                return
+            except StaleDataStop:
+                if attempt == WITHDRAW_TRIES:
+                    raise
+
+    def _execute(
+        self, wrt: WRT, e, progress: Callable[[str, float], None] | None, touch: WRT | None
+    ) -> Observation:
+        """execute, but a stale-data stop is the caller's."""
         report = progress or (lambda phase, fraction: None)
         if self.last is not None:
             self.retreat(report)

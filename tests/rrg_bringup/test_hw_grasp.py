@@ -1,12 +1,14 @@
 """End to end through the hardware bridge: ``rrg-launch --mode hw --fake-hw`` runs a robust
 grasp of the drill on the emulated drivers, the MuJoCo judge scores it, and its bag opens in
-both readers. A module of its own, so no other graph shares the machine while it runs."""
+both readers; a pad dropout in the middle of a guarded move is withdrawn from and the grasp
+goes on. A module of its own, so no other graph shares the machine while it runs."""
 
 from __future__ import annotations
 
 import json
 import signal
 import subprocess
+import time
 
 import pytest
 from ros_testing import ROOT, exclusive_domain_id, network_namespace, ros_env
@@ -98,3 +100,59 @@ def test_a_robust_grasp_runs_end_to_end_through_the_bridge(tmp_path):
     assert "discovery range SUBNET" in stdout
     texts["stdout+stderr"] = stdout + stderr
     assert not [name for name, text in texts.items() if "Traceback" in text]
+
+
+#: How long the dropout test silences the hand driver's pads [s] (the bridge's watchdog
+#: allows 150 ms).
+DROPOUT_S = 0.5
+
+
+def test_a_pad_dropout_stops_a_guarded_move_and_the_grasp_goes_on(tmp_path, ros_domain):
+    """The hand driver's pads go silent for DROPOUT_S while the first WRT's guarded move runs:
+    the bridge stops the move (STALE_DATA), the executor brings the hand home and answers
+    SAFETY_STOP, the planner chooses again on the same belief, and the grasp ends without an
+    error (before, it ended with error 509)."""
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+    from ros_testing import ArmWatch, Launcher, RosClient
+
+    params = tmp_path / "bridge.yaml"
+    params.write_text(HW_PARAMS)
+    watcher = RosClient(ros_env(ros_domain), "dropout_watcher")
+    arm = ArmWatch(watcher)
+    faults = watcher.node.create_client(SetParameters, "/fake_hw/set_parameters")
+
+    def silent(on: bool) -> None:
+        fault = Parameter("fault.silent_tactile", value=on).to_parameter_msg()
+        answer = watcher.call(faults, SetParameters.Request(parameters=[fault]))
+        assert answer.results[0].successful, answer.results[0].reason
+
+    launcher = Launcher(
+        tmp_path,
+        "dropout",
+        ros_domain,
+        *("--mode", "hw", "--fake-hw", "--grasp", "powerdrill", "--level", "high"),
+        *("--seed", "0", "--json", "--hw-params", str(params)),
+    )
+    try:
+        launcher.read_until("step 1:")
+        arm.states.clear()
+        assert watcher.spin_until(arm.left_home, 120.0), "the arm did not move"
+        silent(True)
+        time.sleep(DROPOUT_S)
+        silent(False)
+        text = launcher.finish()
+    except BaseException:
+        launcher.proc.kill()
+        raise
+    finally:
+        watcher.close()
+    assert launcher.proc.returncode == 0, text[-3000:]
+    outcome = json.loads(text.strip().splitlines()[-1])
+    assert outcome["error"] == "", outcome["error"]
+    assert outcome["actions"] and outcome["actions"][-1] == "goal", outcome
+    planner = (launcher.log_dir / "planner.log").read_text()
+    assert "stopped by the safety layer" in planner and "replanning" in planner
+    assert "no fresh data" in (launcher.log_dir / "hw_bridge.log").read_text()
+    texts = [p.read_text() for p in launcher.log_dir.glob("*.log")]
+    assert not [t for t in texts if "Traceback" in t]

@@ -1,6 +1,6 @@
-"""The agent's loop rules: the last action is the goal grasp, open-loop runs it once, and an
+"""The agent's loop rules: the last action is the goal grasp, open-loop runs it once, an
 execution found infeasible (nothing moved) rules that action out at that estimate without
-counting as an action."""
+counting as an action, and a lost execution is chosen again, three ending the run."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from rrg_models.config import WORLD
 from rrg_models.poses import compose_planar, relative_planar
 from rrg_models.wrt import WRT, InfeasibleWRT
 from rrg_planner.agent import RobustGraspAgent
-from rrg_planner.closed_loop import run_in_process
+from rrg_planner.closed_loop import ExecutionLost, run_in_process
 from rrg_planner.config import SEARCH
 from rrg_planner.geometric_env import GeometricEnvironment
 from rrg_planner.planning_model import PlanningModel
@@ -63,6 +63,39 @@ def test_infeasible_execution_is_blocked_and_not_counted(model):
     )
     assert np.allclose(first.estimate, e0) or np.allclose(relative_planar(first.estimate, e0), aim)
     assert res.n_actions == 3 and res.steps[-1].kind == "goal"
+
+
+class LosesExecutions(GeometricEnvironment):
+    """Its first ``losses`` executions are lost (ExecutionLost: the safety layer stopped them
+    and the hand is home), the rest run."""
+
+    def __init__(self, *args, losses: int, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.losses, self.lost = losses, []
+
+    def execute(self, wrt: WRT, e: np.ndarray):
+        if len(self.lost) < self.losses:
+            self.lost.append(wrt.name)
+            raise ExecutionLost(f"{wrt.name} stopped by the safety layer (test)")
+        return super().execute(wrt, e)
+
+
+def test_a_lost_execution_is_planned_again_and_three_end_the_run(model):
+    """A lost execution (a stale-data stop; the hand is home, nothing observed) is not an
+    action: the agent chooses again on the same belief. MAX_LOST of them end the run."""
+    from rrg_planner.closed_loop import MAX_LOST
+
+    agent = RobustGraspAgent(model, strategy="rrg-info", horizon=1, delta=0.01, max_actions=3)
+    env = LosesExecutions(model.obj, true_pose(), seed=1, losses=1)
+    res = run_in_process(agent, env, SMALL, WORLD.nominal_pose)
+    assert len(env.lost) == 1 and not res.error
+    assert res.steps[0].wrt == env.lost[0]  # the same choice on the same belief, run again
+    assert res.n_actions == 3 and res.steps[-1].kind == "goal"
+    agent = RobustGraspAgent(model, strategy="rrg-info", horizon=1, delta=0.01, max_actions=3)
+    env = LosesExecutions(model.obj, true_pose(), seed=1, losses=MAX_LOST)
+    res = run_in_process(agent, env, SMALL, WORLD.nominal_pose)
+    assert len(env.lost) == MAX_LOST and res.n_actions == 0
+    assert res.error.startswith(f"{MAX_LOST} executions lost") and not res.declared
 
 
 def test_an_info_reading_is_spent_at_its_estimate(model):

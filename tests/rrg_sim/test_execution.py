@@ -377,6 +377,38 @@ def test_a_retreat_stopped_at_the_force_ceiling_withdraws_and_goes_home():
     assert world.executor.last is None
 
 
+def test_a_wrt_stopped_for_stale_data_brings_the_hand_home_and_says_so(monkeypatch):
+    """The bridge stops a guarded move whose data went stale (GuardedMove STALE_DATA: in one
+    CI run the emulated pads were 150 ms late on a loaded host, and the whole robust grasp
+    ended with error 509). The execution now withdraws the hand and goes home, tried again
+    while the data is still stale, and raises ExecutionStopped: nothing was observed, and the
+    same WRT runs again afterwards."""
+    from rrg_sim.executor import wrt_executor
+    from rrg_sim.executor.robot_errors import ExecutionStopped, StaleDataStop
+
+    monkeypatch.setattr(wrt_executor, "WITHDRAW_PAUSE_S", 0.0)
+    world = PhysicsWorld("box", sensor_noise=0.0)
+    e = world.true_object_pose()
+    follow, stops = world.follow, []
+
+    def stale(q, t, guard):
+        if len(stops) < 2:  # the approach, then the first try at withdrawing
+            stops.append(guard)
+            follow(q[: len(q) // 2], t[: len(t) // 2], guard)
+            raise StaleDataStop("guarded_move failed (109): no fresh data from pads within 150 ms")
+        return follow(q, t, guard)
+
+    world.follow = stale
+    with pytest.raises(ExecutionStopped, match="box|goal"):
+        world.execute_wrt(world.obj.goal_wrt, e)
+    assert stops == [True, False]  # the approach, then a withdrawal that was stopped too
+    np.testing.assert_allclose(world.arm_q(), wam.HOME_Q, atol=0.05)  # servo lag [rad]
+    np.testing.assert_allclose(world.hand_angles()[1], 0.0, atol=0.02)  # open [rad]
+    assert world.executor.last is None
+    obs = world.execute_wrt(world.obj.goal_wrt, e)
+    assert obs.sensors.any()
+
+
 def test_a_retreat_stopped_by_anything_else_fails():
     """Only the ceiling's hold is worked around: any other failure of the retrace is the
     caller's (the executor node answers it as MOTION_FAILED or ROBOT_FAULT)."""
