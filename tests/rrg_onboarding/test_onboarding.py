@@ -150,7 +150,7 @@ def test_the_goal_grasp_is_of_those_near_the_most_held_the_one_reached_at_most_h
 ):
     """The bracket's pinches are reached at all 9 of the prior's headings, its envelopes at
     4: a pinch within one ranking grasp of the best-held envelope is chosen, one further
-    below is not."""
+    below is not; when the best held in less than half its grasps, a goal grasp is asked for."""
     from generated_meshes import l_bracket
 
     from rrg_models.objects.symmetry import Symmetry
@@ -175,6 +175,9 @@ def test_the_goal_grasp_is_of_those_near_the_most_held_the_one_reached_at_most_h
 
     assert chosen(1.0 - 1 / onboard.RANKING_GRASPS).through_m == goals[pinch].through_m
     assert chosen(1.0 - 2 / onboard.RANKING_GRASPS).through_m == goals[side].through_m
+    monkeypatch.setattr(onboard, "_rank", lambda *args: [0.4] * len(goals))
+    with pytest.raises(OnboardError, match=r"in 50% of its 30 grasps \(the best: 40%\)"):
+        onboard._goal_set(parts, Symmetry(1, 0.05), (None, None, opts, *[None] * 4), print)
 
 
 def test_the_paper_column_is_empty_for_an_object_not_in_the_paper():
