@@ -36,6 +36,7 @@ from rrg_models.objects.object_model import REORIENTATION_FILE, SETTLING_FILE
 from .onboard import (
     DEFAULT_FRICTION,
     DEFAULT_TOL,
+    FUNNEL_SCALES,
     RANKING_GRASPS,
     SETTLE_GRASPS,
     AddOptions,
@@ -108,7 +109,7 @@ def cmd_add(args: argparse.Namespace) -> int:
             roll_rad=args.goal_roll,
             standoff_m=args.goal_standoff,
             spread_rad=args.goal_spread,
-            tol=tuple(args.goal_tol),
+            tol=DEFAULT_TOL if args.goal_tol is None else tuple(args.goal_tol),
         )
     options = AddOptions(
         args.mesh,
@@ -118,7 +119,7 @@ def cmd_add(args: argparse.Namespace) -> int:
         mass_kg=args.mass,
         friction=args.friction,
         goal=goal,
-        goal_tol=tuple(args.goal_tol),
+        goal_tol=None if args.goal_tol is None else tuple(args.goal_tol),
         allow_size=args.allow_size,
         settle_grasps=args.settle_grasps,
         ranking_grasps=args.ranking_grasps,
@@ -206,10 +207,9 @@ def _add_parser(sub) -> None:
         "--goal-tol",
         type=float,
         nargs=3,
-        default=DEFAULT_TOL,
         metavar=("DX", "DY", "DTHETA"),
-        help=f"goal region [m, m, rad] (default: {DEFAULT_TOL[0]}, {DEFAULT_TOL[1]}, "
-        f"{DEFAULT_TOL[2]:.3f}; inf ignores θ)",
+        help=f"goal region [m, m, rad] (default: x, y measured from {DEFAULT_TOL[0]} m up to "
+        f"{FUNNEL_SCALES[-1]:g} times it, θ {DEFAULT_TOL[2]:.3f}; inf ignores θ)",
     )
     add.add_argument(
         "--settle-grasps", type=int, default=SETTLE_GRASPS, help="settling study grasps"

@@ -42,6 +42,7 @@ from scipy.spatial.transform import Rotation
 from rrg_common.parallel import fork_map
 from rrg_models import wam
 from rrg_models.config import WORLD
+from rrg_models.goal import GoalRegion, Settling
 from rrg_models.objects import (
     ObjectFileError,
     Primitive,
@@ -89,6 +90,18 @@ DEFAULT_FRICTION = 0.5
 #: Goal region of a proposed goal grasp: |dx|, |dy| [m], |dθ| [rad] (chosen: the paper
 #: objects' most common region, 1 cm and 10°).
 DEFAULT_TOL = (0.01, 0.01, float(np.radians(10.0)))
+#: A proposed goal region's x, y tolerances, unless given (--goal-tol), are measured: the widest
+#: of these multiples of DEFAULT_TOL's about the grasp's intercept within which at least
+#: FUNNEL_MIN_HELD of the grasps that closed there held (the paper's regions were "hand-chosen
+#: to guarantee that being within the goal region ensures a stable grasp", its can's 2.5 ×
+#: 1.5 cm). The grasps are a settling study's, FUNNEL_GRASPS_FACTOR × --settle-grasps of them
+#: across twice the widest region; a multiple counts once at least FUNNEL_MIN_SAMPLES closed
+#: in it (chosen: a failure in 20 grasps is allowed; θ keeps its tolerance, the study's θ box
+#: being SETTLING_THETA_BOX).
+FUNNEL_SCALES = (1.0, 1.5, 2.0, 2.5)
+FUNNEL_MIN_HELD = 0.95
+FUNNEL_MIN_SAMPLES = 10
+FUNNEL_GRASPS_FACTOR = 2
 #: Goal grasps of the settling study, and runs per WRT of the reorientation study (the paper
 #: objects' studies used 300 and 40; chosen smaller to keep onboarding within minutes).
 SETTLE_GRASPS = 60
@@ -200,8 +213,9 @@ class AddOptions:
     mass_kg: float | None = None
     friction: float = DEFAULT_FRICTION
     goal: GoalSpec | None = None
-    #: the goal region of a proposed goal grasp (a given GoalSpec has its own)
-    goal_tol: tuple[float, float, float] = DEFAULT_TOL
+    #: the goal region of a proposed goal grasp (a given GoalSpec has its own); None: its
+    #: x, y tolerances are measured (FUNNEL_SCALES), for a given GoalSpec's too
+    goal_tol: tuple[float, float, float] | None = None
     allow_size: bool = False
     settle_grasps: int = SETTLE_GRASPS
     ranking_grasps: int = RANKING_GRASPS
@@ -430,6 +444,7 @@ def object_file_text(
             f"name = {_toml(more.name)}",
             *_grasp_lines(more),
             f"centre = {_toml(more.centre)}  # where the grasp leaves it: Δx, Δy [m], Δθ [rad]",
+            *([f"tol = {_toml(more.tol)}  # its own region"] if more.tol != goal.tol else []),
         ]
     if reorientation:
         lines += ["", "[reorientation]  # no goal grasp can run at every heading"]
@@ -564,9 +579,11 @@ def _goal_set(
     regions as the object's symmetry allows: the one that held the object most often in
     physics from starts across its funnel, of those within one ranking grasp of it the one
     the WAM reaches at the most of the prior's headings (_reach), named "goal", and the
-    others of its set (_set_members); OnboardError when none held it."""
+    others of its set (_set_members); OnboardError when the best held in less than
+    MIN_BEST_HELD of its ranking grasps."""
     opts = rank_args[2]
-    candidates = [g.with_symmetry(symmetry) for g in goal_candidates(parts, opts.goal_tol)]
+    tol = DEFAULT_TOL if opts.goal_tol is None else opts.goal_tol
+    candidates = [g.with_symmetry(symmetry) for g in goal_candidates(parts, tol)]
     scores = _rank(*rank_args, candidates)
     headings = _prior_headings(symmetry)
     reach = [_reach(g, parts, headings) for g in candidates]
@@ -607,11 +624,16 @@ def _prior_headings(symmetry: Symmetry) -> np.ndarray:
     return HEADINGS[np.abs(HEADINGS) <= symmetry.theta_period_rad / 2 + 1e-9]
 
 
+def _reached(wrt, headings: np.ndarray) -> np.ndarray:
+    """(len(headings),) bool: whether the WAM reaches ``wrt`` with the object at the nominal
+    pose turned by each of ``headings`` [rad]."""
+    nominal = np.asarray(WORLD.nominal_pose)
+    return np.array([bool(wam.feasible_path(wrt.with_home(nominal + (0, 0, t)))) for t in headings])
+
+
 def _reach(spec: GoalSpec, parts, headings: np.ndarray) -> int:
     """At how many of ``headings`` [rad] about the nominal the WAM reaches ``spec``."""
-    wrt = _spec_wrt(spec, parts)
-    nominal = np.asarray(WORLD.nominal_pose)
-    return sum(bool(wam.feasible_path(wrt.with_home(nominal + (0, 0, t)))) for t in headings)
+    return int(_reached(_spec_wrt(spec, parts), headings).sum())
 
 
 def _set_members(
@@ -684,11 +706,7 @@ def _needs_reorientation(obj, symmetry: Symmetry, choose: Callable[[str], None])
         )
         return False
     headings = _prior_headings(symmetry)
-    nominal = np.asarray(WORLD.nominal_pose)
-    reached = [
-        any(wam.feasible_path(g.wrt.with_home(nominal + (0, 0, t))) for g in obj.goal_grasps)
-        for t in headings
-    ]
+    reached = np.any([_reached(g.wrt, headings) for g in obj.goal_grasps], axis=0)
     grasp = "the goal grasp" if len(obj.goal_grasps) == 1 else "one of the goal grasps"
     if all(reached):
         choose(
@@ -732,6 +750,63 @@ def _rank(staging, folder, opts, mesh, part_files, mass, source, candidates) -> 
     finally:
         for name in names:
             shutil.rmtree(staging / name, ignore_errors=True)
+
+
+def funnel_scale(region: GoalRegion, settling: Settling) -> float:
+    """The largest of FUNNEL_SCALES by which ``region``'s x, y tolerances (about the study's
+    intercept) may grow while at least FUNNEL_MIN_HELD of the study's grasps that closed in it
+    held (scanned outwards, stopping at the first that falls short; a multiple with fewer
+    than FUNNEL_MIN_SAMPLES grasps in it is passed over); 1 when none qualifies."""
+    b = settling.closed.b
+    centre = (float(b[0]), float(b[1]), 0.0 if region.ignores_theta else float(b[2]))
+    closed, held = settling.samples["closed"], settling.held
+    best = FUNNEL_SCALES[0]
+    for scale in FUNNEL_SCALES:
+        tol = (region.tol[0] * scale, region.tol[1] * scale, region.tol[2])
+        inside = replace(region, tol=tol, centre=centre).contains(closed)
+        if not inside.any():
+            continue
+        if held[inside].mean() < FUNNEL_MIN_HELD:
+            break
+        if inside.sum() >= FUNNEL_MIN_SAMPLES:
+            best = scale
+    return best
+
+
+def _scaled(goal: GoalSpec, scale: float) -> GoalSpec:
+    """``goal`` with its region's x, y tolerances ``scale`` × DEFAULT_TOL's."""
+    return replace(goal, tol=(DEFAULT_TOL[0] * scale, DEFAULT_TOL[1] * scale, goal.tol[2]))
+
+
+def _measured_region(
+    opts: AddOptions,
+    goals: tuple[GoalSpec, ...],
+    rewrite: Callable[[tuple[GoalSpec, ...]], None],
+    choose: Callable[[str], None],
+) -> tuple[GoalSpec, ...]:
+    """``goals`` with each goal region's x, y tolerances measured (FUNNEL_SCALES) in its
+    grasp's settling study across twice the widest region."""
+    from rrg_models.objects import get_object
+    from rrg_sim.physics import settle
+
+    rewrite(tuple(_scaled(g, FUNNEL_SCALES[-1]) for g in goals))
+    grasps = FUNNEL_GRASPS_FACTOR * opts.settle_grasps
+    measured = []
+    for goal in goals:
+        settle.study([opts.name], grasps, opts.seed, opts.workers, goal=goal.name)
+        obj = get_object(opts.name)
+        region = replace(obj.goal_region(goal.name), tol=_scaled(goal, 1.0).tol)
+        scale = funnel_scale(region, obj.settling_for(goal.name))
+        measured.append(_scaled(goal, scale))
+        choose(
+            f"{goal.name} region ±{DEFAULT_TOL[0] * scale * 100:.1f} cm in x and y: the widest "
+            f"of {', '.join(f'{s:g}' for s in FUNNEL_SCALES)} × {DEFAULT_TOL[0] * 100:g} cm in "
+            f"which {FUNNEL_MIN_HELD:.0%} of its {grasps} study grasps that closed there held "
+            "(--goal-tol sets it)"
+        )
+    goals = tuple(measured)
+    rewrite(goals)
+    return goals
 
 
 def place(folder: Path, files: list[str], yaw: float) -> None:
@@ -783,6 +858,8 @@ def _measure_and_build(
     from rrg_sim.physics.render import render_goal_grasps
 
     with stage("settling study"):
+        if opts.goal_tol is None:
+            goals = _measured_region(opts, goals, lambda g: rewrite(g, reorient), choose)
         centred = []
         for goal in goals:
             settle.study([opts.name], opts.settle_grasps, opts.seed, opts.workers, goal=goal.name)

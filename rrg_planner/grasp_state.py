@@ -20,13 +20,14 @@ from rrg_common.state_file import check_format, read_state, write_atomically
 from rrg_planner.closed_loop import ClosedLoop, Step
 
 #: Bumped when the stored fields change; a state of another format is refused.
-STATE_FORMAT = 1
+STATE_FORMAT = 2
 
 
 @dataclass
 class GraspState:
     """A robust grasp's progress: its request (the RobustGrasp goal's fields), the steps taken,
-    the (action, estimate) pairs found infeasible, and whether it is still running."""
+    the (action, estimate) pairs found infeasible, whether it is still running, and how many
+    executions it lost (ClosedLoop.lost)."""
 
     request: dict
     steps: list[Step] = field(default_factory=list)
@@ -34,16 +35,19 @@ class GraspState:
     planning_time: float = 0.0  # s
     p_goal: float = float("nan")
     active: bool = True
+    lost: int = 0
 
     @classmethod
     def of(cls, request: dict, loop: ClosedLoop, active: bool = True) -> GraspState:
         """The state of a running (or ended) loop."""
         blocked = [(int(a), [float(v) for v in e]) for a, e in loop.blocked]
-        return cls(request, list(loop.steps), blocked, loop.planning_time, loop.p_goal, active)
+        return cls(
+            request, list(loop.steps), blocked, loop.planning_time, loop.p_goal, active, loop.lost
+        )
 
     def restore(self, loop: ClosedLoop) -> None:
-        """Put a fresh loop where this state left off: its steps, planning time and P(goal),
-        and its agent's spent and blocked (action, estimate) pairs."""
+        """Put a fresh loop where this state left off: its steps, planning time, P(goal) and
+        lost executions, and its agent's spent and blocked (action, estimate) pairs."""
         agent = loop.agent
         agent.search.clear()
         for step in self.steps:
@@ -53,7 +57,7 @@ class GraspState:
             agent.search.block(action, np.asarray(e, dtype=float))
         loop.steps = list(self.steps)
         loop.blocked = [(a, np.asarray(e, dtype=float)) for a, e in self.blocked]
-        loop.planning_time, loop.p_goal = self.planning_time, self.p_goal
+        loop.planning_time, loop.p_goal, loop.lost = self.planning_time, self.p_goal, self.lost
 
 
 def save_grasp_state(path: Path | str, state: GraspState) -> None:
@@ -88,4 +92,5 @@ def _parse_grasp_state(path: Path) -> GraspState:
         float(data["planning_time"]),
         float(data["p_goal"]),
         bool(data["active"]),
+        int(data["lost"]),
     )

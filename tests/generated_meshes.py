@@ -3,6 +3,7 @@ onboarding benchmark (docs/objects.md, "Measured"). The pitcher, the flared bowl
 spatula are their raw parts, overlapping and not united, as CAD assemblies export them.
 
     python tests/generated_meshes.py OUT_DIR   # writes <name>.stl; prints "name path mass_kg"
+    python tests/generated_meshes.py OUT_DIR --dense   # only pitcher_50k.stl (dense_pitcher)
 
 Sizes (m) are those of common household items (chosen, not measured from one item).
 """
@@ -68,6 +69,12 @@ def pitcher(sections: int = 64) -> trimesh.Trimesh:
     return trimesh.util.concatenate([shell, *bars])
 
 
+def dense_pitcher() -> trimesh.Trimesh:
+    """The pitcher's raw, overlapping parts at 51,344 triangles (1,600 sections, each
+    triangle then split in four): the onboarding timing's 50k-triangle mesh."""
+    return pitcher(1600).subdivide()
+
+
 def flared_bowl(sections: int = 64) -> trimesh.Trimesh:
     """A bowl 14 cm across and 6 cm tall with a 3 mm wall and a 4 mm floor, and a thin rim
     flaring out to 17 cm: its raw parts, the rim a ring that overlaps the wall's top."""
@@ -116,5 +123,10 @@ def write_all(out_dir: Path) -> dict[str, Path]:
 
 
 if __name__ == "__main__":
-    for name, path in write_all(Path(sys.argv[1])).items():
-        print(name, path, GENERATED[name][1])
+    if sys.argv[2:] == ["--dense"]:
+        Path(sys.argv[1]).mkdir(parents=True, exist_ok=True)
+        dense_pitcher().export(Path(sys.argv[1]) / "pitcher_50k.stl")
+        print("pitcher_50k", Path(sys.argv[1]) / "pitcher_50k.stl", GENERATED["pitcher"][1])
+    else:
+        for name, path in write_all(Path(sys.argv[1])).items():
+            print(name, path, GENERATED[name][1])

@@ -12,7 +12,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -263,6 +263,23 @@ class Launcher:
         """Its whole output once it has exited."""
         rest, _ = self.proc.communicate(timeout=300)
         return "".join(self.lines) + rest
+
+    def disturb_while_moving(
+        self, step: int, watcher: RosClient, disturb: Callable[[], None]
+    ) -> str:
+        """Once step ``step`` is under way and the arm has left home (as ``watcher`` sees its
+        joint states), call ``disturb()``; then its whole output once it has exited. The
+        process is killed if anything fails on the way."""
+        arm = ArmWatch(watcher)
+        try:
+            self.read_until(f"step {step}:")
+            arm.states.clear()
+            assert watcher.spin_until(arm.left_home, 120.0), "the arm did not move"
+            disturb()
+            return self.finish()
+        except BaseException:
+            self.proc.kill()
+            raise
 
 
 class ArmWatch:

@@ -4,9 +4,10 @@ An object folder holds:
 
 * ``object.toml``: name, mass, friction, sizes, source, the goal region with its required
   contacts, the goal grasp (and optionally further ones, ``[[goal_grasps]]``, each named and
-  with its region's centre), optional hand-designed info grasps and reorientation, and the
-  shape as named collision parts (``[[parts]]``: MuJoCo primitives, or convex mesh parts
-  whose files the folder keeps, ``kind = "mesh"`` and ``file``);
+  with its region's centre and, optionally, tolerances), optional hand-designed info grasps
+  and reorientation, and the shape as named collision parts (``[[parts]]``: MuJoCo
+  primitives, or convex mesh parts whose files the folder keeps, ``kind = "mesh"`` and
+  ``file``);
 * the artefacts measured or planned for it: ``settling.json`` and
   ``settling.realistic.json`` (rrg_sim.physics.settle; ``<goal>.settling.json`` for a
   further goal grasp), ``reorientation.json``
@@ -213,7 +214,8 @@ def _more_goals(
     top: _Table, parts: tuple[Primitive, ...], goal: GoalRegion
 ) -> tuple[GoalGrasp, ...]:
     """The object's further goal grasps, ``[[goal_grasps]]``: each a ``[goal_grasp]`` with
-    its ``name`` and the ``centre`` of its region (the object's tolerances about it)."""
+    its ``name``, the ``centre`` of its region and optionally its own ``tol`` (default:
+    ``[goal_region]``'s)."""
     grasps = []
     for t in top.tables("goal_grasps"):
         name = t.text("name")
@@ -226,7 +228,10 @@ def _more_goals(
                 raise
             raise t.error("through_m", str(exc)) from exc
         centre = tuple(t.vector("centre", 3, [0.0, 0.0, 0.0]))
-        grasps.append(GoalGrasp(wrt, replace(goal, centre=centre)))
+        tol = tuple(t.vector("tol", 3, list(goal.tol)))
+        if not all(v > 0 for v in tol):
+            raise t.error("tol", f"every tolerance must be > 0, got {list(tol)}")
+        grasps.append(GoalGrasp(wrt, replace(goal, centre=centre, tol=tol)))
     names = ["goal", *(g.name for g in grasps)]
     if len(set(names)) != len(names):
         raise top.error("goal_grasps", f"goal grasp names must be unique: {names}")

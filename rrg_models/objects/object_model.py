@@ -185,12 +185,11 @@ class ObjectModel:
         measured."""
         return self.settling_for("goal")
 
-    def _load_settling(self, path: Path) -> Settling | None:
-        """A settling study of one of this object's goal grasps (load_settling, with its
-        kernel bandwidth of SETTLING_KERNEL_BANDWIDTH goal tolerances)."""
-        return load_settling(
-            path, bandwidth=SETTLING_KERNEL_BANDWIDTH * np.asarray(self.goal.tol, dtype=float)
-        )
+    def _load_settling(self, path: Path, goal: str) -> Settling | None:
+        """A settling study of the goal grasp ``goal`` (load_settling, with its kernel
+        bandwidth of SETTLING_KERNEL_BANDWIDTH of its region's tolerances)."""
+        tol = np.asarray(self.goal_region(goal).tol, dtype=float)
+        return load_settling(path, bandwidth=SETTLING_KERNEL_BANDWIDTH * tol)
 
     @cached_property
     def _settlings(self) -> dict[tuple[str, str], Settling | None]:
@@ -210,7 +209,7 @@ class ObjectModel:
             elif base != "nominal" and not path.exists():
                 self._settlings[key] = self.settling_for(goal)
             else:
-                self._settlings[key] = self._load_settling(path)
+                self._settlings[key] = self._load_settling(path, goal)
         return self._settlings[key]
 
     def settling_in(self, profile: str) -> Settling | None:

@@ -584,7 +584,8 @@ class WrtExecutor:
         WRT's part of the path is retraced turned with the object (where that is out of reach,
         the open hand backs out along its approach axis and rises instead), then the arm moves
         home in joint space. A retrace the safety layer stops at the force ceiling (an opened
-        finger catching on the object) gives way to the same withdrawal, then home. If the arm
+        finger catching on the object) or for stale data gives way to the same withdrawal,
+        then home (for stale data, tried again while the data is still stale). If the arm
         is no longer where the WRT left it (e.g. the simulator was reset), the retreat is
         dropped. With no WRT to retreat from (this executor was restarted while the arm was
         out), the arm is brought home by ``recover``."""
@@ -610,6 +611,13 @@ class WrtExecutor:
                 exc,
             )
             self._withdraw_home()
+        except StaleDataStop as exc:
+            log.warning(
+                "retreat from %s stopped by the safety layer (%s): bringing the hand home",
+                last.wrt.name,
+                exc,
+            )
+            self._withdraw_home_when_fresh()
         self._open(0.0)
 
     def _retrace(self, last: Execution) -> None:

@@ -33,6 +33,7 @@ import json
 import logging
 import re
 import time
+from functools import partial
 from pathlib import Path
 
 import mujoco
@@ -57,9 +58,10 @@ log = logging.getLogger(__name__)
 BOX_TOLERANCES = 2.0
 
 
-def start_box(object_name: str) -> np.ndarray:
-    """(3,) half-widths [m, m, rad] of the box of start offsets Δ the study samples."""
-    goal = get_object(object_name).goal
+def start_box(object_name: str, goal_name: str = "goal") -> np.ndarray:
+    """(3,) half-widths [m, m, rad] of the box of start offsets Δ the study of the goal grasp
+    ``goal_name`` samples (about its own region)."""
+    goal = get_object(object_name).goal_region(goal_name)
     theta = np.pi if goal.ignores_theta else min(SETTLING_THETA_BOX, BOX_TOLERANCES * goal.tol[2])
     return np.array([BOX_TOLERANCES * goal.tol[0], BOX_TOLERANCES * goal.tol[1], theta])
 
@@ -73,7 +75,7 @@ def measure(
     wrt = world.obj.wrt(goal)
     rng = np.random.default_rng(seed)
     e = np.asarray(WORLD.nominal_pose, dtype=float)
-    box = start_box(object_name)
+    box = start_box(object_name, goal)
     records = []
     for i, delta in enumerate(rng.uniform(-1.0, 1.0, (grasps, 3)) * box):
         if world.profile.name != "nominal":  # a trial's draws of its own for every grasp
@@ -126,9 +128,9 @@ def fit_affine(start: np.ndarray, after: np.ndarray, ignores_theta: bool) -> dic
     return dict(A=A.tolist(), b=b.tolist(), sigma=sigma.tolist())
 
 
-def fit(object_name: str, records: list[dict]) -> dict:
-    """The settling model of an object from its records: the maps for the closing and the
-    retreat, fitted to the grasps that arrived (no early contact)."""
+def fit(object_name: str, records: list[dict], goal: str = "goal") -> dict:
+    """The settling model of an object's goal grasp ``goal`` from its records: the maps for
+    the closing and the retreat, fitted to the grasps that arrived (no early contact)."""
     arrived = [r for r in records if not r["contact"]]
     if len(arrived) < 8:
         raise ValueError(
@@ -139,7 +141,7 @@ def fit(object_name: str, records: list[dict]) -> dict:
     retreated = np.array([r["retreated"] for r in arrived])
     ignores = get_object(object_name).goal.ignores_theta
     return dict(
-        box=start_box(object_name).tolist(),
+        box=start_box(object_name, goal).tolist(),
         grasps=len(records),
         arrived=len(arrived),
         closed=fit_affine(start, closed, ignores),
@@ -261,7 +263,7 @@ def study(
         workers,
         settling_file(profile, goal),
         _measure_job,
-        fit,
+        partial(fit, goal=goal),
         _report,
         "settling",
         f"python -m rrg_sim.physics.settle --grasps {grasps} --seed {seed}"

@@ -111,21 +111,25 @@ def test_a_pad_dropout_stops_a_guarded_move_and_the_grasp_goes_on(tmp_path, ros_
     """The hand driver's pads go silent for DROPOUT_S while the first WRT's guarded move runs:
     the bridge stops the move (STALE_DATA), the executor brings the hand home and answers
     SAFETY_STOP, the planner chooses again on the same belief, and the grasp ends without an
-    error (before, it ended with error 509)."""
+    error."""
     from rcl_interfaces.srv import SetParameters
     from rclpy.parameter import Parameter
-    from ros_testing import ArmWatch, Launcher, RosClient
+    from ros_testing import Launcher, RosClient
 
     params = tmp_path / "bridge.yaml"
     params.write_text(HW_PARAMS)
     watcher = RosClient(ros_env(ros_domain), "dropout_watcher")
-    arm = ArmWatch(watcher)
     faults = watcher.node.create_client(SetParameters, "/fake_hw/set_parameters")
 
     def silent(on: bool) -> None:
         fault = Parameter("fault.silent_tactile", value=on).to_parameter_msg()
         answer = watcher.call(faults, SetParameters.Request(parameters=[fault]))
         assert answer.results[0].successful, answer.results[0].reason
+
+    def dropout() -> None:
+        silent(True)
+        time.sleep(DROPOUT_S)
+        silent(False)
 
     launcher = Launcher(
         tmp_path,
@@ -135,16 +139,7 @@ def test_a_pad_dropout_stops_a_guarded_move_and_the_grasp_goes_on(tmp_path, ros_
         *("--seed", "0", "--json", "--hw-params", str(params)),
     )
     try:
-        launcher.read_until("step 1:")
-        arm.states.clear()
-        assert watcher.spin_until(arm.left_home, 120.0), "the arm did not move"
-        silent(True)
-        time.sleep(DROPOUT_S)
-        silent(False)
-        text = launcher.finish()
-    except BaseException:
-        launcher.proc.kill()
-        raise
+        text = launcher.disturb_while_moving(1, watcher, dropout)
     finally:
         watcher.close()
     assert launcher.proc.returncode == 0, text[-3000:]

@@ -13,7 +13,7 @@ import signal
 import time
 
 import pytest
-from ros_testing import ArmWatch, Launcher, RosClient, ros_env
+from ros_testing import Launcher, RosClient, ros_env
 
 from rrg_bags.bag_info import bag_info
 from rrg_bags.bag_read import read_messages
@@ -31,10 +31,7 @@ def kill_mid_grasp(
     ``node`` once step 2 is under way and the arm has left home (``stall``: SIGSTOP it for
     STALL_S instead, then SIGCONT), and return (exit status, the launcher's output, the JSON
     outcome or None, the launcher)."""
-    env = ros_env(domain_id)
-    watcher = RosClient(env, f"kill_{node}_watcher")
-    arm = ArmWatch(watcher)
-
+    watcher = RosClient(ros_env(domain_id), f"kill_{node}_watcher")
     launcher = Launcher(
         tmp_path,
         node,
@@ -43,20 +40,17 @@ def kill_mid_grasp(
         "--json",
         *extra,
     )
-    try:
-        launcher.read_until("step 2:")
-        arm.states.clear()
-        assert watcher.spin_until(arm.left_home, 120.0), "the arm did not move"
+
+    def disturb() -> None:
         if stall:
             os.kill(launcher.pid(node), signal.SIGSTOP)
             time.sleep(STALL_S)
             os.kill(launcher.pid(node), signal.SIGCONT)
         else:
             os.kill(launcher.pid(node), signal.SIGKILL)
-        text = launcher.finish()
-    except BaseException:
-        launcher.proc.kill()
-        raise
+
+    try:
+        text = launcher.disturb_while_moving(2, watcher, disturb)
     finally:
         watcher.close()
     last = text.strip().splitlines()[-1]

@@ -109,11 +109,11 @@ def test_a_grasp_state_reads_back_whole_or_is_refused(tmp_path):
     from rrg_planner.grasp_state import GraspState, load_grasp_state, save_grasp_state
 
     step = Step("info1", "info", np.array([0.6, 0.01, 0.2]), True, ["tip1"], 0.3, 0.05)
-    state = GraspState({"object_name": "box"}, [step], [(2, [0.6, 0.0, 0.1])], 0.05, 0.3)
+    state = GraspState({"object_name": "box"}, [step], [(2, [0.6, 0.0, 0.1])], 0.05, 0.3, lost=2)
     path = tmp_path / "grasp.json"
     save_grasp_state(path, state)
     back = load_grasp_state(path)
-    assert back.request == state.request and back.blocked == state.blocked
+    assert back.request == state.request and back.blocked == state.blocked and back.lost == 2
     assert back.steps[0].wrt == "info1" and np.array_equal(back.steps[0].estimate, step.estimate)
     whole = path.read_text()
     path.write_text(whole[: len(whole) // 2])

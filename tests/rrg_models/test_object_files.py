@@ -204,8 +204,9 @@ def test_rrg_objects_dir_is_a_search_path_whose_first_folder_wins(tmp_path, monk
 
 
 def test_an_object_file_may_hold_several_goal_grasps(user_dir):
-    """[[goal_grasps]]: each a named goal grasp with the object's tolerances about its own
-    centre (default 0), its own settling study, and, for a side grasp, its own probe."""
+    """[[goal_grasps]]: each a named goal grasp with the object's tolerances (or its own,
+    each > 0) about its own centre (default 0), its own settling study, and, for a side
+    grasp, its own probe."""
     from rrg_models.objects.object_model import settling_file
 
     box_with_goal_end(user_dir, "shoebox", "centre = [0.0, 0.004, 0.0]\n")
@@ -221,6 +222,15 @@ def test_an_object_file_may_hold_several_goal_grasps(user_dir):
     assert settling_file("realistic") == "settling.realistic.json"
     with pytest.raises(KeyError, match="valid: \\['goal', 'goal_end'\\]"):
         obj.goal_region("goal3")
+
+    wide = box_with_goal_end(user_dir, "widebox", "tol = [0.02, 0.025, 0.3]\n")
+    assert get_object("widebox").goal_region("goal_end").tol == (0.02, 0.025, 0.3)
+    assert get_object("widebox").goal.tol == obj.goal.tol
+    (wide / "object.toml").write_text(
+        (wide / "object.toml").read_text().replace("[0.02, 0.025, 0.3]", "[0.02, 0.0, 0.3]")
+    )
+    with pytest.raises(ObjectFileError, match=r"\[\[goal_grasps\]\].*tol.*must be > 0"):
+        load_object_folder(wide)
 
     side = copy_builtin("can", "soup", user_dir) / "object.toml"
     grasp = side.read_text().split("[goal_grasp]")[1].split("\n\n")[0]

@@ -12,7 +12,7 @@ import trimesh
 from rrg_models.objects import object_names
 from rrg_models.objects.catalogue import USER_DIR_ENV
 from rrg_onboarding import object_cli
-from rrg_onboarding.onboard import AddOptions, GoalSpec, OnboardError, add_object
+from rrg_onboarding.onboard import FUNNEL_SCALES, AddOptions, GoalSpec, OnboardError, add_object
 
 
 @pytest.fixture
@@ -180,6 +180,36 @@ def test_the_goal_grasp_is_of_those_near_the_most_held_the_one_reached_at_most_h
         onboard._goal_set(parts, Symmetry(1, 0.05), (None, None, opts, *[None] * 4), print)
 
 
+def test_the_goal_region_grows_to_the_widest_multiple_in_which_the_grasps_that_closed_held():
+    """Grasps that closed within 2.2 cm of the intercept held, those beyond did not: the x, y
+    tolerances grow to 2 × 1 cm (2.5 × takes in those that closed beyond and failed); a
+    multiple with too few grasps in it is passed over, and one that falls short ends the scan."""
+    from rrg_models.goal import AffineSettle, GoalRegion, Settling
+    from rrg_onboarding.onboard import FUNNEL_MIN_SAMPLES, funnel_scale
+
+    rng = np.random.default_rng(3)
+    b = np.array([0.004, -0.002, 0.0])
+    closed = b + rng.uniform(-0.05, 0.05, (400, 3)) * (1.0, 1.0, 0.0)
+    held = (np.abs(closed[:, :2] - b[:2]).max(axis=1) <= 0.022).astype(float)
+    fit = AffineSettle(np.eye(3), b, np.zeros(3))
+
+    def study(closed, held) -> Settling:
+        samples = dict(closed=closed, retreated=closed)
+        return Settling(np.full(3, 0.1), fit, fit, "test", closed, samples, held)
+
+    region = GoalRegion((0.01, 0.01, np.inf))
+    assert funnel_scale(region, study(closed, held)) == 2.0
+    assert funnel_scale(region, study(closed, np.ones(400))) == 2.5
+    near = np.abs(closed[:, :2] - b[:2]).max(axis=1) <= 0.005  # 1 × and 1.5 ×: none held
+    assert funnel_scale(region, study(closed, held * ~near)) == 1.0
+    sparse = np.abs(closed[:, :2] - b[:2]).max(axis=1) > 0.01  # nothing at 1 ×: passed over
+    sparse[np.flatnonzero(~sparse)[: FUNNEL_MIN_SAMPLES - 1]] = True
+    assert funnel_scale(region, study(closed[sparse], held[sparse])) == 2.0
+    theta = GoalRegion((0.01, 0.01, 0.1))  # θ is kept: grasps turned beyond it do not count
+    turned = closed + (0.0, 0.0, 0.5)
+    assert funnel_scale(theta, study(turned, np.zeros(400))) == 1.0
+
+
 def test_the_paper_column_is_empty_for_an_object_not_in_the_paper():
     from rrg_experiments.report import paper_rrg_info
 
@@ -223,6 +253,7 @@ def test_a_mesh_is_onboarded_end_to_end_and_removed(user_dir, tmp_path, capsys):
     assert "repaired: 2 closed shells united into one (volume 420.0 cm³ → 315.0 cm³)" in out
     assert report.repair.shells_united == 2
     assert "chose the goal grasp that held most" in out and "goal region centred" in out
+    assert "the widest of 1, 1.5, 2, 2.5 × 1 cm in which 95% of the study's grasps" in out
     assert list(report.stage_s)[:2] == ["mesh", "decompose"] and "tables" in report.stage_s
     folder = user_dir / "tin"
     assert report.folder == folder and leftovers(user_dir) == sorted(
@@ -234,6 +265,7 @@ def test_a_mesh_is_onboarded_end_to_end_and_removed(user_dir, tmp_path, capsys):
     assert obj.mass == 0.2 and obj.folder == folder
     assert {"goal", "sweep"} <= {w.name for w in obj.wrts()}
     np.testing.assert_allclose(obj.goal.centre[:2], obj.grasp_settling.closed.b[:2], atol=1e-4)
+    assert obj.goal.tol[0] == obj.goal.tol[1] and obj.goal.tol[0] / 0.01 in FUNNEL_SCALES
     assert cached_tables("tin")
     assert object_cli.main(["check", "tin", "--trials", "1", "--dev", "--out", str(tmp_path)]) == 0
     assert "| tin |" in capsys.readouterr().out

@@ -16,6 +16,7 @@ from rrg_models.trajectory import (
     sample_times,
     servo_targets,
 )
+from rrg_sim.executor.robot_errors import ForceCeilingStop, StaleDataStop
 from rrg_sim.physics.judge import judge_grasp
 from rrg_sim.physics.world import PhysicsWorld
 
@@ -350,23 +351,31 @@ def test_a_goal_grasp_is_lifted_along_the_lift_its_plan_chose():
     assert np.abs(robot.sent[-1][0] - LIFT_PLANNED).max() < 1e-6
 
 
-def test_a_retreat_stopped_at_the_force_ceiling_withdraws_and_goes_home():
-    """The hardware bridge stops any arm move whose fingertip load passes its ceiling and holds
-    the arm there (GuardedMove FORCE_LIMIT): an emulated drill grasp's retrace read 20.1 N on
-    fingertip 2 as it left, and the whole robust grasp ended in an error. The retreat now
-    opens the hand, backs out, rises and goes home from where the retrace was stopped."""
-    from rrg_sim.executor.robot_errors import ForceCeilingStop
+@pytest.mark.parametrize(
+    "stop",
+    [
+        ForceCeilingStop("guarded_move failed (108): fingertip 2: force 20.1 N"),
+        StaleDataStop("guarded_move failed (109): no fresh data from pads within 150 ms"),
+    ],
+)
+def test_a_retreat_stopped_by_the_safety_layer_withdraws_and_goes_home(stop, monkeypatch):
+    """The hardware bridge stops and holds any arm move whose fingertip load passes its ceiling
+    (GuardedMove FORCE_LIMIT: an opened finger catching on the object as it leaves) or whose
+    data went stale (STALE_DATA). The retreat opens the hand, backs out, rises and goes home
+    from where the retrace was stopped."""
+    from rrg_sim.executor import wrt_executor
 
+    monkeypatch.setattr(wrt_executor, "WITHDRAW_PAUSE_S", 0.0)
     world = PhysicsWorld("box", sensor_noise=0.0)
     e = world.true_object_pose()
     world.execute_wrt(world.obj.goal_wrt, e)
     follow, stops = world.follow, []
 
     def stopped_once(q, t, guard):
-        if not stops:  # the retrace: the arm moves a few via-points, then the ceiling holds it
+        if not stops:  # the retrace: the arm moves a few via-points, then the layer holds it
             stops.append(len(q))
             follow(q[:4], t[:4], guard)
-            raise ForceCeilingStop("guarded_move failed (108): fingertip 2: force 20.1 N")
+            raise stop
         return follow(q, t, guard)
 
     world.follow = stopped_once
@@ -378,13 +387,12 @@ def test_a_retreat_stopped_at_the_force_ceiling_withdraws_and_goes_home():
 
 
 def test_a_wrt_stopped_for_stale_data_brings_the_hand_home_and_says_so(monkeypatch):
-    """The bridge stops a guarded move whose data went stale (GuardedMove STALE_DATA: in one
-    CI run the emulated pads were 150 ms late on a loaded host, and the whole robust grasp
-    ended with error 509). The execution now withdraws the hand and goes home, tried again
+    """The bridge stops a guarded move whose data went stale (GuardedMove STALE_DATA: pads
+    150 ms late on a loaded host). The execution withdraws the hand and goes home, tried again
     while the data is still stale, and raises ExecutionStopped: nothing was observed, and the
     same WRT runs again afterwards."""
     from rrg_sim.executor import wrt_executor
-    from rrg_sim.executor.robot_errors import ExecutionStopped, StaleDataStop
+    from rrg_sim.executor.robot_errors import ExecutionStopped
 
     monkeypatch.setattr(wrt_executor, "WITHDRAW_PAUSE_S", 0.0)
     world = PhysicsWorld("box", sensor_noise=0.0)
