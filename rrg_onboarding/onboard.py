@@ -90,14 +90,14 @@ DEFAULT_FRICTION = 0.5
 #: Goal region of a proposed goal grasp: |dx|, |dy| [m], |dθ| [rad] (chosen: the paper
 #: objects' most common region, 1 cm and 10°).
 DEFAULT_TOL = (0.01, 0.01, float(np.radians(10.0)))
-#: A proposed goal region's x, y tolerances, unless given (--goal-tol), are measured: the widest
-#: of these multiples of DEFAULT_TOL's about the grasp's intercept within which at least
-#: FUNNEL_MIN_HELD of the grasps that closed there held (the paper's regions were "hand-chosen
-#: to guarantee that being within the goal region ensures a stable grasp", its can's 2.5 ×
-#: 1.5 cm). The grasps are a settling study's, FUNNEL_GRASPS_FACTOR × --settle-grasps of them
-#: across twice the widest region; a multiple counts once at least FUNNEL_MIN_SAMPLES closed
-#: in it (chosen: a failure in 20 grasps is allowed; θ keeps its tolerance, the study's θ box
-#: being SETTLING_THETA_BOX).
+#: A proposed goal region's tolerances, unless given (--goal-tol), are measured: the widest of
+#: these multiples of DEFAULT_TOL (θ too, unless ignored) about the grasp's intercept within
+#: which at least FUNNEL_MIN_HELD of the grasps that closed there held (the paper's regions
+#: were "hand-chosen to guarantee that being within the goal region ensures a stable grasp",
+#: its can's 2.5 × 1.5 cm, its cup's ignoring θ). The grasps are a settling study's,
+#: FUNNEL_GRASPS_FACTOR × --settle-grasps of them across twice the widest region; a multiple
+#: is judged once at least FUNNEL_MIN_SAMPLES closed in it (chosen: a failure in 20 grasps is
+#: allowed).
 FUNNEL_SCALES = (1.0, 1.5, 2.0, 2.5)
 FUNNEL_MIN_HELD = 0.95
 FUNNEL_MIN_SAMPLES = 10
@@ -753,29 +753,34 @@ def _rank(staging, folder, opts, mesh, part_files, mass, source, candidates) -> 
 
 
 def funnel_scale(region: GoalRegion, settling: Settling) -> float:
-    """The largest of FUNNEL_SCALES by which ``region``'s x, y tolerances (about the study's
+    """The largest of FUNNEL_SCALES by which ``region``'s tolerances (about the study's
     intercept) may grow while at least FUNNEL_MIN_HELD of the study's grasps that closed in it
-    held (scanned outwards, stopping at the first that falls short; a multiple with fewer
-    than FUNNEL_MIN_SAMPLES grasps in it is passed over); 1 when none qualifies."""
+    held, scanned outwards: a multiple with fewer than FUNNEL_MIN_SAMPLES grasps in it is
+    passed over, and the first that falls short ends the scan; 1 when none qualifies."""
     b = settling.closed.b
     centre = (float(b[0]), float(b[1]), 0.0 if region.ignores_theta else float(b[2]))
     closed, held = settling.samples["closed"], settling.held
     best = FUNNEL_SCALES[0]
     for scale in FUNNEL_SCALES:
-        tol = (region.tol[0] * scale, region.tol[1] * scale, region.tol[2])
-        inside = replace(region, tol=tol, centre=centre).contains(closed)
-        if not inside.any():
+        inside = replace(region, tol=_scaled_tol(region.tol, scale), centre=centre).contains(closed)
+        if inside.sum() < FUNNEL_MIN_SAMPLES:
             continue
         if held[inside].mean() < FUNNEL_MIN_HELD:
             break
-        if inside.sum() >= FUNNEL_MIN_SAMPLES:
-            best = scale
+        best = scale
     return best
 
 
+def _scaled_tol(tol: tuple[float, float, float], scale: float) -> tuple[float, float, float]:
+    """``tol`` × ``scale`` (an ignored θ stays ignored)."""
+    return (tol[0] * scale, tol[1] * scale, tol[2] * scale)
+
+
 def _scaled(goal: GoalSpec, scale: float) -> GoalSpec:
-    """``goal`` with its region's x, y tolerances ``scale`` × DEFAULT_TOL's."""
-    return replace(goal, tol=(DEFAULT_TOL[0] * scale, DEFAULT_TOL[1] * scale, goal.tol[2]))
+    """``goal`` with its region's tolerances ``scale`` × DEFAULT_TOL (θ still ignored if it
+    was)."""
+    theta = goal.tol[2] if np.isinf(goal.tol[2]) else DEFAULT_TOL[2]
+    return replace(goal, tol=_scaled_tol((DEFAULT_TOL[0], DEFAULT_TOL[1], theta), scale))
 
 
 def _measured_region(
@@ -783,9 +788,10 @@ def _measured_region(
     goals: tuple[GoalSpec, ...],
     rewrite: Callable[[tuple[GoalSpec, ...]], None],
     choose: Callable[[str], None],
-) -> tuple[GoalSpec, ...]:
-    """``goals`` with each goal region's x, y tolerances measured (FUNNEL_SCALES) in its
-    grasp's settling study across twice the widest region."""
+) -> tuple[tuple[GoalSpec, ...], set[str]]:
+    """``goals`` with each goal region's tolerances measured (FUNNEL_SCALES) in its grasp's
+    settling study across twice the widest region, and the names of those whose region is
+    the widest: that study is their settling study."""
     from rrg_models.objects import get_object
     from rrg_sim.physics import settle
 
@@ -793,20 +799,28 @@ def _measured_region(
     grasps = FUNNEL_GRASPS_FACTOR * opts.settle_grasps
     measured = []
     for goal in goals:
-        settle.study([opts.name], grasps, opts.seed, opts.workers, goal=goal.name)
+        try:
+            settle.study([opts.name], grasps, opts.seed, opts.workers, goal=goal.name)
+        except ValueError as exc:  # too few of its grasps arrived to fit
+            measured.append(_scaled(goal, 1.0))
+            choose(f"{goal.name} region: the default, not measured ({exc})")
+            continue
         obj = get_object(opts.name)
         region = replace(obj.goal_region(goal.name), tol=_scaled(goal, 1.0).tol)
         scale = funnel_scale(region, obj.settling_for(goal.name))
         measured.append(_scaled(goal, scale))
+        tol = measured[-1].tol
+        theta = "" if np.isinf(tol[2]) else f" and {np.degrees(tol[2]):.0f}°"
         choose(
-            f"{goal.name} region ±{DEFAULT_TOL[0] * scale * 100:.1f} cm in x and y: the widest "
-            f"of {', '.join(f'{s:g}' for s in FUNNEL_SCALES)} × {DEFAULT_TOL[0] * 100:g} cm in "
-            f"which {FUNNEL_MIN_HELD:.0%} of its {grasps} study grasps that closed there held "
+            f"{goal.name} region ±{tol[0] * 100:.1f} cm{theta}: {scale:g} × the default, the "
+            f"widest of {', '.join(f'{s:g}' for s in FUNNEL_SCALES)} × in which "
+            f"{FUNNEL_MIN_HELD:.0%} of its {grasps} study grasps that closed there held "
             "(--goal-tol sets it)"
         )
     goals = tuple(measured)
     rewrite(goals)
-    return goals
+    widest = _scaled_tol(_scaled(goals[0], 1.0).tol, FUNNEL_SCALES[-1])
+    return goals, {g.name for g in goals if g.tol == widest}
 
 
 def place(folder: Path, files: list[str], yaw: float) -> None:
@@ -858,11 +872,14 @@ def _measure_and_build(
     from rrg_sim.physics.render import render_goal_grasps
 
     with stage("settling study"):
+        studied: set[str] = set()  # the goal grasps whose region's study is already made
         if opts.goal_tol is None:
-            goals = _measured_region(opts, goals, lambda g: rewrite(g, reorient), choose)
+            goals, studied = _measured_region(opts, goals, lambda g: rewrite(g, reorient), choose)
         centred = []
         for goal in goals:
-            settle.study([opts.name], opts.settle_grasps, opts.seed, opts.workers, goal=goal.name)
+            if goal.name not in studied:
+                grasps = opts.settle_grasps
+                settle.study([opts.name], grasps, opts.seed, opts.workers, goal=goal.name)
             b = get_object(opts.name).settling_for(goal.name).closed.b
             theta = 0.0 if np.isinf(goal.tol[2]) else round(float(b[2]), 4)
             centre = (round(float(b[0]), 4), round(float(b[1]), 4), theta)

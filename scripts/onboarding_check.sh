@@ -19,15 +19,20 @@ trap 'rm -rf "$work"' EXIT
 export RRG_OBJECTS_DIR="$work/objects"
 .venv/bin/python tests/generated_meshes.py "$work/meshes" > "$work/meshes.txt"
 while read -r name mesh mass; do
-    mkdir -p "$out/$name"
+    rm -rf "${out:?}/$name" && mkdir -p "$out/$name"  # nothing of an earlier run stays
     echo "== $name: rrg-object add $mesh --name $name --mass $mass"
-    .venv/bin/rrg-object add "$mesh" --name "$name" --mass "$mass" </dev/null 2>/dev/null | tee "$out/$name/add.log"
-    rm -rf "$out/$name/object"
+    if ! .venv/bin/rrg-object add "$mesh" --name "$name" --mass "$mass" </dev/null \
+        2>"$work/add.err" | tee "$out/$name/add.log"; then
+        grep -v '%|' "$work/add.err" | tee -a "$out/$name/add.log"  # the refusal, not the bars
+        echo "== $name: not installed"
+        continue
+    fi
     cp -r "$RRG_OBJECTS_DIR/$name" "$out/$name/object"
     echo "== $name: rrg-object check $name --trials $trials"
     .venv/bin/rrg-object check "$name" --trials "$trials" --out "$out/$name" </dev/null
 done < "$work/meshes.txt"
 while read -r name _ _; do
+    [ -d "$RRG_OBJECTS_DIR/$name" ] || continue
     echo "== $name: rrg-object check $name --trials $trials --world realistic"
     .venv/bin/rrg-object check "$name" --trials "$trials" --world realistic \
         --out "$out/$name/realistic" </dev/null

@@ -53,8 +53,9 @@ from rrg_sim.physics.world import PhysicsWorld
 
 log = logging.getLogger(__name__)
 
-#: The start box is this many goal tolerances wide each way in x, y (θ: SETTLING_THETA_BOX,
-#: or ±π for objects whose goal ignores θ), so the fit covers the goal region's edges.
+#: The start box is this many goal tolerances wide each way (θ: at most SETTLING_THETA_BOX, or
+#: the θ tolerance where that is wider, and ±π for objects whose goal ignores θ), so the fit
+#: covers the goal region's edges.
 BOX_TOLERANCES = 2.0
 
 
@@ -62,7 +63,8 @@ def start_box(object_name: str, goal_name: str = "goal") -> np.ndarray:
     """(3,) half-widths [m, m, rad] of the box of start offsets Δ the study of the goal grasp
     ``goal_name`` samples (about its own region)."""
     goal = get_object(object_name).goal_region(goal_name)
-    theta = np.pi if goal.ignores_theta else min(SETTLING_THETA_BOX, BOX_TOLERANCES * goal.tol[2])
+    cap = max(SETTLING_THETA_BOX, goal.tol[2])
+    theta = np.pi if goal.ignores_theta else min(cap, BOX_TOLERANCES * goal.tol[2])
     return np.array([BOX_TOLERANCES * goal.tol[0], BOX_TOLERANCES * goal.tol[1], theta])
 
 
