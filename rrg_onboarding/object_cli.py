@@ -208,8 +208,9 @@ def _add_parser(sub) -> None:
         type=float,
         nargs=3,
         metavar=("DX", "DY", "DTHETA"),
-        help=f"goal region [m, m, rad] (default: x, y measured from {DEFAULT_TOL[0]} m up to "
-        f"{FUNNEL_SCALES[-1]:g} times it, θ {DEFAULT_TOL[2]:.3f}; inf ignores θ)",
+        help=f"goal region [m, m, rad] (default: measured, from {DEFAULT_TOL[0]}, "
+        f"{DEFAULT_TOL[1]}, {DEFAULT_TOL[2]:.3f} up to {FUNNEL_SCALES[-1]:g} times it; inf "
+        "ignores θ)",
     )
     add.add_argument(
         "--settle-grasps", type=int, default=SETTLE_GRASPS, help="settling study grasps"

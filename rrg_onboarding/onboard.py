@@ -214,7 +214,7 @@ class AddOptions:
     friction: float = DEFAULT_FRICTION
     goal: GoalSpec | None = None
     #: the goal region of a proposed goal grasp (a given GoalSpec has its own); None: its
-    #: x, y tolerances are measured (FUNNEL_SCALES), for a given GoalSpec's too
+    #: tolerances are measured (FUNNEL_SCALES), for a given GoalSpec's too
     goal_tol: tuple[float, float, float] | None = None
     allow_size: bool = False
     settle_grasps: int = SETTLE_GRASPS
@@ -797,7 +797,7 @@ def _measured_region(
 
     rewrite(tuple(_scaled(g, FUNNEL_SCALES[-1]) for g in goals))
     grasps = FUNNEL_GRASPS_FACTOR * opts.settle_grasps
-    measured = []
+    measured, widest = [], set()
     for goal in goals:
         try:
             settle.study([opts.name], grasps, opts.seed, opts.workers, goal=goal.name)
@@ -809,6 +809,8 @@ def _measured_region(
         region = replace(obj.goal_region(goal.name), tol=_scaled(goal, 1.0).tol)
         scale = funnel_scale(region, obj.settling_for(goal.name))
         measured.append(_scaled(goal, scale))
+        if scale == FUNNEL_SCALES[-1]:
+            widest.add(goal.name)
         tol = measured[-1].tol
         theta = "" if np.isinf(tol[2]) else f" and {np.degrees(tol[2]):.0f}°"
         choose(
@@ -819,8 +821,7 @@ def _measured_region(
         )
     goals = tuple(measured)
     rewrite(goals)
-    widest = _scaled_tol(_scaled(goals[0], 1.0).tol, FUNNEL_SCALES[-1])
-    return goals, {g.name for g in goals if g.tol == widest}
+    return goals, widest
 
 
 def place(folder: Path, files: list[str], yaw: float) -> None:

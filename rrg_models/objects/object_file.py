@@ -126,6 +126,14 @@ def _part(t: _Table, folder: Path) -> tuple[str, Primitive]:
         raise t.error("size_m", str(exc)) from exc
 
 
+def _tolerances(t: _Table, default: Any = ...) -> tuple[float, float, float]:
+    """A goal region's ``tol`` (|dx| [m], |dy| [m], |dθ| [rad]), each > 0."""
+    tol = t.vector("tol", 3, default)
+    if not all(v > 0 for v in tol):
+        raise t.error("tol", f"every tolerance must be > 0, got {tol}")
+    return tol
+
+
 def _goal_region(t: _Table, part_index: dict[str, int]) -> GoalRegion:
     contacts = []
     for c in t.tables("required_contacts"):
@@ -147,9 +155,7 @@ def _goal_region(t: _Table, part_index: dict[str, int]) -> GoalRegion:
             )
         except ValueError as exc:
             raise c.error("fingers", str(exc)) from exc
-    tol = t.vector("tol", 3)
-    if not (tol[0] > 0 and tol[1] > 0 and tol[2] > 0):
-        raise t.error("tol", f"every tolerance must be > 0, got {tol}")
+    tol = _tolerances(t)
     try:
         return GoalRegion(
             tol,
@@ -228,9 +234,7 @@ def _more_goals(
                 raise
             raise t.error("through_m", str(exc)) from exc
         centre = tuple(t.vector("centre", 3, [0.0, 0.0, 0.0]))
-        tol = tuple(t.vector("tol", 3, list(goal.tol)))
-        if not all(v > 0 for v in tol):
-            raise t.error("tol", f"every tolerance must be > 0, got {list(tol)}")
+        tol = _tolerances(t, list(goal.tol))
         grasps.append(GoalGrasp(wrt, replace(goal, centre=centre, tol=tol)))
     names = ["goal", *(g.name for g in grasps)]
     if len(set(names)) != len(names):
