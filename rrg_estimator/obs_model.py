@@ -12,7 +12,8 @@ The likelihood of one table entry is the product of
     that), q the probability that contact on it is predicted anywhere in the entry's cell
     (``sensor_prediction``: 1 or 0 where the neighbours agree);
   * max(exp(-½((c_o - c_t)/σ_t)²), κ_closure) per finger closure angle, σ_t the entry's own
-    closure σ: σ_closure widened by its nearest-entry discretization (``closure_sigma``);
+    closure σ: σ_closure widened by its nearest-entry discretization, and infinite where
+    the table's finger stopped on a sensor the robot lacks (``closure_sigma``);
   * max(exp(-½(|x_o - x_t|/σ_tip)²), κ_tip) per fingertip contact point present on both
     sides (a point present on one side only is already judged by that tip's sensor term);
 (the closure term is left out for a WRT whose closures physics does not reproduce, e.g.
@@ -45,7 +46,7 @@ from scipy.ndimage import convolve1d
 
 from rrg_estimator.config import LIKELIHOOD, LikelihoodParams
 from rrg_estimator.grid import Grid
-from rrg_models.config import N_SENSORS
+from rrg_models.config import FINGER_SENSORS, N_SENSORS
 from rrg_models.observation import Observation
 from rrg_models.poses import wrap_angle
 from rrg_models.wrt import WRT
@@ -203,13 +204,33 @@ def likelihood_params(wrt: WRT, params: LikelihoodParams = LIKELIHOOD) -> Likeli
 _CLOSURE_SIGMA: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def closure_sigma(table: TableLike, sigma: float) -> np.ndarray:
+def stopped_unsensed(sensors: np.ndarray, unsensed: tuple[int, ...]) -> np.ndarray:
+    """(N, 3) bool: the fingers whose predicted sensors (N, 10) include one of ``unsensed``
+    and none of the finger's other sensors (a careful closing's stop the robot cannot make)."""
+    sensors = np.asarray(sensors, dtype=bool)
+    out = np.zeros((len(sensors), 3), dtype=bool)
+    for finger, own in enumerate(FINGER_SENSORS):
+        lacking = [s for s in own if s in unsensed]
+        sensed = [s for s in own if s not in unsensed]
+        if lacking:
+            out[:, finger] = sensors[:, lacking].any(axis=1) & ~sensors[:, sensed].any(axis=1)
+    return out
+
+
+def closure_sigma(table: TableLike, sigma: float, unsensed: tuple[int, ...] = ()) -> np.ndarray:
     """(3, N) float32 σ of each table entry's predicted closure angles: √(σ² + Σ_axis g²/12),
     with σ the spread of physics about the geometric prediction at the exact offset and g the
     larger change to a grid neighbour along each axis. An observation is compared with the
     entry nearest its offset, which lies anywhere within ± half a cell; where a finger's
     closure changes fast with the offset (the drill's info3 pinch: 0.14 rad per cm) that
-    discretization dominates, where it is flat σ does. Cached per table (weakly referenced)."""
+    discretization dominates, where it is flat σ does.
+
+    ``unsensed`` (sensor ids the robot has no reading of): a finger the table predicts stopped
+    by one of them alone (its own sensed sensors silent) has an infinite σ there. A careful
+    closing stops a finger when one of its own sensors fires; the robot's finger does not
+    stop there but closes on, off the object or onto it, so its closure says nothing the
+    table predicts (a BarrettHand with tactile pucks only, whose proximal link brushed the
+    object in a sweep, closes that finger fully). Cached per table (weakly referenced)."""
     n = len(table.closure)
     if not np.isfinite(sigma):
         return np.full((3, n), sigma, dtype=np.float32)
@@ -223,9 +244,12 @@ def closure_sigma(table: TableLike, sigma: float) -> np.ndarray:
             before[axis], after[axis] = (1, 0), (0, 1)
             g = np.maximum(np.pad(d, before), np.pad(d, after))  # the larger change to a neighbour
             var += g * g / 12.0
-        return np.ascontiguousarray(np.sqrt(sigma * sigma + var).reshape(n, 3).T.astype(np.float32))
+        out = np.sqrt(sigma * sigma + var).reshape(n, 3).T
+        if unsensed:
+            out[stopped_unsensed(table.sensors, unsensed).T] = np.inf
+        return np.ascontiguousarray(out.astype(np.float32))
 
-    return _per_table(_CLOSURE_SIGMA, table, sigma, build)
+    return _per_table(_CLOSURE_SIGMA, table, (sigma, tuple(unsensed)), build)
 
 
 @dataclass(frozen=True, eq=False)
@@ -339,7 +363,7 @@ def log_likelihood_over_table(
     f32 = np.float32
     cols = _table_columns(table)
     silent, gain = sensor_log_likelihood(table, params)
-    sig = closure_sigma(table, params.sigma_closure)
+    sig = closure_sigma(table, params.sigma_closure, tuple(params.unsensed))
     constants = _kernel_constants(params)
     logl = np.empty((len(feats), len(cols.contact)), dtype=f32)
     # Σ_s o_s·gain_s for every reading at once, with BLAS (its summation order, which the

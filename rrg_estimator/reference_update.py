@@ -16,6 +16,7 @@ import numpy as np
 from rrg_estimator.belief import Belief
 from rrg_estimator.config import LIKELIHOOD, TRANSITION, LikelihoodParams, TransitionParams
 from rrg_estimator.obs_model import ObsFeatures, TableLike
+from rrg_models.config import FINGER_SENSORS
 from rrg_models.observation import Observation
 from rrg_models.poses import wrap_angle
 
@@ -51,11 +52,19 @@ def table_index_reference(w, e, table) -> int:
     return (idx[0] * table.grid.shape[1] + idx[1]) * table.grid.shape[2] + idx[2]
 
 
-def closure_sigma_reference(table: TableLike, j: int, f: int, sigma: float) -> float:
+def closure_sigma_reference(
+    table: TableLike, j: int, f: int, sigma: float, unsensed: tuple[int, ...] = ()
+) -> float:
     """σ of entry j's closure of finger f: √(σ² + Σ_axis g²/12), g the larger change of that
-    closure to the entry's neighbours along each grid axis (obs_model.closure_sigma)."""
+    closure to the entry's neighbours along each grid axis; infinite where only sensors in
+    ``unsensed`` of finger f fired (obs_model.closure_sigma)."""
     if not math.isfinite(sigma):
         return sigma
+    own = FINGER_SENSORS[f]
+    if any(table.sensors[j][s] for s in own if s in unsensed) and not any(
+        table.sensors[j][s] for s in own if s not in unsensed
+    ):
+        return math.inf
     shape = table.grid.shape
     index = list(np.unravel_index(j, shape))
     var = 0.0
@@ -106,12 +115,14 @@ def likelihood_reference(
         z = (obs["progress"] - float(table.progress[j])) / params.sigma_progress
         like *= max(math.exp(-0.5 * z * z), params.outlier_progress)
     for s in range(len(obs["sensors"])):
+        if s in params.unsensed:
+            continue
         q = sensor_prediction_reference(table, j, s)
         p_fired = q * params.p_detect + (1.0 - q) * params.p_false_alarm
         like *= p_fired if obs["sensors"][s] else 1.0 - p_fired
     for f in range(3):
         z = (obs["closure"][f] - float(table.closure[j][f])) / closure_sigma_reference(
-            table, j, f, params.sigma_closure
+            table, j, f, params.sigma_closure, tuple(params.unsensed)
         )
         like *= max(math.exp(-0.5 * z * z), params.outlier_closure)
     for f in range(3):
@@ -211,6 +222,7 @@ def update_reference(
     e,
     obs_or_features: Observation | ObsFeatures,
     transition: bool = True,
+    params: LikelihoodParams = LIKELIHOOD,
 ) -> Belief:
     """SE(b, τ(e), o) state by state: bump (if contact), likelihood per state, normalize."""
     e = [float(v) for v in e]
@@ -223,6 +235,8 @@ def update_reference(
     post = []
     for s in range(len(prior)):
         w = [float(v) for v in points[s]]
-        post.append(prior[s] * likelihood_reference(table, table_index_reference(w, e, table), obs))
+        post.append(
+            prior[s] * likelihood_reference(table, table_index_reference(w, e, table), obs, params)
+        )
     total = sum(post)
     return Belief(belief.grid, np.array([v / total for v in post]))

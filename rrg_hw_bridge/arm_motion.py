@@ -17,7 +17,7 @@ from rrg_models.trajectory import GOAL_START_TOLERANCE, GoalError, client_fracti
 
 from .bridge_core import ActiveMove, BridgeCore
 from .config import BRIDGE
-from .contact_guard import ContactGuard, path_index
+from .contact_guard import ContactGuard, StopSensing, path_index
 from .driver_api import DriverError, Latched
 from .safety import (
     SafetyCode,
@@ -56,6 +56,9 @@ class MoveOutcome:
     path_fraction: float = 0.0
     stopped_on_contact: bool = False
     unconfirmed_stops: int = 0
+    #: for a move a contact stopped, what fired from its stop until the arm was at rest
+    #: (ActiveMove.stop_sensing); None otherwise
+    stop_sensing: StopSensing | None = None
 
 
 class ArmMotion:
@@ -209,6 +212,9 @@ class ArmMotion:
         outcome = MoveOutcome("succeeded", ran=True)
         outcome.path_fraction = client_fraction(original, n_client)
         outcome.stopped_on_contact = move.trip is not None
+        if move.trip is not None:
+            with core.lock:
+                outcome.stop_sensing = move.stop_sensing.copy()
         controller = answer.result().result if answer.done() else None
         return self._finish(move, controller, outcome)
 

@@ -24,7 +24,7 @@ from rrg_models.config import SENSOR_NAMES
 
 from .arm_limits import ArmLimits
 from .config import BRIDGE
-from .contact_guard import ContactGuard, HandState, Trip, VelocityEstimate
+from .contact_guard import ContactGuard, HandState, StopSensing, Trip, VelocityEstimate
 from .driver_api import ArmDriver, FingertipSensors, HandDriver
 from .external_torque import ExternalTorqueObserver
 from .safety import EStop, ForceCeiling, Refusal, SafetyCode, Watchdog, limit_excess
@@ -158,6 +158,9 @@ class ActiveMove:
     message: str = ""
     trip: Trip | None = None
     stopped_s: float = np.nan
+    #: what fired from the stop until the arm was at rest (the trip's sensors among it); the
+    #: result reports it with the reading at the hold
+    stop_sensing: StopSensing = field(default_factory=StopSensing)
     #: a recovery move (joints outside their limits, brought back): how far outside they were
     #: at its start [rad]; None for any other move
     recovery_excess: float | None = None
@@ -354,6 +357,8 @@ class BridgeCore:
                 return
             move.code, move.message, move.trip = code, message, trip
             move.stopped_s = time.monotonic()
+            if trip is not None:
+                move.stop_sensing.add(trip.sensors, self.hand.tips())
             handle = move.handle
         if handle is not None:
             handle.cancel_goal_async()
@@ -505,13 +510,14 @@ class BridgeCore:
         move, motion = self.move, self.hand_motion
         if move is None and motion is None:
             return
+        self._while_stopping(move, tips)
         loads = self.hand.loads()  # the ceiling limits the load itself, whatever the tare
         over = self.ceiling.check(loads)
         if over is not None and move is None and motion.closing and np.isfinite(loads).all():
             motion.squeezed |= self.ceiling.over(loads)  # the squeeze's limit: that finger stops
         elif over is not None:
             # a guarded move stopped by the ceiling stopped on a contact too (its trip names
-            # the sensors that crossed; the result's sensors are those firing at the hold)
+            # the sensors that crossed; the result's are those that fired until the hold)
             trip = None
             if move is not None and move.guard is not None and over.code == SafetyCode.FORCE_LIMIT:
                 trip = Trip(move.guard.fired(self.hand.pads(), tips))
@@ -521,6 +527,15 @@ class BridgeCore:
             self.contact(
                 move.guard.check_sensors(self.hand.pads(), tips, self.hand.derive_pads), move
             )
+
+    def _while_stopping(self, move: ActiveMove | None, tips: np.ndarray) -> None:
+        """Keep what a stopped guarded move's contact fires as the arm comes to rest
+        (ActiveMove.stop_sensing); tips: the tared fingertip loads (3,6)."""
+        if move is None or move.guard is None or move.code is None:
+            return
+        fired = move.guard.fired(self.hand.pads(), tips)
+        with self.lock:
+            move.stop_sensing.add(fired, tips)
 
     def on_sensor_fault(self, finger: int, kind: str, detail: str) -> None:
         """A Net F/T fault: the arm holds and the hand stops. A status word is first answered
@@ -559,6 +574,7 @@ class BridgeCore:
         self.pad_count += 1
         self.hand.set_pads(forces)
         move = self.move
+        self._while_stopping(move, self.hand.tips())
         if move is not None and move.guard is not None:
             self.contact(move.guard.check_sensors(self.hand.pads(), self.hand.tips(), True), move)
 

@@ -13,11 +13,11 @@ since the move started.
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from rrg_models.config import SENSING
+from rrg_models.config import N_SENSORS, SENSING, TIP_SENSORS
 from rrg_models.hand_sensing import Reading, StopConfirmation, fired_sensors, reading_from_joints
 
 from .tactile import TACTILE_PADS_UNSENSED
@@ -55,6 +55,26 @@ def path_index(q_via: np.ndarray, q: np.ndarray) -> float:
     dist = np.linalg.norm(a + s[:, None] * d - q, axis=1)
     k = int(np.argmin(dist)) if len(dist) else 0
     return float(k + s[k]) if len(dist) else 0.0
+
+
+@dataclass
+class StopSensing:
+    """What a guarded move's contact fired from the move's stop until the arm was at rest:
+    the sensors (10,) bool, and each fingertip's tared load (3,6) at its largest force then.
+    The simulator's arm halts in the period it trips and reads its sensors there; a real arm
+    decelerates after the cancel, and a contact it makes meanwhile belongs to the stop."""
+
+    fired: np.ndarray = field(default_factory=lambda: np.zeros(N_SENSORS, dtype=bool))
+    tips: np.ndarray = field(default_factory=lambda: np.zeros((3, 6)))
+
+    def add(self, fired: np.ndarray, tips: np.ndarray) -> None:
+        """One sample: the sensors over the guard's thresholds (10,) and the tared loads."""
+        self.fired |= fired
+        stronger = np.linalg.norm(tips[:, :3], axis=1) > np.linalg.norm(self.tips[:, :3], axis=1)
+        self.tips[stronger] = tips[stronger]
+
+    def copy(self) -> StopSensing:
+        return StopSensing(self.fired.copy(), self.tips.copy())
 
 
 @dataclass
@@ -110,10 +130,16 @@ class HandState:
         with self._lock:
             return self._tips.copy()
 
-    def tips(self) -> np.ndarray:
-        """(3,6) tared fingertip loads."""
+    def tips(self, stop: StopSensing | None = None) -> np.ndarray:
+        """(3,6) tared fingertip loads; with ``stop``, a fingertip below its threshold now that
+        fired while a guarded move stopped reads its strongest load then."""
         with self._lock:
-            return self._tips - self._tare
+            tips = self._tips - self._tare
+        if stop is None:
+            return tips
+        silent = ~fired_sensors(np.zeros(7), tips)[list(TIP_SENSORS)]
+        held = silent & stop.fired[list(TIP_SENSORS)]
+        return np.where(held[:, None], stop.tips, tips)
 
     def pads(self) -> np.ndarray:
         """(7,) pad forces [N] (derived from the fingertips when the hand has no pads)."""
@@ -124,11 +150,15 @@ class HandState:
         """(10,) sensors over their thresholds now."""
         return fired_sensors(self.pads(), self.tips())
 
-    def reading(self) -> Reading:
-        """The executor's reading now: fired sensors and fingertip contacts in the hand frame."""
+    def reading(self, stop: StopSensing | None = None) -> Reading:
+        """The executor's reading now: fired sensors and fingertip contacts in the hand frame;
+        with ``stop``, also what fired while a guarded move stopped (``tips``)."""
         with self._lock:
             spread, proximal = self.spread, self.proximal.copy()
-        return reading_from_joints(self.pads(), self.tips(), spread, proximal)
+        reading = reading_from_joints(self.pads(), self.tips(stop), spread, proximal)
+        if stop is None:
+            return reading
+        return replace(reading, fired=reading.fired | stop.fired)
 
 
 class ContactGuard:

@@ -69,7 +69,7 @@ from ..arm_motion import ArmMotion, MoveRequest
 from ..bridge_core import ARM_ON_START_DELAY_S, BridgeCore, HandStopped
 from ..bridge_core import JointState as DriverJointState
 from ..config import BRIDGE
-from ..contact_guard import DERIVED_PADS_UNSENSED
+from ..contact_guard import DERIVED_PADS_UNSENSED, StopSensing
 from ..driver_api import DriverError, Latched
 from ..hand_control import HandControl, HandMode
 from ..safety import EStop, SafetyCode
@@ -314,14 +314,15 @@ class BridgeNode(Node):
         """The node's clock now [s] (the time drivers stamp their messages with)."""
         return self.get_clock().now().nanoseconds * 1e-9
 
-    def fill_sensing(self, answer, joint_state_field: str) -> None:
+    def fill_sensing(self, answer, joint_state_field: str, stop: StopSensing | None = None) -> None:
         """The hand's sensors, fingertip contacts and joint state (into ``joint_state_field``)
-        of a result or a response."""
+        of a result or a response; with ``stop``, also what fired while a guarded move
+        stopped (HandState.reading)."""
         hand = self.core.hand
-        reading = hand.reading()
+        reading = hand.reading(stop)
         answer.sensors = [bool(f) for f in reading.fired]
         answer.tip_contacts = tip_contacts_to_msg(
-            reading.tip_points, reading.tip_normals, hand.tips()
+            reading.tip_points, reading.tip_normals, hand.tips(stop)
         )
         setattr(answer, joint_state_field, self.joint_state())
 
@@ -350,7 +351,7 @@ class BridgeNode(Node):
         result.error_code, result.error_msg = int(outcome.code), outcome.message
         if outcome.ran:
             result.path_fraction = outcome.path_fraction
-            self.fill_sensing(result, "final_joint_state")
+            self.fill_sensing(result, "final_joint_state", outcome.stop_sensing)
             result.stopped_on_contact = outcome.stopped_on_contact
             result.unconfirmed_stops = outcome.unconfirmed_stops
         {"succeeded": handle.succeed, "canceled": handle.canceled}.get(

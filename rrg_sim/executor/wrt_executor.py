@@ -483,7 +483,7 @@ class WrtExecutor:
         """Unit direction the sensed contact (a fired Nano17's contact point, else a fired pad,
         else the palm) moved in world over the last dense step before ``index``."""
         b = max(1, int(np.ceil(index)))
-        tips = reading.fired[7:]
+        tips = reading.fired[7:] & np.isfinite(reading.tip_points).all(axis=1)
         if tips.any():
             local = reading.tip_points[np.argmax(tips)]
         elif reading.fired.any():

@@ -13,7 +13,7 @@ import pytest
 from synthetic_tables import synthetic_table
 
 from rrg_estimator.belief import Belief
-from rrg_estimator.config import HIGH, LIKELIHOOD, LOW
+from rrg_estimator.config import HIGH, LIKELIHOOD, LOW, likelihood_without
 from rrg_estimator.grid import Grid
 from rrg_estimator.obs_model import (
     ObsFeatures,
@@ -149,6 +149,36 @@ def test_closure_sigma_adds_each_entrys_discretization():
                 float(sig[f, j]), rel=1e-5
             )
     assert np.all(np.isinf(closure_sigma(table, math.inf)))
+
+
+def test_a_finger_the_table_stops_on_a_sensor_the_robot_lacks_has_no_closure_term():
+    """Without proximal pads, an entry whose finger stopped on its proximal pad alone (its
+    distal pad and Nano17 silent) predicts nothing of that finger's closure: the robot's
+    finger closes on. A finger whose Nano17 fired too, and the other fingers, keep their σ;
+    with every sensor read, nothing changes."""
+
+    class Table:  # the fields closure_sigma reads
+        def __init__(self, grid: Grid, closure: np.ndarray, sensors: np.ndarray):
+            self.grid, self.closure, self.sensors = grid, closure, sensors
+
+    grid = Grid((0.0, 0.0, 0.0), (0.01, 0.01, 0.1), (3, 3, 3))
+    closure = np.full((grid.size, 3), 1.0, np.float32)
+    sensors = np.zeros((grid.size, 10), bool)
+    sensors[:9, 2] = True  # prox2 at x index 0
+    sensors[:3, 8] = True  # ... with tip2 at y index 0 of those
+    table = Table(grid, closure, sensors)
+    unsensed = likelihood_without(["prox1", "prox2", "prox3"]).unsensed
+    sig = closure_sigma(table, 0.05, unsensed)
+    assert np.all(np.isinf(sig[1, 3:9])) and np.all(np.isfinite(sig[1, :3]))
+    np.testing.assert_allclose(sig[1, 9:], 0.05)
+    np.testing.assert_allclose(sig[[0, 2]], 0.05)
+    np.testing.assert_allclose(closure_sigma(table, 0.05), 0.05)
+    from rrg_estimator.reference_update import closure_sigma_reference
+
+    for j in (0, 4, 13):
+        assert closure_sigma_reference(table, j, 1, 0.05, unsensed) == pytest.approx(
+            float(sig[1, j]), rel=1e-6
+        )
 
 
 def test_a_sensors_predicted_contact_stands_for_the_entrys_cell():
@@ -303,17 +333,20 @@ def test_observation_and_features_give_the_same_update(high_table):
 
 
 @pytest.mark.parametrize(
-    "offset,transition",
+    "offset,transition,unsensed",
     [
-        ((0.03, 0.01, -0.1), True),
-        ((0.03, 0.01, -0.1), False),
-        ((-0.02, 0.0, 0.2), True),
-        ((0.02, -0.03, 0.1), True),
+        ((0.03, 0.01, -0.1), True, ()),
+        ((0.03, 0.01, -0.1), False, ()),
+        ((-0.02, 0.0, 0.2), True, ()),
+        ((0.02, -0.03, 0.1), True, ()),
+        # a hand without proximal pads: the entries whose finger 3 stopped on prox3 alone
+        ((0.02, -0.03, -0.1), True, ("prox1", "prox2", "prox3")),
     ],
 )
-def test_fast_update_matches_the_reference(offset, transition):
+def test_fast_update_matches_the_reference(offset, transition, unsensed):
     table_grid = Grid((0.0, 0.0, 0.0), HIGH.spacing, (7, 7, 5))
     table = synthetic_table(table_grid)
+    params = likelihood_without(unsensed)
     e = np.array([0.6, -0.02, 0.4])
     # the belief grid reaches beyond the table, so clamped indices are exercised
     belief = Belief.gaussian(
@@ -321,11 +354,18 @@ def test_fast_update_matches_the_reference(offset, transition):
     )
     row = table_grid.nearest_index(np.array(offset))
     obs = observation_of_row(table, row, e)
-    fast = update(belief, table, e, obs, transition=transition)
-    ref = update_reference(belief, table, e, obs, transition=transition)
+    fast = update(belief, table, e, obs, transition=transition, params=params)
+    if unsensed:  # the reference and the fast path both leave the prox3-alone closures out
+        assert np.isinf(closure_sigma(table, params.sigma_closure, params.unsensed)[2]).any()
+    ref = update_reference(belief, table, e, obs, transition=transition, params=params)
     np.testing.assert_allclose(fast.weights, ref.weights, rtol=2e-5, atol=1e-12)
     ref_feats = update_reference(
-        belief, table, e, features_from_table_rows(table, [row]), transition=transition
+        belief,
+        table,
+        e,
+        features_from_table_rows(table, [row]),
+        transition=transition,
+        params=params,
     )
     np.testing.assert_allclose(ref_feats.weights, ref.weights, rtol=1e-6, atol=1e-12)
     idx = [table_index_reference(list(w), list(e), table) for w in belief.grid.points()]

@@ -7,7 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rrg_hw_bridge.contact_guard import ContactGuard, HandState, derived_pads, path_index
+from rrg_hw_bridge.contact_guard import (
+    ContactGuard,
+    HandState,
+    StopSensing,
+    derived_pads,
+    path_index,
+)
 from rrg_models.config import HAND, PHYSICS, SENSING
 from rrg_models.hand_sensing import (
     CLOSE_START_TIME,
@@ -198,3 +204,30 @@ def test_the_ceilings_loads_are_untared_so_a_tare_under_load_neither_hides_nor_f
     hand.set_tip(0, np.zeros(6))  # released
     assert ceiling.check(hand.loads()) is None
     assert hand.tips()[0, 2] == -15.0
+
+
+def test_a_contact_that_fires_while_the_arm_stops_belongs_to_the_stops_reading():
+    """A fingertip that touched while the arm decelerated after a trip, and bounced off before
+    it was at rest, is in the move's reading with its contact point from its strongest load;
+    a fingertip firing at the hold reads its load there; the reading without the stop is the
+    hand's now."""
+    hand = HandState(derive_pads=False)
+    hand.set_hand_joints(0.0, np.full(3, 0.8))
+    guard, stop = ContactGuard(), StopSensing()
+    touch = np.array([0.4, 0.3, 2.9, 0.002, -0.01, 0.0])  # N, N m: tip 2 in the deceleration
+    for load in (0.4 * touch, touch, 0.5 * touch):
+        hand.set_tip(1, load)
+        stop.add(guard.fired(hand.pads(), hand.tips()), hand.tips())
+    hand.set_tip(1, np.zeros(6))  # bounced off
+    hand.set_tip(2, touch)  # tip 3 pressed at the hold
+    now, held = hand.reading(), hand.reading(stop)
+    assert not now.fired[8] and np.isnan(now.tip_points[1]).all()
+    assert held.fired[8] and held.fired[9] and not held.fired[7]
+    at_peak = HandState(derive_pads=False)
+    at_peak.set_hand_joints(0.0, np.full(3, 0.8))
+    at_peak.set_tip(1, touch)
+    np.testing.assert_allclose(held.tip_points[1], at_peak.reading().tip_points[1])
+    np.testing.assert_allclose(held.tip_points[2], now.tip_points[2])
+    np.testing.assert_array_equal(hand.tips(stop)[1], touch)
+    np.testing.assert_array_equal(hand.tips(stop)[2], hand.tips()[2])
+    assert not StopSensing().fired.any()
