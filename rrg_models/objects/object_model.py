@@ -254,7 +254,11 @@ class ObjectModel:
         )
 
     def wrt(self, name: str) -> WRT:
-        """The WRT called ``name`` (an action's, or the table touch)."""
+        """The WRT called ``name`` (an action's, or the table touch). A goal grasp's is found
+        without generating the others (a settling study needs only its own)."""
+        for grasp in self.goal_grasps:
+            if grasp.wrt.name == name:
+                return grasp.wrt
         wrts = self._wrts + (() if self.table_touch is None else (self.table_touch,))
         for w in wrts:
             if w.name == name:

@@ -242,6 +242,19 @@ def test_an_object_file_may_hold_several_goal_grasps(user_dir):
     ]
 
 
+def test_a_goal_grasps_wrt_is_found_without_generating_the_others(user_dir):
+    """A settling study or a ranking grasp asks only for its goal grasp's WRT: the object's
+    information WRTs (a pinch search over every part) are not generated for it; any other
+    WRT's lookup generates them, and names them when it is missing."""
+    box_with_goal_end(user_dir, "crate", "")
+    obj = load_object_folder(user_dir / "crate")
+    assert obj.wrt("goal_end").kind == "goal" and obj.wrt("goal").kind == "goal"
+    assert "info_wrts" not in vars(obj) and "_wrts" not in vars(obj)
+    assert obj.wrt("sweep").kind == "info" and "info_wrts" in vars(obj)
+    with pytest.raises(KeyError, match="has no WRT 'goal9'"):
+        obj.wrt("goal9")
+
+
 @pytest.mark.parametrize(
     ("name", "message"),
     [
