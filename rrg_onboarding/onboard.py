@@ -5,10 +5,11 @@
 2. *decompose*: CoACD's convex parts, one collision file each;
 3. *goal grasp*: the one given, or proposed: among the top-down pinches the info-grasp
    generator finds on the parts (rrg_models.objects.surface_pairs), narrower than the hand opens,
-   whose descent is free and which the WAM reaches at the nominal pose, and side envelopes of
-   the pinched faces (the object placed turned so that the WAM reaches them), a few distinct
-   ones are each run from starts across twice the goal region in physics, and the one whose
-   grasps held most often wins (an object with no pinch is too big for the hand);
+   whose descent is free and which the WAM reaches at the nominal pose, side envelopes of
+   the pinched faces and side grasps of a thin rim (the object placed turned so that the WAM
+   reaches them), a few distinct ones are each run from starts across twice the goal region
+   in physics, and the one whose grasps held most often wins (an object with no pinch and no
+   rim is too big for the hand);
 4. *object file*: ``object.toml``, read back as every object is;
 5. *studies*: the grasp-settling study, whose intercept centres the goal region, and the
    reorientation study when the goal grasp cannot run at every heading (dropped if its WRTs
@@ -48,6 +49,7 @@ from rrg_models.objects import (
     Primitive,
     load_object_folder,
     object_folders,
+    signed_distance,
     user_objects_dir,
 )
 from rrg_models.objects.catalogue import USER_DIR_ENV
@@ -57,6 +59,7 @@ from rrg_models.objects.mesh_import import (
     MeshRepair,
     check_mesh,
     convex_parts,
+    hull_excess,
     import_mesh,
     stand_on_table,
 )
@@ -143,6 +146,23 @@ ENVELOPE_DEPTHS_M = (0.01, 0.03)
 ENVELOPE_BAND_M = 0.04
 #: Two envelopes whose approaches differ by less than this [rad] come at the same face.
 SAME_FACE_RAD = 0.1
+#: Rim grasps from the side, as a hand holds a plate: the hand comes level, tilted down
+#: SIDE_PITCH, at a thin rim that stands out over free space (a flange, a lip, a plate's
+#: edge), finger 3 over it and fingers 1 and 2 (spread 0) under it. A rim is the object's
+#: outermost band RIM_EDGE_BAND_M deep at a heading, at most RIM_MAX_THICKNESS_M thick, with
+#: RIM_CLEARANCE_M free above and below it RIM_DEPTH_M in from its edge; the hand's axis
+#: passes RIM_AXIS_ABOVE_M above its top at the edge. Chosen: a flared bowl's 2.5 mm rim held
+#: in 2, 23 and 15 of 30 grasps from starts within 2 cm with the axis 0.5, 1 and 1.5 cm above
+#: it (docs/objects.md); fingers 1 and 2 need about a finger's width under it. Tried at
+#: RIM_HEADINGS headings round the object (one for an object the same at every heading), at
+#: most RANKED_RIMS of them.
+RIM_EDGE_BAND_M = 0.002
+RIM_MAX_THICKNESS_M = 0.015
+RIM_DEPTH_M = 0.01
+RIM_CLEARANCE_M = 0.02
+RIM_AXIS_ABOVE_M = 0.01
+RIM_HEADINGS = 8
+RANKED_RIMS = 4
 #: The pinch generator's preshapes by spread [rad] (rrg_models.objects.surface_pairs).
 PRESHAPES = {0.0: "finger 3 against fingers 1 and 2", float(np.pi / 2): "finger 1 against 2"}
 #: Headings [rad] about the nominal at which the goal grasp must run, or the object gets
@@ -255,18 +275,22 @@ def _yaw_of(pinch: Pinch) -> float:
 
 
 def goal_candidates(
-    parts: tuple[Primitive, ...], tol: tuple[float, float, float] = DEFAULT_TOL
+    parts: tuple[Primitive, ...],
+    tol: tuple[float, float, float] = DEFAULT_TOL,
+    symmetry: Symmetry | None = None,
 ) -> list[GoalSpec]:
-    """The goal grasps to measure: up to RANKED_CANDIDATES top-down pinches and
-    RANKED_ENVELOPES side envelopes (envelope_candidates). The pinches are those the generator
-    finds (largest faces first), with a free descent, reachable at the nominal pose, and
-    distinct: centres CANDIDATE_SPACING_M apart, or another preshape (finger 3 against
-    fingers 1 and 2, or finger 1 against 2). OnboardError if there is none."""
+    """The goal grasps to measure: up to RANKED_CANDIDATES top-down pinches,
+    RANKED_ENVELOPES side envelopes (envelope_candidates) and RANKED_RIMS rim grasps
+    (rim_candidates; headings as ``symmetry`` leaves distinct). The pinches are those the
+    generator finds (largest faces first), with a free descent, reachable at the nominal
+    pose, and distinct: centres CANDIDATE_SPACING_M apart, or another preshape (finger 3
+    against fingers 1 and 2, or finger 1 against 2). OnboardError if there is none."""
     pinches = pinch_candidates(parts)
-    if not pinches:
+    if not pinches and not rim_candidates(parts, tol, symmetry):
         raise OnboardError(
             "too big for the hand: no two opposing, roughly vertical faces are close enough "
-            "for the BarrettHand to pinch them; give a goal grasp (--goal-through ...)"
+            "for the BarrettHand to pinch them, and no thin rim stands out to hold from the "
+            "side; give a goal grasp (--goal-through ...)"
         )
     nominal = np.asarray(WORLD.nominal_pose)
     chosen: list[GoalSpec] = []
@@ -298,6 +322,7 @@ def goal_candidates(
             )
         )
     chosen += envelope_candidates(parts, pinches, tol)
+    chosen += rim_candidates(parts, tol, symmetry)
     if not chosen:
         raise OnboardError(
             f"none of the {len(pinches)} top-down pinches and side envelopes is free and "
@@ -373,6 +398,69 @@ def envelope_candidates(
                     f"over the top, fingers 1 and 2 round {width * 100:.1f} cm",
                 )
             )
+    return chosen
+
+
+def rim_candidates(
+    parts: tuple[Primitive, ...],
+    tol: tuple[float, float, float],
+    symmetry: Symmetry | None = None,
+) -> list[GoalSpec]:
+    """Up to RANKED_RIMS rim grasps from the side (see RIM_EDGE_BAND_M): at each of
+    RIM_HEADINGS headings round the object (within one turn of its symmetry; one heading when
+    it is the same at every heading), where its outermost band is a thin rim over free space.
+    Each places the object turned so that the rim meets the hand at SIDE_APPROACH_YAW;
+    reachable, with a free start."""
+    if symmetry is not None and symmetry.continuous:
+        headings = np.zeros(1)
+    else:
+        turn = 2 * np.pi if symmetry is None else symmetry.theta_period_rad
+        headings = np.arange(RIM_HEADINGS) * 2 * np.pi / RIM_HEADINGS
+        headings = headings[headings < turn - 1e-9]
+    vertices = np.vstack([p.mesh().vertices for p in parts])
+    rotation = side_rotation(pitch=SIDE_PITCH, roll=np.pi / 2, yaw=SIDE_APPROACH_YAW)
+    nominal = np.asarray(WORLD.nominal_pose)
+    chosen: list[GoalSpec] = []
+    for heading in headings:
+        if len(chosen) == RANKED_RIMS:
+            break
+        out = np.array([np.cos(heading), np.sin(heading), 0.0])
+        reach = vertices @ out
+        edge = reach.max()
+        band = vertices[reach >= edge - RIM_EDGE_BAND_M]
+        top, bottom = float(band[:, 2].max()), float(band[:, 2].min())
+        if top - bottom > RIM_MAX_THICKNESS_M:
+            continue
+        inside = (edge - RIM_DEPTH_M) * out
+        probes = [inside + (0, 0, top + RIM_CLEARANCE_M), inside + (0, 0, bottom - RIM_CLEARANCE_M)]
+        if bottom - RIM_CLEARANCE_M < vertices[:, 2].min() or np.any(
+            signed_distance(parts, probes) <= 0.0
+        ):
+            continue
+        through = edge * out + (0.0, 0.0, top + RIM_AXIS_ABOVE_M)
+        placement = float(wrap_angle(SIDE_APPROACH_YAW - (heading + np.pi)))
+        placed = Rotation.from_euler("z", placement).apply(through)
+        try:
+            wrt = line_grasp_wrt(turn_about_z(parts, placement), rotation, placed, spread=0.0)
+        except ValueError:  # the start is not clear of the object or the table
+            continue
+        if not wam.feasible_path(wrt.with_home(nominal)):
+            continue
+        chosen.append(
+            GoalSpec(
+                through_m=tuple(float(v) for v in placed),
+                approach="side",
+                yaw_rad=SIDE_APPROACH_YAW,
+                pitch_rad=SIDE_PITCH,
+                roll_rad=float(np.pi / 2),
+                spread_rad=0.0,
+                tol=tol,
+                placement_yaw_rad=placement,
+                description=f"from the side at the rim along ({-out[0]:+.2f}, {-out[1]:+.2f}) "
+                f"of the mesh, {(top - bottom) * 1000:.1f} mm thick at {top * 100:.1f} cm, "
+                "finger 3 over it and fingers 1 and 2 under it",
+            )
+        )
     return chosen
 
 
@@ -532,11 +620,15 @@ def add_object(opts: AddOptions, say: Callable[[str], None] = print) -> AddRepor
             choose(symmetry.describe())
         with stage("decompose"):
             part_files = []
-            for k, vertices in enumerate(convex_parts(mesh, seed=opts.seed)):
+            convex = convex_parts(mesh, seed=opts.seed)
+            for k, vertices in enumerate(convex):
                 path = f"collision/part_{k + 1:02d}.stl"
                 trimesh.convex.convex_hull(vertices).export(folder / path)
                 part_files.append(path)
-            choose(f"{len(part_files)} convex parts (CoACD)")
+            choose(
+                f"{len(part_files)} convex parts (CoACD), enclosing "
+                f"{hull_excess(mesh, convex):.0%} more than the mesh"
+            )
         parts = tuple(
             Primitive("mesh", (), vertices=trimesh.load_mesh(folder / p).vertices)
             for p in part_files
@@ -583,7 +675,7 @@ def _goal_set(
     MIN_BEST_HELD of its ranking grasps."""
     opts = rank_args[2]
     tol = DEFAULT_TOL if opts.goal_tol is None else opts.goal_tol
-    candidates = [g.with_symmetry(symmetry) for g in goal_candidates(parts, tol)]
+    candidates = [g.with_symmetry(symmetry) for g in goal_candidates(parts, tol, symmetry)]
     scores = _rank(*rank_args, candidates)
     headings = _prior_headings(symmetry)
     reach = [_reach(g, parts, headings) for g in candidates]

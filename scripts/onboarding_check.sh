@@ -4,7 +4,9 @@
 # objects folder and check each with a physics campaign in the nominal world, then in the
 # realistic one (docs/objects.md, "Measured").
 #
-#   scripts/onboarding_check.sh [TRIALS] [OUT]     # defaults: 100 trials per cell, results/onboarding
+#   scripts/onboarding_check.sh [TRIALS] [OUT] [NAME ...]
+#
+# Defaults: 100 trials per cell, results/onboarding, every generated object (NAME: only those).
 #
 # OUT/<name>/ gets the onboarding log (choices, stage times), the nominal campaign's
 # trials.jsonl, table.md, summary.json and figures, and the installed object folder;
@@ -14,11 +16,14 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 trials=${1:-100}
 out=${2:-results/onboarding}
+only=" ${*:3} "
+chosen() { [ "$only" = "  " ] || [[ "$only" == *" $1 "* ]]; }
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 export RRG_OBJECTS_DIR="$work/objects"
 .venv/bin/python tests/generated_meshes.py "$work/meshes" > "$work/meshes.txt"
 while read -r name mesh mass; do
+    chosen "$name" || continue
     rm -rf "${out:?}/$name" && mkdir -p "$out/$name"  # nothing of an earlier run stays
     echo "== $name: rrg-object add $mesh --name $name --mass $mass"
     if ! .venv/bin/rrg-object add "$mesh" --name "$name" --mass "$mass" </dev/null \
@@ -32,7 +37,7 @@ while read -r name mesh mass; do
     .venv/bin/rrg-object check "$name" --trials "$trials" --out "$out/$name" </dev/null
 done < "$work/meshes.txt"
 while read -r name _ _; do
-    [ -d "$RRG_OBJECTS_DIR/$name" ] || continue
+    chosen "$name" && [ -d "$RRG_OBJECTS_DIR/$name" ] || continue
     echo "== $name: rrg-object check $name --trials $trials --world realistic"
     .venv/bin/rrg-object check "$name" --trials "$trials" --world realistic \
         --out "$out/$name/realistic" </dev/null

@@ -261,6 +261,36 @@ def test_convex_parts_keep_a_concavity():
     assert sum(p.volume for p in parts) == pytest.approx(u.volume, rel=0.15)
 
 
+@pytest.mark.slow
+def test_a_thin_curved_wall_is_decomposed_finer_until_its_parts_fit_it():
+    """The flared bowl's 3 mm wall: 24 parts enclose far more than it (they bridge the curve
+    and fill the wedge under the rim), so it gets the finer decomposition, whose parts leave
+    the cavity and the space under the rim open and still hold the wall."""
+    from generated_meshes import flared_bowl
+
+    from rrg_models.objects import signed_distance
+    from rrg_models.objects.mesh_import import (
+        COACD_THRESHOLD,
+        FINE_MAX_PARTS,
+        MAX_HULL_EXCESS,
+        MAX_PARTS,
+        check_mesh,
+        coacd_parts,
+        hull_excess,
+    )
+
+    bowl = stand_on_table(check_mesh(flared_bowl(24))[0])
+    assert hull_excess(bowl, coacd_parts(bowl, COACD_THRESHOLD, MAX_PARTS)) > MAX_HULL_EXCESS
+    parts = convex_parts(bowl)
+    assert MAX_PARTS < len(parts) <= FINE_MAX_PARTS
+    assert hull_excess(bowl, parts) <= MAX_HULL_EXCESS
+    under_rim, cavity, wall = (0.075, 0.0, 0.045), (0.05, 0.0, 0.05), (0.0616, 0.0, 0.045)
+    distance = signed_distance(
+        [Primitive("mesh", (), vertices=v) for v in parts], [under_rim, cavity, wall]
+    )
+    assert distance[0] > 0.005 and distance[1] > 0.005 and distance[2] < 0.0
+
+
 def test_an_object_file_takes_mesh_parts_from_its_folder(tmp_path, boxes):
     import shutil
 

@@ -94,10 +94,16 @@ def test_the_cli_prints_the_error_and_exits_2(user_dir, tmp_path, capsys):
 
 def _parts(mesh: trimesh.Trimesh, max_parts: int = 12):
     from rrg_models.objects import Primitive
-    from rrg_models.objects.mesh_import import check_mesh, convex_parts, stand_on_table
+    from rrg_models.objects.mesh_import import (
+        COACD_THRESHOLD,
+        check_mesh,
+        coacd_parts,
+        stand_on_table,
+    )
 
     mesh = stand_on_table(check_mesh(mesh)[0])
-    return tuple(Primitive("mesh", (), vertices=v) for v in convex_parts(mesh, max_parts=max_parts))
+    parts = coacd_parts(mesh, COACD_THRESHOLD, max_parts)
+    return tuple(Primitive("mesh", (), vertices=v) for v in parts)
 
 
 def test_the_goal_candidates_of_a_mug_are_distinct_pinches_of_its_rim_and_handle():
@@ -143,6 +149,44 @@ def test_a_plate_too_wide_to_pinch_well_gets_side_envelopes_facing_the_reachable
         assert "round 4.0 cm" in g.description
     depths = sorted(0.08 - g.through_m[2] for g in sides)
     np.testing.assert_allclose(depths, np.repeat(onboard.ENVELOPE_DEPTHS_M, 2), atol=1e-3)
+
+
+def _flanged(rim_radius: float, rim_thickness: float, stem_height: float = 0.05):
+    """A 3 cm stem with a disc rim on top: a flange over free space."""
+    from rrg_models.objects import Primitive
+
+    stem = Primitive("cylinder", (0.03, stem_height / 2), pos=(0.0, 0.0, stem_height / 2))
+    z = stem_height + rim_thickness / 2
+    rim = Primitive("cylinder", (rim_radius, rim_thickness / 2), pos=(0.0, 0.0, z))
+    return (stem, rim)
+
+
+def test_a_thin_rim_over_free_space_is_held_from_the_side_finger_3_over_it():
+    """A 3 mm flange 5 cm up, reaching 5 cm past its stem: one rim grasp for an object the
+    same at every heading, the hand's axis 1 cm over the rim's top, finger 3 over it (roll
+    π/2, spread 0), the object turned so the rim meets the hand at SIDE_APPROACH_YAW; round a
+    shape without symmetry, one per heading up to RANKED_RIMS. A rim too thick, or one
+    resting on the table, is none; the mug has none."""
+    from generated_meshes import mug
+
+    from rrg_models.objects.symmetry import Symmetry
+    from rrg_onboarding import onboard
+
+    parts = _flanged(0.08, 0.003)
+    (rim,) = onboard.rim_candidates(parts, onboard.DEFAULT_TOL, Symmetry(0, 0.0))
+    assert rim.approach == "side" and rim.spread_rad == 0.0 and rim.roll_rad == np.pi / 2
+    assert rim.through_m[2] == pytest.approx(0.053 + onboard.RIM_AXIS_ABOVE_M)
+    assert np.hypot(*rim.through_m[:2]) == pytest.approx(0.08, abs=0.002)
+    placed = onboard.SIDE_APPROACH_YAW - np.pi  # the rim at the mesh's +x meets the hand
+    assert np.cos(rim.placement_yaw_rad - placed) == pytest.approx(1.0)
+    assert "3.0 mm thick" in rim.description
+    around = onboard.rim_candidates(parts, onboard.DEFAULT_TOL, Symmetry(1, 0.05))
+    assert len(around) == onboard.RANKED_RIMS
+    assert len({round(g.placement_yaw_rad, 6) for g in around}) == onboard.RANKED_RIMS
+    assert onboard.rim_candidates(_flanged(0.08, 0.02), onboard.DEFAULT_TOL) == []
+    on_table = _flanged(0.08, 0.003, stem_height=0.0)[1:]
+    assert onboard.rim_candidates(on_table, onboard.DEFAULT_TOL) == []
+    assert onboard.rim_candidates(_parts(mug()), onboard.DEFAULT_TOL) == []
 
 
 def test_the_goal_grasp_is_of_those_near_the_most_held_the_one_reached_at_most_headings(
