@@ -11,9 +11,10 @@
    in physics, and the one whose grasps held most often wins (an object with no pinch and no
    rim is too big for the hand);
 4. *object file*: ``object.toml``, read back as every object is;
-5. *studies*: the grasp-settling study, whose intercept centres the goal region, and the
-   reorientation study when the goal grasp cannot run at every heading (dropped if its WRTs
-   rarely turn the object; rrg_sim.physics.settle, reorient_study);
+5. *studies*: the grasp-settling study, whose intercept centres the goal region, the same
+   study in the realistic world (``settling.realistic.json``: the planner's hold prediction
+   there), and the reorientation study when the goal grasp cannot run at every heading
+   (dropped if its WRTs rarely turn the object; rrg_sim.physics.settle, reorient_study);
 6. *tables*: the observation tables and feasibility maps of every WRT at every level
    (rrg_planner.planning_model);
 7. *picture*: the goal grasp closed on the object, ``goal.png``.
@@ -890,14 +891,14 @@ def _measured_region(
     rewrite(tuple(_scaled(g, FUNNEL_SCALES[-1]) for g in goals))
     grasps = FUNNEL_GRASPS_FACTOR * opts.settle_grasps
     measured, widest = [], set()
+    names = tuple(goal.name for goal in goals)
+    unfitted = settle.goal_studies(opts.name, names, grasps, opts.seed, opts.workers)
+    obj = get_object(opts.name)
     for goal in goals:
-        try:
-            settle.study([opts.name], grasps, opts.seed, opts.workers, goal=goal.name)
-        except ValueError as exc:  # too few of its grasps arrived to fit
+        if goal.name in unfitted:  # too few of its grasps arrived to fit
             measured.append(_scaled(goal, 1.0))
-            choose(f"{goal.name} region: the default, not measured ({exc})")
+            choose(f"{goal.name} region: the default, not measured ({unfitted[goal.name]})")
             continue
-        obj = get_object(opts.name)
         region = replace(obj.goal_region(goal.name), tol=_scaled(goal, 1.0).tol)
         scale = funnel_scale(region, obj.settling_for(goal.name))
         measured.append(_scaled(goal, scale))
@@ -914,6 +915,12 @@ def _measured_region(
     goals = tuple(measured)
     rewrite(goals)
     return goals, widest
+
+
+def _held_share(obj, goal: str, profile: str) -> str:
+    """How many of the settling study's arrived grasps of ``goal`` held, in ``profile``."""
+    held = obj.settling_for(goal, profile).held
+    return f"{int(held.sum())} of {held.size} grasps that arrived held"
 
 
 def place(folder: Path, files: list[str], yaw: float) -> None:
@@ -968,11 +975,12 @@ def _measure_and_build(
         studied: set[str] = set()  # the goal grasps whose region's study is already made
         if opts.goal_tol is None:
             goals, studied = _measured_region(opts, goals, lambda g: rewrite(g, reorient), choose)
+        todo = tuple(goal.name for goal in goals if goal.name not in studied)
+        unfitted = settle.goal_studies(opts.name, todo, opts.settle_grasps, opts.seed, opts.workers)
+        if unfitted:
+            raise OnboardError("; ".join(unfitted.values()))
         centred = []
         for goal in goals:
-            if goal.name not in studied:
-                grasps = opts.settle_grasps
-                settle.study([opts.name], grasps, opts.seed, opts.workers, goal=goal.name)
             b = get_object(opts.name).settling_for(goal.name).closed.b
             theta = 0.0 if np.isinf(goal.tol[2]) else round(float(b[2]), 4)
             centre = (round(float(b[0]), 4), round(float(b[1]), 4), theta)
@@ -984,6 +992,21 @@ def _measure_and_build(
             )
         goals = tuple(centred)
         rewrite(goals, reorient)
+    with stage("realistic settling study"):
+        names = tuple(goal.name for goal in goals)
+        unfitted = settle.goal_studies(
+            opts.name, names, opts.settle_grasps, opts.seed, opts.workers, "realistic"
+        )
+        obj = get_object(opts.name)
+        for goal in names:
+            if goal in unfitted:
+                choose(f"no realistic study of {goal} ({unfitted[goal]}): the nominal one serves")
+                continue
+            choose(
+                f"{goal} in the realistic world: {_held_share(obj, goal, 'realistic')} "
+                f"(nominal: {_held_share(obj, goal, 'nominal')}); the planner predicts "
+                "holds from it there"
+            )
     if reorient:
         with stage("reorientation study"):
             try:

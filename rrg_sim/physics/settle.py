@@ -268,12 +268,45 @@ def study(
         partial(fit, goal=goal),
         _report,
         "settling",
+        _source(grasps, seed, profile, goal),
+        out_dir,
+        extra=(profile, goal),
+    )
+
+
+def goal_studies(
+    name: str,
+    goals: tuple[str, ...],
+    grasps: int,
+    seed: int = 0,
+    workers: int = 2,
+    profile: str = "nominal",
+) -> dict[str, str]:
+    """Measure and write the settling fit of each of object ``name``'s goal grasps ``goals``
+    in world ``profile``, one job per goal grasp on ``workers`` processes; returns why, for
+    each goal grasp too few of whose grasps arrived to fit (none written)."""
+    folder = object_folders()[name]
+    jobs = [(name, grasps, seed, profile, goal) for goal in goals]
+    unfitted = {}
+    for goal, (_, records) in zip(goals, fork_map(_measure_job, jobs, workers)):
+        try:
+            f = fit(name, records, goal)
+        except ValueError as exc:
+            unfitted[goal] = str(exc)
+            continue
+        print(_report(name, f, records), flush=True)
+        text = _dumps({"source": _source(grasps, seed, profile, goal), **f})
+        (folder / settling_file(profile, goal)).write_text(text + "\n")
+    return unfitted
+
+
+def _source(grasps: int, seed: int, profile: str, goal: str) -> str:
+    """The command that measures a settling study, as its file records it."""
+    return (
         f"python -m rrg_sim.physics.settle --grasps {grasps} --seed {seed}"
         + ("" if profile == "nominal" else f" --world {profile}")
         + ("" if goal == "goal" else f" --goal {goal}")
-        + f" (MuJoCo, goal grasp {goal} at the nominal pose)",
-        out_dir,
-        extra=(profile, goal),
+        + f" (MuJoCo, goal grasp {goal} at the nominal pose)"
     )
 
 

@@ -283,8 +283,8 @@ def test_check_runs_rrg_info_and_open_loop_at_both_levels_and_refuses_bad_input(
 def test_a_mesh_is_onboarded_end_to_end_and_removed(user_dir, tmp_path, capsys):
     """rrg-object add on a box mesh exported as two overlapping boxes: the mesh is repaired
     into one closed 5 x 7 x 9 cm box, every stage runs (goal proposed and ranked in physics,
-    studies, tables, picture), the object loads by name with its region centred on the
-    measured settling, a grasp trial runs on it, and remove leaves nothing."""
+    studies in both worlds, tables, picture), the object loads by name with its region
+    centred on the measured settling, a grasp trial runs on it, and remove leaves nothing."""
     from rrg_models.objects import get_object
     from rrg_onboarding.object_cli import cached_tables
 
@@ -305,10 +305,14 @@ def test_a_mesh_is_onboarded_end_to_end_and_removed(user_dir, tmp_path, capsys):
     assert report.folder == folder and leftovers(user_dir) == sorted(
         str(p.relative_to(user_dir.parent)) for p in folder.parent.rglob("*")
     )
-    for name in ("object.toml", "mesh.stl", "settling.json", "goal.png"):
+    for name in ("object.toml", "mesh.stl", "settling.json", "settling.realistic.json"):
         assert (folder / name).stat().st_size > 0
+    assert (folder / "goal.png").stat().st_size > 0
+    assert "goal in the realistic world: " in out and "the planner predicts holds" in out
     obj = get_object("tin")
     assert obj.mass == 0.2 and obj.folder == folder
+    realistic = obj.settling_for("goal", "realistic")
+    assert realistic is not obj.settling_for("goal") and realistic.held.size >= 8
     assert {"goal", "sweep"} <= {w.name for w in obj.wrts()}
     np.testing.assert_allclose(obj.goal.centre[:2], obj.grasp_settling.closed.b[:2], atol=1e-4)
     scale = obj.goal.tol[0] / 0.01
