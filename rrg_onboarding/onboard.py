@@ -344,8 +344,6 @@ def envelope_candidates(
     gap = finger_gap(np.pi / 2) - 2 * MIN_FINGER_CLEARANCE
     vertices = np.vstack([p.mesh().vertices for p in parts])
     bottom = float(vertices[:, 2].min())
-    rotation = side_rotation(pitch=SIDE_PITCH, roll=np.pi / 2, yaw=SIDE_APPROACH_YAW)
-    nominal = np.asarray(WORLD.nominal_pose)
     chosen: list[GoalSpec] = []
     for pinch in pinches:
         for approach, depth in itertools.product((pinch.axis, -pinch.axis), ENVELOPE_DEPTHS_M):
@@ -375,31 +373,51 @@ def envelope_candidates(
                 for g in chosen
             ):
                 continue
-            try:
-                wrt = line_grasp_wrt(
-                    turn_about_z(parts, placement), rotation, placed, spread=np.pi / 2
-                )
-            except ValueError:  # the start is not clear of the object or the table
-                continue
-            if not wam.feasible_path(wrt.with_home(nominal)):
-                continue
-            chosen.append(
-                GoalSpec(
-                    through_m=tuple(float(v) for v in placed),
-                    approach="side",
-                    yaw_rad=SIDE_APPROACH_YAW,
-                    pitch_rad=SIDE_PITCH,
-                    roll_rad=float(np.pi / 2),
-                    spread_rad=float(np.pi / 2),
-                    tol=tol,
-                    placement_yaw_rad=placement,
-                    description=f"from the side along ({approach[0]:+.2f}, {approach[1]:+.2f}) "
-                    f"of the mesh, {depth * 100:.0f} cm below the top, through "
-                    f"({through[0]:+.3f}, {through[1]:+.3f}, {through[2]:.3f}) m, finger 3 "
-                    f"over the top, fingers 1 and 2 round {width * 100:.1f} cm",
-                )
+            spec = _side_grasp(
+                parts,
+                placement,
+                placed,
+                float(np.pi / 2),
+                tol,
+                f"from the side along ({approach[0]:+.2f}, {approach[1]:+.2f}) of the mesh, "
+                f"{depth * 100:.0f} cm below the top, through ({through[0]:+.3f}, "
+                f"{through[1]:+.3f}, {through[2]:.3f}) m, finger 3 over the top, fingers 1 "
+                f"and 2 round {width * 100:.1f} cm",
             )
+            if spec is not None:
+                chosen.append(spec)
     return chosen
+
+
+def _side_grasp(
+    parts: tuple[Primitive, ...],
+    placement: float,
+    through: np.ndarray,
+    spread: float,
+    tol: tuple[float, float, float],
+    description: str,
+) -> GoalSpec | None:
+    """A grasp from the side (SIDE_APPROACH_YAW, tilted down SIDE_PITCH, finger 3 up) through
+    ``through`` [m] of the object placed turned by ``placement`` [rad]; None unless its start
+    is clear and the WAM reaches it at the nominal pose."""
+    rotation = side_rotation(pitch=SIDE_PITCH, roll=np.pi / 2, yaw=SIDE_APPROACH_YAW)
+    try:
+        wrt = line_grasp_wrt(turn_about_z(parts, placement), rotation, through, spread=spread)
+    except ValueError:  # the start is not clear of the object or the table
+        return None
+    if not wam.feasible_path(wrt.with_home(np.asarray(WORLD.nominal_pose))):
+        return None
+    return GoalSpec(
+        through_m=tuple(float(v) for v in through),
+        approach="side",
+        yaw_rad=SIDE_APPROACH_YAW,
+        pitch_rad=SIDE_PITCH,
+        roll_rad=float(np.pi / 2),
+        spread_rad=spread,
+        tol=tol,
+        placement_yaw_rad=placement,
+        description=description,
+    )
 
 
 def rim_candidates(
@@ -419,8 +437,6 @@ def rim_candidates(
         headings = np.arange(RIM_HEADINGS) * 2 * np.pi / RIM_HEADINGS
         headings = headings[headings < turn - 1e-9]
     vertices = np.vstack([p.mesh().vertices for p in parts])
-    rotation = side_rotation(pitch=SIDE_PITCH, roll=np.pi / 2, yaw=SIDE_APPROACH_YAW)
-    nominal = np.asarray(WORLD.nominal_pose)
     chosen: list[GoalSpec] = []
     for heading in headings:
         if len(chosen) == RANKED_RIMS:
@@ -441,27 +457,18 @@ def rim_candidates(
         through = edge * out + (0.0, 0.0, top + RIM_AXIS_ABOVE_M)
         placement = float(wrap_angle(SIDE_APPROACH_YAW - (heading + np.pi)))
         placed = Rotation.from_euler("z", placement).apply(through)
-        try:
-            wrt = line_grasp_wrt(turn_about_z(parts, placement), rotation, placed, spread=0.0)
-        except ValueError:  # the start is not clear of the object or the table
-            continue
-        if not wam.feasible_path(wrt.with_home(nominal)):
-            continue
-        chosen.append(
-            GoalSpec(
-                through_m=tuple(float(v) for v in placed),
-                approach="side",
-                yaw_rad=SIDE_APPROACH_YAW,
-                pitch_rad=SIDE_PITCH,
-                roll_rad=float(np.pi / 2),
-                spread_rad=0.0,
-                tol=tol,
-                placement_yaw_rad=placement,
-                description=f"from the side at the rim along ({-out[0]:+.2f}, {-out[1]:+.2f}) "
-                f"of the mesh, {(top - bottom) * 1000:.1f} mm thick at {top * 100:.1f} cm, "
-                "finger 3 over it and fingers 1 and 2 under it",
-            )
+        spec = _side_grasp(
+            parts,
+            placement,
+            placed,
+            0.0,
+            tol,
+            f"from the side at the rim along ({-out[0]:+.2f}, {-out[1]:+.2f}) of the mesh, "
+            f"{(top - bottom) * 1000:.1f} mm thick at {top * 100:.1f} cm, finger 3 over it and "
+            "fingers 1 and 2 under it",
         )
+        if spec is not None:
+            chosen.append(spec)
     return chosen
 
 
@@ -628,7 +635,7 @@ def add_object(opts: AddOptions, say: Callable[[str], None] = print) -> AddRepor
                 part_files.append(path)
             choose(
                 f"{len(part_files)} convex parts (CoACD), enclosing "
-                f"{hull_excess(mesh, convex):.0%} more than the mesh"
+                f"{max(hull_excess(mesh, convex), 0.0):.0%} more than the mesh"
             )
         parts = tuple(
             Primitive("mesh", (), vertices=trimesh.load_mesh(folder / p).vertices)

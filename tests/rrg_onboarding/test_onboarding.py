@@ -293,13 +293,13 @@ def test_a_mesh_is_onboarded_end_to_end_and_removed(user_dir, tmp_path, capsys):
     mesh = write(trimesh.util.concatenate([lower, upper]), tmp_path / "tin.stl")
     with pytest.raises(OnboardError, match="--ranking-grasps must be at least 1, got 0"):
         add_object(AddOptions(mesh, "tin", ranking_grasps=0))
-    options = AddOptions(mesh, "tin", mass_kg=0.2, settle_grasps=20, ranking_grasps=8)
+    options = AddOptions(mesh, "tin", mass_kg=0.2, settle_grasps=30, ranking_grasps=8)
     report = add_object(options, say=print)
     out = capsys.readouterr().out
     assert "repaired: 2 closed shells united into one (volume 420.0 cm³ → 315.0 cm³)" in out
     assert report.repair.shells_united == 2
     assert "chose the goal grasp that held most" in out and "goal region centred" in out
-    assert "the widest of 1, 1.5, 2, 2.5 × in which 95% of its 40 study grasps" in out
+    assert "the widest of 1, 1.5, 2, 2.5 × in which 95% of its 60 study grasps" in out
     assert list(report.stage_s)[:2] == ["mesh", "decompose"] and "tables" in report.stage_s
     folder = user_dir / "tin"
     assert report.folder == folder and leftovers(user_dir) == sorted(
