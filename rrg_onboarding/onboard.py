@@ -448,13 +448,15 @@ def rim_candidates(
         top, bottom = float(band[:, 2].max()), float(band[:, 2].min())
         if top - bottom > RIM_MAX_THICKNESS_M:
             continue
-        inside = (edge - RIM_DEPTH_M) * out
+        left = np.array([-out[1], out[0], 0.0])
+        foot = edge * out + float(np.mean(band @ left)) * left  # the rim's edge, at z = 0
+        inside = foot - RIM_DEPTH_M * out
         probes = [inside + (0, 0, top + RIM_CLEARANCE_M), inside + (0, 0, bottom - RIM_CLEARANCE_M)]
         if bottom - RIM_CLEARANCE_M < vertices[:, 2].min() or np.any(
             signed_distance(parts, probes) <= 0.0
         ):
             continue
-        through = edge * out + (0.0, 0.0, top + RIM_AXIS_ABOVE_M)
+        through = foot + (0.0, 0.0, top + RIM_AXIS_ABOVE_M)
         placement = float(wrap_angle(SIDE_APPROACH_YAW - (heading + np.pi)))
         placed = Rotation.from_euler("z", placement).apply(through)
         spec = _side_grasp(

@@ -168,6 +168,7 @@ def test_a_thin_rim_over_free_space_is_held_from_the_side_finger_3_over_it():
     shape without symmetry, one per heading up to RANKED_RIMS. A rim too thick, or one
     resting on the table, is none; the mug has none."""
     from generated_meshes import mug
+    from scipy.spatial.transform import Rotation
 
     from rrg_models.objects.symmetry import Symmetry
     from rrg_onboarding import onboard
@@ -183,6 +184,13 @@ def test_a_thin_rim_over_free_space_is_held_from_the_side_finger_3_over_it():
     around = onboard.rim_candidates(parts, onboard.DEFAULT_TOL, Symmetry(1, 0.05))
     assert len(around) == onboard.RANKED_RIMS
     assert len({round(g.placement_yaw_rad, 6) for g in around}) == onboard.RANKED_RIMS
+    stem, disc = parts  # the rim off the origin: the hand's axis meets it where it is
+    shifted = (stem, replace(disc, pos=(0.0, 0.03, disc.pos[2])))
+    off_centre = onboard.rim_candidates(shifted, onboard.DEFAULT_TOL, Symmetry(1, 0.05))
+    assert len(off_centre) == onboard.RANKED_RIMS
+    for rim in off_centre:
+        through = Rotation.from_euler("z", -rim.placement_yaw_rad).apply(rim.through_m)
+        assert np.hypot(through[0], through[1] - 0.03) == pytest.approx(0.08, abs=0.002)
     assert onboard.rim_candidates(_flanged(0.08, 0.02), onboard.DEFAULT_TOL) == []
     on_table = _flanged(0.08, 0.003, stem_height=0.0)[1:]
     assert onboard.rim_candidates(on_table, onboard.DEFAULT_TOL) == []
