@@ -287,7 +287,8 @@ def goal_candidates(
     pose, and distinct: centres CANDIDATE_SPACING_M apart, or another preshape (finger 3
     against fingers 1 and 2, or finger 1 against 2). OnboardError if there is none."""
     pinches = pinch_candidates(parts)
-    if not pinches and not rim_candidates(parts, tol, symmetry):
+    rims = rim_candidates(parts, tol, symmetry)
+    if not pinches and not rims:
         raise OnboardError(
             "too big for the hand: no two opposing, roughly vertical faces are close enough "
             "for the BarrettHand to pinch them, and no thin rim stands out to hold from the "
@@ -323,7 +324,7 @@ def goal_candidates(
             )
         )
     chosen += envelope_candidates(parts, pinches, tol)
-    chosen += rim_candidates(parts, tol, symmetry)
+    chosen += rims
     if not chosen:
         raise OnboardError(
             f"none of the {len(pinches)} top-down pinches and side envelopes is free and "
